@@ -1,0 +1,1 @@
+"""Input and output: COLMAP models and dense maps, images, PLY point clouds."""

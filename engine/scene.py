@@ -1,0 +1,352 @@
+"""Scenes: a COLMAP workspace turned into views with cameras, depth ranges and source views.
+
+``load_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap, checks the images and the
+optional ground truth, rescales every camera to the working resolution (``max_image_size``) with
+exact intrinsics, and computes per view (SPEC.md §1):
+
+- the depth range from the sparse points the view observes: the 1st / 99th percentile of their
+  depths, stretched by (0.75, 1.25) as COLMAP does, then relaxed by (0.6, 1.2) as ACMM does;
+- the source views: the views sharing most sparse points with it among those whose 75th-percentile
+  triangulation angle is at least 1° (COLMAP's ``__auto__`` selection).
+
+Images and ground-truth depth are read lazily, at the working resolution.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import warnings
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from engine.camera import Camera, rescaled_size
+from engine.errors import DeepCError
+from engine.io.colmap_model import PINHOLE_MODELS, SparseModel, find_model_dir, read_sparse_model, undistort_workspace
+from engine.io.dense import read_dense_map_header, read_depth_map
+from engine.io.images import image_size, read_image, resize_area, to_gray
+from engine.options import Options, check, option
+from engine.resample import resample_depth
+
+# Fewer observed points than this and a view's depth range falls back to all points it sees.
+_MIN_POINTS_FOR_RANGE = 5
+
+
+@dataclasses.dataclass
+class SceneOptions(Options):
+    """How a COLMAP workspace becomes views (SPEC.md §1, §12 ``io`` and ``depth_range``)."""
+
+    max_image_size: int = option(0, "longest image side in pixels for all processing; 0 keeps the original size",
+                                 metavar="PX")
+    num_source_views: int = option(10, "source views per reference view (at most 32)", metavar="N")
+    min_triangulation_angle: float = option(
+        1.0, "a source view needs this 75th-percentile triangulation angle with the reference",
+        metavar="DEGREES")
+    depth_percentiles: tuple[float, float] = option((0.01, 0.99), "percentiles of sparse-point depths",
+                                                    cli=False)
+    depth_stretch: tuple[float, float] = option((0.75, 1.25), "factors applied to the percentile depths (COLMAP)",
+                                                cli=False)
+    depth_relax: tuple[float, float] = option((0.6, 1.2), "further factors on the range (ACMM)", cli=False)
+    depth_range: tuple[float, float] | None = option(
+        None, "use this depth range (model units) for every view instead of the sparse points", metavar="MIN,MAX")
+    undistort: bool = option(True, "undistort non-pinhole cameras with pycolmap into a cache (else refuse them)")
+    cache_dir: str = option("", "folder for undistorted copies (default: ~/.cache/deepc)", cli=False)
+
+    def validate(self) -> SceneOptions:
+        super().validate()
+        check(self.max_image_size >= 0, "max_image_size", self.max_image_size, "must be >= 0 (0 = original size)")
+        check(1 <= self.num_source_views <= 32, "num_source_views", self.num_source_views, "must be in 1..32")
+        check(0 <= self.min_triangulation_angle < 90, "min_triangulation_angle", self.min_triangulation_angle,
+              "must be in [0, 90) degrees")
+        lo, hi = self.depth_percentiles
+        check(0 <= lo < hi <= 1, "depth_percentiles", self.depth_percentiles, "need 0 <= low < high <= 1")
+        check(all(v > 0 for v in self.depth_stretch + self.depth_relax), "depth_stretch/depth_relax",
+              (self.depth_stretch, self.depth_relax), "factors must be positive")
+        if self.depth_range is not None:
+            dmin, dmax = self.depth_range
+            check(math.isfinite(dmin) and math.isfinite(dmax) and 0 < dmin < dmax, "depth_range",
+                  self.depth_range, "need 0 < MIN < MAX")
+        return self
+
+
+@dataclasses.dataclass(eq=False)
+class View:
+    """One reference view at the working resolution.
+
+    Attributes:
+        index: position in ``Scene.views``.
+        name: image name exactly as in the COLMAP model (may contain '/').
+        image_id: COLMAP image id.
+        camera: camera at the working resolution (``camera.width`` × ``camera.height``).
+        original_size: (width, height) of the image file.
+        depth_range: (min, max) camera-frame depth for PatchMatch sampling and validity checks.
+        source_views: indices of the source views, best first.
+        num_points: sparse points observed by this view.
+    """
+
+    index: int
+    name: str
+    image_id: int
+    camera: Camera
+    original_size: tuple[int, int]
+    depth_range: tuple[float, float]
+    source_views: list[int]
+    num_points: int
+
+
+class Scene:
+    """A loaded scene: views plus lazy access to images and ground truth at the working resolution."""
+
+    def __init__(self, root: Path, image_root: Path, model: SparseModel, views: list[View],
+                 options: SceneOptions, shared_points: np.ndarray, gt_depth_paths: list[Path | None],
+                 gt_points_path: Path | None):
+        self.root = root
+        self.name = root.resolve().name
+        self.image_root = image_root
+        self.model = model
+        self.views = views
+        self.options = options
+        self.shared_points = shared_points  # (n, n) sparse points seen by both views
+        self.gt_depth_paths = gt_depth_paths
+        self.gt_points_path = gt_points_path
+        self._image = lru_cache(maxsize=64)(self._load_image)
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    @property
+    def has_gt_depth(self) -> bool:
+        return any(p is not None for p in self.gt_depth_paths)
+
+    @property
+    def has_gt_points(self) -> bool:
+        return self.gt_points_path is not None
+
+    def image_path(self, i: int) -> Path:
+        return self.image_root / self.views[i].name
+
+    def _load_image(self, i: int) -> np.ndarray:
+        view = self.views[i]
+        rgb = read_image(self.image_path(i))
+        if (rgb.shape[1], rgb.shape[0]) != view.original_size:
+            raise DeepCError(f"image is {rgb.shape[1]}x{rgb.shape[0]}, its header said "
+                             f"{view.original_size[0]}x{view.original_size[1]}", self.image_path(i))
+        image = resize_area(rgb, view.camera.size)
+        image.setflags(write=False)
+        return image
+
+    def image(self, i: int) -> np.ndarray:
+        """(H, W, 3) float32 RGB in [0, 1] at the working resolution (read-only, cached)."""
+        return self._image(i)
+
+    def gray(self, i: int) -> np.ndarray:
+        """(H, W) float32 grey image in [0, 1] at the working resolution."""
+        return to_gray(self.image(i))
+
+    def gt_depth(self, i: int) -> np.ndarray | None:
+        """(H, W) float32 ground-truth depth at the working resolution (0 = unknown), or None."""
+        path = self.gt_depth_paths[i]
+        if path is None:
+            return None
+        return resample_depth(read_depth_map(path), self.views[i].camera.size)
+
+    def overlapping_views(self, i: int, max_views: int = 50) -> list[int]:
+        """Views sharing most sparse points with view ``i`` (no angle gate; fusion's ``check_num_images``)."""
+        shared = self.shared_points[i].copy()
+        shared[i] = 0
+        order = np.argsort(-shared, kind="stable")
+        return [int(j) for j in order[:max_views] if shared[j] > 0]
+
+    def summary(self) -> str:
+        """A human-readable table of the views."""
+        lines = [f"scene {self.name}: {len(self.views)} views, {len(self.model.points)} sparse points, "
+                 f"GT depth: {'yes' if self.has_gt_depth else 'no'}, GT points: "
+                 f"{'yes' if self.has_gt_points else 'no'}"]
+        lines.append(f"{'view':<28} {'size':>10} {'points':>7} {'depth range':>21}  source views")
+        for v in self.views:
+            size = f"{v.camera.width}x{v.camera.height}"
+            rng = f"{v.depth_range[0]:.4g} .. {v.depth_range[1]:.4g}"
+            lines.append(f"{v.name[:28]:<28} {size:>10} {v.num_points:>7} {rng:>21}  "
+                         f"{' '.join(str(j) for j in v.source_views) or '(none)'}")
+        return "\n".join(lines)
+
+
+def load_scene(path: str | Path, options: SceneOptions | None = None) -> Scene:
+    """Load a COLMAP workspace (CONTRACT.md §2). Raises :class:`DeepCError` naming the bad file."""
+    options = (options or SceneOptions()).validate()
+    root = Path(path)
+    if not root.is_dir():
+        raise DeepCError("scene folder not found" if not root.exists() else "not a folder", root)
+    if not (root / "images").is_dir():
+        raise DeepCError("no images/ folder: a scene is a COLMAP workspace with images/ and sparse/", root)
+    model_dir = find_model_dir(root)
+    model = read_sparse_model(model_dir)
+    image_root = root / "images"
+
+    non_pinhole = sorted({c.model for c in model.cameras.values() if c.model not in PINHOLE_MODELS})
+    gt_usable = True
+    if non_pinhole:
+        if not options.undistort:
+            raise DeepCError(f"camera model(s) {', '.join(non_pinhole)} need undistortion; only PINHOLE and "
+                             "SIMPLE_PINHOLE are used directly (run colmap image_undistorter, or allow undistortion)",
+                             model_dir)
+        cache = Path(options.cache_dir or os.environ.get("DEEPC_CACHE", Path.home() / ".cache" / "deepc"))
+        undistorted = undistort_workspace(root, model_dir, cache / "undistorted")
+        model = read_sparse_model(undistorted / "sparse")
+        image_root = undistorted / "images"
+        gt_usable = False  # GT depth maps belong to the distorted images
+        warnings.warn(f"{root}: cameras {', '.join(non_pinhole)} undistorted into {undistorted}; "
+                      "ground-truth depth maps (if any) are ignored", stacklevel=2)
+
+    cameras = []
+    for im in model.images:
+        cam = model.cameras[im.camera_id]
+        size = image_size(image_root / im.name)
+        if size != (cam.width, cam.height):
+            raise DeepCError(f"image is {size[0]}x{size[1]} but its COLMAP camera {im.camera_id} is "
+                             f"{cam.width}x{cam.height}", image_root / im.name)
+        fx, fy, cx, cy = cam.pinhole()
+        full = Camera.from_params(cam.width, cam.height, fx, fy, cx, cy, im.R, im.t)
+        cameras.append(full.rescaled(*rescaled_size(cam.width, cam.height, options.max_image_size)))
+
+    ranges, counts = _depth_ranges(model, cameras, options, model_dir)
+    shared = _shared_counts(model, len(cameras))
+    sources = _source_views(model, cameras, shared, options)
+    views = [View(i, im.name, im.image_id, cameras[i], (model.cameras[im.camera_id].width,
+                                                        model.cameras[im.camera_id].height),
+                  ranges[i], sources[i], counts[i]) for i, im in enumerate(model.images)]
+
+    gt_depth_paths = [None] * len(views)
+    gt_dir = root / "ground_truth" / "depth_maps"
+    if gt_usable and gt_dir.is_dir():
+        for v in views:
+            p = gt_dir / f"{v.name}.bin"
+            if p.is_file():
+                _check_gt_depth(p, v)
+                gt_depth_paths[v.index] = p
+    gt_points = root / "ground_truth" / "points.ply"
+    return Scene(root, image_root, model, views, options, shared, gt_depth_paths,
+                 gt_points if gt_points.is_file() else None)
+
+
+def _check_gt_depth(path: Path, view: View) -> None:
+    """GT depth must have the image's aspect ratio (any resolution) and finite values."""
+    gw, gh, channels = read_dense_map_header(path)
+    if channels != 1:
+        raise DeepCError(f"ground-truth depth must have 1 channel, the file has {channels}", path)
+    w, h = view.original_size
+    if abs(round(h * gw / w) - gh) > 1 or abs(round(w * gh / h) - gw) > 1:
+        raise DeepCError(f"ground-truth depth is {gw}x{gh}, not proportional to the {w}x{h} image", path)
+    read_depth_map(path)  # checks finiteness now rather than after a long run
+
+
+def _camera_depths(camera: Camera, points: np.ndarray) -> np.ndarray:
+    return camera.world_to_camera(points)[:, 2]
+
+
+def _depth_ranges(model: SparseModel, cameras: list[Camera], options: SceneOptions,
+                  model_dir: Path) -> tuple[list[tuple[float, float]], list[int]]:
+    n = len(cameras)
+    counts = np.bincount(model.track_image, minlength=n).tolist() if len(model.track_image) else [0] * n
+    if options.depth_range is not None:
+        return [tuple(map(float, options.depth_range))] * n, counts
+    if len(model.points) == 0:
+        raise DeepCError("the COLMAP model has no 3D points, and depth ranges and source views come from them: "
+                         "triangulate points (e.g. colmap point_triangulator) or give --depth-range MIN,MAX",
+                         model_dir)
+    lo_p, hi_p = options.depth_percentiles
+    (s_lo, s_hi), (r_lo, r_hi) = options.depth_stretch, options.depth_relax
+    ranges = []
+    for i, cam in enumerate(cameras):
+        z = _camera_depths(cam, model.points[model.track_point[model.track_image == i]])
+        z = z[z > 0]
+        if len(z) < _MIN_POINTS_FOR_RANGE:
+            # Too few observations: use every sparse point in front of the camera and inside the image.
+            uv, z_all = cam.project(model.points)
+            inside = (z_all > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < cam.width - 0.5) & \
+                     (uv[:, 1] >= -0.5) & (uv[:, 1] < cam.height - 0.5)
+            z = z_all[inside]
+        if len(z) == 0:
+            raise DeepCError(f"view {model.images[i].name}: no sparse point lies in front of the camera, so its "
+                             "depth range is unknown; give --depth-range MIN,MAX", model_dir)
+        z = np.sort(z)
+        z_lo = z[int(math.floor(lo_p * len(z)))] * s_lo
+        z_hi = z[min(int(math.floor(hi_p * len(z))), len(z) - 1)] * s_hi
+        ranges.append((float(z_lo * r_lo), float(z_hi * r_hi)))
+    return ranges, counts
+
+
+def _shared_counts(model: SparseModel, n: int) -> np.ndarray:
+    """(n, n) number of sparse points observed by both views."""
+    if len(model.track_point) == 0:
+        return np.zeros((n, n), np.int64)
+    incidence = np.zeros((len(model.points), n), np.float32)
+    incidence[model.track_point, model.track_image] = 1.0
+    return np.rint(incidence.T @ incidence).astype(np.int64)
+
+
+def _source_views(model: SparseModel, cameras: list[Camera], shared: np.ndarray,
+                  options: SceneOptions) -> list[list[int]]:
+    n = len(cameras)
+    if len(model.track_point) == 0:
+        return _source_views_from_poses(cameras, options.num_source_views)
+    angle = _triangulation_angle_p75(model, cameras)
+    min_angle = math.radians(options.min_triangulation_angle)
+    sources = []
+    for r in range(n):
+        candidates = [j for j in range(n) if j != r and shared[r, j] > 0 and angle[r, j] >= min_angle]
+        candidates.sort(key=lambda j: (-shared[r, j], j))
+        sources.append(candidates[:options.num_source_views])
+    return sources
+
+
+def _triangulation_angle_p75(model: SparseModel, cameras: list[Camera]) -> np.ndarray:
+    """(n, n) 75th percentile of the triangulation angles (radians) over the points two views share."""
+    n = len(cameras)
+    centers = np.stack([c.center for c in cameras])
+    order = np.argsort(model.track_point, kind="stable")
+    tp, ti = model.track_point[order], model.track_image[order]
+    starts = np.flatnonzero(np.r_[True, tp[1:] != tp[:-1]])
+    lengths = np.diff(np.r_[starts, len(tp)])
+    pair_a, pair_b, pair_p = [], [], []
+    for length in np.unique(lengths):
+        if length < 2:
+            continue
+        group = starts[lengths == length]
+        ia, ib = np.triu_indices(length, 1)
+        pair_a.append(ti[group[:, None] + ia].ravel())
+        pair_b.append(ti[group[:, None] + ib].ravel())
+        pair_p.append(np.repeat(tp[group], len(ia)))
+    result = np.zeros((n, n))
+    if not pair_a:
+        return result
+    a, b, p = np.concatenate(pair_a), np.concatenate(pair_b), np.concatenate(pair_p)
+    ra = centers[a] - model.points[p]
+    rb = centers[b] - model.points[p]
+    cos = np.einsum("ij,ij->i", ra, rb) / np.maximum(np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-300)
+    angles = np.arccos(np.clip(cos, -1.0, 1.0))
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * n + hi
+    order = np.lexsort((angles, key))
+    key, angles = key[order], angles[order]
+    bounds = np.flatnonzero(np.r_[True, key[1:] != key[:-1], True])
+    for s, e in zip(bounds[:-1], bounds[1:], strict=True):
+        value = np.percentile(angles[s:e], 75)
+        i, j = divmod(int(key[s]), n)
+        result[i, j] = result[j, i] = value
+    return result
+
+
+def _source_views_from_poses(cameras: list[Camera], count: int) -> list[list[int]]:
+    """Fallback without sparse points: nearest cameras whose optical axes are within 60° of the reference."""
+    centers = np.stack([c.center for c in cameras])
+    axes = np.stack([c.R[2] for c in cameras])
+    sources = []
+    for r in range(len(cameras)):
+        dist = np.linalg.norm(centers - centers[r], axis=1)
+        ok = [j for j in np.argsort(dist, kind="stable") if j != r and axes[j] @ axes[r] > 0.5 and dist[j] > 0]
+        sources.append([int(j) for j in ok[:count]])
+    return sources

@@ -1,0 +1,87 @@
+"""The one mapping from options dataclasses to command-line flags.
+
+Every field of an :class:`engine.options.Options` subclass with ``cli=True`` becomes a flag:
+``max_image_size`` -> ``--max-image-size``; booleans get ``--x/--no-x``; ``tuple[float, float]``
+fields take ``A,B``. Defaults are *not* given to argparse: a flag that is not passed leaves the
+dataclass default in force, so the defaults live in one place only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import typing
+from typing import Any
+
+from engine.errors import OptionsError
+from engine.options import Options
+
+
+def flag_name(field_name: str) -> str:
+    return "--" + field_name.replace("_", "-")
+
+
+def _base_type(hint: Any) -> Any:
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if typing.get_origin(hint) in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
+        return args[0]
+    return hint
+
+
+def _tuple_parser(name: str, kinds: tuple):
+    def parse(text: str):
+        parts = text.split(",")
+        if len(parts) != len(kinds):
+            raise argparse.ArgumentTypeError(f"{name} takes {len(kinds)} comma-separated values, got {text!r}")
+        try:
+            return tuple(k(p) for k, p in zip(kinds, parts, strict=True))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}: not numbers: {text!r}") from None
+    return parse
+
+
+def add_options_flags(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls: type[Options],
+                      only: list[str] | None = None, skip: tuple[str, ...] = ()) -> list[str]:
+    """Add a flag per CLI field of ``cls``; returns the field names added."""
+    hints = typing.get_type_hints(cls)
+    added = []
+    for f in dataclasses.fields(cls):
+        if not f.metadata.get("cli", True) or f.name in skip or (only is not None and f.name not in only):
+            continue
+        hint = _base_type(hints[f.name])
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        help_text = f.metadata.get("help", "")
+        if default is not None and hint is not bool:
+            shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
+            help_text += f" (default: {shown})"
+        kwargs: dict[str, Any] = {"dest": f"{cls.__name__}.{f.name}", "default": None, "help": help_text}
+        if hint is bool:
+            kwargs["action"] = argparse.BooleanOptionalAction
+            kwargs["help"] += f" (default: {'on' if default else 'off'})"
+        elif typing.get_origin(hint) is tuple:
+            kinds = typing.get_args(hint)
+            kwargs["type"] = _tuple_parser(flag_name(f.name), kinds)
+            kwargs["metavar"] = f.metadata.get("metavar") or ",".join(["X"] * len(kinds))
+        else:
+            kwargs["type"] = hint
+            kwargs["metavar"] = f.metadata.get("metavar") or f.name.rsplit("_", 1)[-1].upper()
+            if f.metadata.get("choices"):
+                kwargs.pop("metavar")
+                kwargs["choices"] = f.metadata["choices"]
+        parser.add_argument(flag_name(f.name), **kwargs)
+        added.append(f.name)
+    return added
+
+
+def options_from_args(cls: type[Options], args: argparse.Namespace, **overrides: Any) -> Options:
+    """Build ``cls`` from the flags that were given (others keep their defaults), validated."""
+    values = {}
+    prefix = f"{cls.__name__}."
+    for key, value in vars(args).items():
+        if key.startswith(prefix) and value is not None:
+            values[key[len(prefix):]] = value
+    values.update(overrides)
+    try:
+        return cls(**values).validate()
+    except TypeError as exc:
+        raise OptionsError(str(exc)) from None
