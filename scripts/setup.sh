@@ -33,10 +33,15 @@ python_bin=$(command -v python3.11 || command -v python3)
 extras=""
 [ "$with_tests" = 1 ] && extras="[test]"
 stamp=".venv/.deepc-setup-$(cat pyproject.toml | sha1sum | cut -c1-12)${extras:+-test}"
+pip_quiet() {  # pip's output goes to a log, shown only when pip fails
+  .venv/bin/python -m pip "$@" --disable-pip-version-check >>.venv/setup.log 2>&1 \
+    || { tail -40 .venv/setup.log >&2; echo "setup: pip $1 failed (log: .venv/setup.log)" >&2; exit 1; }
+}
 if [ ! -f "$stamp" ]; then
-  .venv/bin/python -m pip install -q --disable-pip-version-check "torch==2.13.0"
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras}"
-  .venv/bin/python -m pip check
+  echo "setup: installing Python packages into .venv (log: .venv/setup.log)"
+  pip_quiet install "torch==2.13.0"
+  pip_quiet install -e ".${extras}"
+  pip_quiet check
   if .venv/bin/python -m pip list 2>/dev/null | grep -qi '^nvidia-'; then
     echo "setup: CUDA packages were pulled in; torch must be the CPU build" >&2; exit 1
   fi
