@@ -24,6 +24,8 @@ def option(default: Any, help: str, *, cli: bool = True, choices: tuple | None =
     meta = {"help": help, "cli": cli, "choices": choices, "metavar": metavar}
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
+    if dataclasses.is_dataclass(default):  # nested options: each instance gets its own copy
+        return dataclasses.field(default_factory=lambda: dataclasses.replace(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
 
 

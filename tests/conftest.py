@@ -36,3 +36,82 @@ def fountain_copy(tmp_path: Path) -> Path:
     dst = tmp_path / "fountain"
     shutil.copytree(SAMPLES / "fountain_p11", dst, ignore=shutil.ignore_patterns("points.ply"))
     return dst
+
+
+def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True) -> Path:
+    """An output folder as `deepc run` writes it, made from GT depth instead of PatchMatch, so that
+    viewer tests are fast. Confidence ramps from 0 (top row) to 1 (bottom row) and the counter from
+    0 to 5, so every move of a filter threshold visibly removes or restores points."""
+    import numpy as np
+
+    from engine.fusion import depth_normals
+    from engine.io.outputs import write_map, write_metrics
+    from engine.scene import load_scene
+
+    scene = load_scene(scene_dir)
+    for v in scene.views:
+        depth = scene.gt_depth(v.index).copy()
+        h, w = depth.shape
+        ramp = np.repeat((np.arange(h, dtype=np.float32) / (h - 1))[:, None], w, axis=1)
+        normal = depth_normals(v.camera, depth)
+        depth[~normal.any(axis=2)] = 0
+        write_map(out_dir, "depth", v.name, depth)
+        write_map(out_dir, "normal", v.name, normal)
+        write_map(out_dir, "counter", v.name, np.floor(ramp * 5.99) * (depth > 0))
+        write_map(out_dir, "cost", v.name, 1.0 - ramp)
+        if with_confidence:
+            write_map(out_dir, "confidence", v.name, ramp)
+    write_metrics(out_dir, {"scene": scene.name, "scene_path": str(scene_dir.resolve()), "pipeline": "fast",
+                            "num_images": len(scene.views), "options": {"scene": scene.options.to_dict()}})
+    return out_dir
+
+
+@pytest.fixture(scope="session")
+def fake_run(tmp_path_factory) -> Path:
+    """A fake `deepc run` output of sample_scenes/tiny (vanilla + fast maps)."""
+    return make_fake_run(SAMPLES / "tiny", tmp_path_factory.mktemp("fake_run"))
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--disable-dev-shm-usage", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+@pytest.fixture(scope="session")
+def browser_context(tmp_path_factory):
+    """Debian chromium driven by playwright; requests leaving 127.0.0.1 are blocked."""
+    if not CHROMIUM.exists():
+        pytest.skip("needs /usr/bin/chromium (scripts/setup.sh --test installs it)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            str(tmp_path_factory.mktemp("chromium")), executable_path=str(CHROMIUM), headless=True,
+            args=CHROMIUM_ARGS, viewport={"width": 1000, "height": 700})
+        context.set_default_timeout(30_000)
+
+        def only_loopback(route):
+            url = route.request.url
+            if url.startswith(("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:", "about:")):
+                route.continue_()
+            else:
+                route.abort()
+        context.route("**/*", only_loopback)
+        try:
+            yield context
+        finally:
+            context.close()
+
+
+def wait_for(predicate, timeout: float = 30.0, interval: float = 0.05):
+    """Poll ``predicate`` until it is truthy; fail the test after ``timeout`` seconds."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval)
+    pytest.fail(f"timed out after {timeout} s waiting for {getattr(predicate, '__name__', 'a condition')}")

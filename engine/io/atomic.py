@@ -17,6 +17,16 @@ from typing import IO
 from engine.errors import DeepCError
 
 
+def _current_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+# mkstemp creates files 0600; outputs should get the permissions a plain open() would give them.
+_FILE_MODE = 0o666 & ~_current_umask()
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[IO]:
     """Open a temporary sibling of ``path`` for writing; rename it to ``path`` on success."""
@@ -28,6 +38,7 @@ def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[IO]:
         raise DeepCError(f"cannot write here: {exc.strerror or exc}", path) from exc
     tmp = Path(tmp_name)
     try:
+        os.fchmod(fd, _FILE_MODE)
         with os.fdopen(fd, mode) as handle:
             yield handle
             handle.flush()

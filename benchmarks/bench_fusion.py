@@ -1,0 +1,140 @@
+"""Fusion benchmark: ours (numba, sequential) vs COLMAP's own fusion (pycolmap, 1 thread) on the same maps.
+
+Maps: the GT depth of fountain_p11 at the working resolution (default 768x512), normals derived from
+the depth (``engine.fusion.depth_normals``; pixels without a normal are dropped from both). COLMAP
+gets a workspace whose cameras carry our index-space intrinsics, so both un-project identically.
+
+    .venv/bin/python benchmarks/bench_fusion.py [--scene DIR] [--max-image-size 768] [--preset deepc]
+        [--repeats 3] [--json benchmarks/results/bench_fusion.json]
+
+Reported: wall time of ``fuse`` (best of N, after JIT warm-up, packing included) and of the
+``pycolmap.stereo_fusion`` call (reads the workspace, fuses, writes fused.ply; best of N), point
+counts, and the median nearest-neighbour distance between the two clouds in pixel footprints
+(camera-frame depth / focal length of the seed view).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from engine.fusion import (  # noqa: E402
+    FUSION_PRESETS,
+    depth_normals,
+    fuse,
+    run_colmap_fusion,
+    views_from_scene,
+    write_colmap_workspace,
+)
+from engine.io.atomic import atomic_write_text  # noqa: E402
+from engine.scene import SceneOptions, load_scene  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default=str(REPO.parent / "shared" / "data" / "fountain_p11"))
+    ap.add_argument("--max-image-size", type=int, default=768)
+    ap.add_argument("--preset", default="deepc", choices=sorted(FUSION_PRESETS))
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--colmap-repeats", type=int, default=2)
+    ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "bench_fusion.json"))
+    args = ap.parse_args(argv)
+
+    scene_dir = Path(args.scene)
+    if not scene_dir.is_dir():
+        scene_dir = REPO / "sample_scenes" / "fountain_p11"
+        print(f"scene {args.scene} not found; using {scene_dir}")
+    scene = load_scene(scene_dir, SceneOptions(max_image_size=args.max_image_size))
+    depths, normals = [], []
+    for i, v in enumerate(scene.views):
+        d = scene.gt_depth(i)
+        if d is None:
+            raise SystemExit(f"{scene_dir}: view {v.name} has no GT depth")
+        n = depth_normals(v.camera, d)
+        depths.append(np.where(np.abs(n).sum(-1) > 0, d, 0).astype(np.float32))
+        normals.append(n)
+    views = views_from_scene(scene, depths, normals)
+    opts = FUSION_PRESETS[args.preset]
+    w, h = views[0].camera.size
+    n_valid = int(sum((v.depth > 0).sum() for v in views))
+
+    t0 = time.perf_counter()
+    fuse(views, opts)  # JIT compile or cache load
+    warmup = time.perf_counter() - t0
+    times, cpu = [], []
+    for _ in range(args.repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        ours = fuse(views, opts)
+        times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        write_colmap_workspace(scene, views, tmp)
+        ctimes, ccpu = [], []
+        for _ in range(args.colmap_repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            ref = run_colmap_fusion(tmp, opts, num_threads=1)  # in-process: CPU time is comparable
+            ctimes.append(time.perf_counter() - t0)
+            ccpu.append(time.process_time() - c0)
+
+    # Pixel footprint of every point of ours: depth in its seed view / fx.
+    fx = np.array([v.camera.fx for v in views])
+    z = np.empty(len(ours))
+    for k, v in enumerate(views):
+        sel = ours.source_view == k
+        z[sel] = v.camera.world_to_camera(ours.xyz[sel])[:, 2]
+    footprint = z / fx[ours.source_view]
+    d_ours, _ = cKDTree(ref.xyz).query(ours.xyz)
+    d_ref, nn = cKDTree(ours.xyz).query(ref.xyz)
+    ratio_ours = d_ours / footprint
+    ratio_ref = d_ref / footprint[nn]
+
+    result = {
+        "scene": scene.name, "views": len(views), "map_size": [w, h], "valid_pixels": n_valid,
+        "preset": args.preset, "options": opts.to_dict(),
+        "ours_seconds_best": min(times), "ours_seconds_all": times, "ours_first_call_seconds": warmup,
+        "colmap_seconds_best": min(ctimes), "colmap_seconds_all": ctimes,
+        "ours_cpu_seconds_best": min(cpu), "colmap_cpu_seconds_best": min(ccpu),
+        "speedup": min(ctimes) / min(times), "speedup_cpu": min(ccpu) / min(cpu),
+        "ours_points": len(ours), "colmap_points": len(ref),
+        "point_count_difference_percent": 100.0 * (len(ours) - len(ref)) / max(len(ref), 1),
+        "median_nn_ours_to_colmap_footprints": float(np.median(ratio_ours)),
+        "median_nn_colmap_to_ours_footprints": float(np.median(ratio_ref)),
+        "p90_nn_ours_to_colmap_footprints": float(np.percentile(ratio_ours, 90)),
+        "median_footprint": float(np.median(footprint)),
+        "ours_num_views_median": float(np.median(ours.num_views)),
+        "colmap_num_views_median": float(np.median(ref.num_views)),
+        "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count(),
+    }
+    print(f"\nfusion of {len(views)} views at {w}x{h} ({n_valid} valid pixels), preset {args.preset}")
+    print(f"{'':<28}{'ours':>14}{'COLMAP 1 thread':>18}")
+    print(f"{'seconds (best of runs)':<28}{min(times):>14.3f}{min(ctimes):>18.3f}")
+    print(f"{'CPU seconds (best)':<28}{min(cpu):>14.3f}{min(ccpu):>18.3f}")
+    print(f"{'points':<28}{len(ours):>14d}{len(ref):>18d}")
+    print(f"{'median num_views':<28}{np.median(ours.num_views):>14.1f}{np.median(ref.num_views):>18.1f}")
+    print(f"speed-up {result['speedup']:.2f}x wall, {result['speedup_cpu']:.2f}x CPU; "
+          f"point counts differ by {result['point_count_difference_percent']:+.2f}%")
+    print(f"median NN distance: ours->COLMAP {result['median_nn_ours_to_colmap_footprints']:.4f}, "
+          f"COLMAP->ours {result['median_nn_colmap_to_ours_footprints']:.4f} pixel footprints "
+          f"(median footprint {result['median_footprint'] * 1000:.2f} mm)")
+    print(f"first call (JIT/cache) {warmup:.2f} s; load average {result['load_average']:.2f}")
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

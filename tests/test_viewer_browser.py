@@ -1,0 +1,104 @@
+"""The live-tuning viewer in a real browser (Debian chromium + playwright).
+
+Every wait has a timeout; the server and the pages are closed whatever happens.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from conftest import wait_for
+from PIL import Image
+
+from workbench.session import ViewerSession
+from workbench.viewer import ViewerApp
+
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
+
+
+@pytest.fixture
+def app(fake_run):
+    viewer = ViewerApp(ViewerSession.open(fake_run), port=0)
+    try:
+        assert viewer.wait_idle(120)
+        yield viewer
+    finally:
+        viewer.stop()
+
+
+def _open(context, app):
+    page = context.new_page()
+    page.goto(f"http://127.0.0.1:{app.port}/")
+    wait_for(lambda: len(app.server.get_clients()) > 0)
+    page.get_by_text("Connected").wait_for()
+    return page
+
+
+def _screenshot_is_not_blank(page) -> np.ndarray:
+    image = np.asarray(Image.open(io.BytesIO(page.locator("canvas").first.screenshot(timeout=60_000))))
+    assert image[..., :3].std() > 10, "the 3-D canvas rendered nothing"
+    return image
+
+
+def _slider_thumb(page, handle):
+    return page.locator(f'[id="{handle._impl.uuid}"] [role="slider"]')
+
+
+def test_cloud_renders_and_the_confidence_slider_updates_points_and_metrics(browser_context, app):
+    page = _open(browser_context, app)
+    try:
+        page.get_by_text("points").first.wait_for()
+        _screenshot_is_not_blank(page)
+        # Switch to the fast pipeline in the browser, then raise the threshold by keyboard.
+        page.locator(f'[id="{app.pipeline._impl.uuid}"]').click()
+        page.get_by_role("option", name="fast").click()
+        wait_for(lambda: app.cloud_params is not None and app.cloud_params.pipeline == "fast" and app.wait_idle(1))
+        before_points, before_text = len(app.cloud), app.metrics.content
+        thumb = _slider_thumb(page, app.conf_tau)
+        thumb.focus()
+        for _ in range(10):
+            page.keyboard.press("ArrowRight")
+        wait_for(lambda: app.conf_tau.value >= 0.1 and app.wait_idle(1))
+        page.locator(f'[id="{app.conf_tau._impl.uuid}"]').wait_for()
+        assert app.cloud_params.conf_tau >= 0.1
+        assert len(app.cloud) < before_points
+        assert app.metrics.content != before_text
+        # The browser shows the new count.
+        page.get_by_text(f"{len(app.cloud):,} points").wait_for()
+    finally:
+        page.close()
+
+
+def test_clicking_a_camera_shows_its_maps(browser_context, app):
+    page = _open(browser_context, app)
+    try:
+        view = app.session.scene.views[3]
+        cam = view.camera
+        client = next(iter(app.server.get_clients().values()))
+        # Look straight at camera 3's frustum from in front of it, so it fills the middle of the canvas.
+        client.camera.position = cam.center + cam.R[2] * app.frustum_scale * 2.5
+        client.camera.look_at = cam.center + cam.R[2] * app.frustum_scale * 0.5
+        client.camera.up_direction = -cam.R[1]
+        page.wait_for_timeout(1500)
+        box = page.locator("canvas").first.bounding_box()
+        page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        wait_for(lambda: "view 3:" in app.view_title.content)
+        page.get_by_text(f"view 3: {view.name}").wait_for()
+        assert page.locator("img").count() >= 5  # image, depth, normal, counter, confidence
+    finally:
+        page.close()
+
+
+def test_two_tabs_share_one_session(browser_context, app):
+    first, second = _open(browser_context, app), _open(browser_context, app)
+    try:
+        app.min_views.value = 5  # as if a user moved it: runs the callbacks
+        assert app.wait_idle(60)
+        text = f"{len(app.cloud):,} points"
+        first.get_by_text(text).wait_for()
+        second.get_by_text(text).wait_for()
+    finally:
+        first.close()
+        second.close()

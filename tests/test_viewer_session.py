@@ -1,0 +1,75 @@
+"""The viewer session: stage caches, previews vs exact results, colours, exports (no browser)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from engine.errors import DeepCError
+from workbench.session import ViewerSession, ViewParams
+from workbench.viewer import safe_file_name
+
+
+@pytest.fixture(scope="module")
+def session(fake_run):
+    return ViewerSession.open(fake_run)
+
+
+def test_opens_a_run_and_knows_what_exists(session):
+    assert session.pipelines == ["vanilla", "fast"]
+    assert session.has_confidence and session.has_counter and session.has_gt
+
+
+def test_confidence_threshold_and_mask_k_remove_points(session):
+    vanilla = session.cloud(ViewParams(pipeline="vanilla"))
+    fast = session.cloud(ViewParams(pipeline="fast", conf_tau=0.5))
+    masked = session.cloud(ViewParams(pipeline="vanilla", mask_k=2))
+    assert 0 < len(fast) < len(vanilla) and 0 < len(masked) < len(vanilla)
+    assert session.cloud(ViewParams(pipeline="fast", conf_tau=0.5)) is fast  # cached, not recomputed
+    scores_vanilla = session.evaluate(ViewParams(pipeline="vanilla"))
+    scores_fast = session.evaluate(ViewParams(pipeline="fast", conf_tau=0.5))
+    assert scores_vanilla["accuracy"] > 90  # GT depth fused: nearly every point is accurate
+    assert scores_fast["completeness"] < scores_vanilla["completeness"]
+
+
+def test_a_fusion_change_reuses_the_filtered_maps(session):
+    params = ViewParams(pipeline="fast", conf_tau=0.3)
+    maps = session.filtered_maps(params)
+    stricter = dataclasses.replace(params, fusion=params.fusion.replace(max_normal_error=5.0))
+    assert session.filtered_maps(stricter) is maps
+    assert len(session.cloud(stricter)) < len(session.cloud(params))
+
+
+def test_preview_approximates_the_exact_cloud(session):
+    params = ViewParams(pipeline="fast", conf_tau=0.5)
+    base = session.base_cloud(params)
+    preview = ViewerSession.preview_mask(base, params).sum()
+    exact = len(session.cloud(params))
+    assert abs(preview - exact) / exact < 0.35
+
+
+def test_colour_modes_and_view_images(session):
+    cloud = session.cloud(ViewParams(pipeline="fast"))
+    for mode in ("rgb", "confidence", "views", "error"):
+        colors = session.colors(cloud, mode)
+        assert colors.shape == (len(cloud), 3) and colors.dtype == np.uint8
+    with pytest.raises(DeepCError):
+        session.colors(cloud, "sparkles")
+    images = session.view_images(2)
+    assert set(images) == {"image", "depth", "normal", "counter", "confidence"}
+    assert all(im.dtype == np.uint8 and im.ndim == 3 for im in images.values())
+
+
+def test_unknown_pipeline_and_bad_paths(session, tmp_path):
+    with pytest.raises(DeepCError, match="full"):
+        session.cloud(ViewParams(pipeline="full"))
+    with pytest.raises(DeepCError, match="neither"):
+        ViewerSession.open(tmp_path)
+
+
+@pytest.mark.parametrize("name,expected", [("cloud", "cloud.ply"), ("../../etc/passwd", "passwd.ply"),
+                                           ("/abs/x y", "x_y.ply"), ("..", "export.ply"), ("a\x00b", "a_b.ply")])
+def test_export_names_cannot_leave_the_export_folder(name, expected):
+    assert safe_file_name(name, ".ply") == expected

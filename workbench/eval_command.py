@@ -1,0 +1,67 @@
+"""``deepc eval RECON.ply GT.ply|GT.mlp [--tolerances ...] [--json OUT.json]`` (CONTRACT.md §3).
+
+Prints the ETH3D-style table (percent). GT may be a PLY of surface points or an ETH3D
+``scan_alignment.mlp``. When the GT PLY is ``SCENE/ground_truth/points.ply`` of a scene with GT depth
+maps, the unobserved-space rule uses those maps (SPEC.md §9.1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from engine.errors import DeepCError
+from engine.evaluation import EvaluationOptions, EvaluationResult, evaluate_eth3d, evaluate_points, parse_tolerances
+from engine.io.atomic import atomic_write_text
+from engine.io.ply import read_points
+
+
+def _gt_views_for(gt_path: Path):
+    """(camera, GT depth) pairs when ``gt_path`` is SCENE/ground_truth/points.ply of a loadable scene."""
+    if gt_path.name != "points.ply" or gt_path.parent.name != "ground_truth":
+        return None
+    scene_root = gt_path.parent.parent
+    if not (scene_root / "ground_truth" / "depth_maps").is_dir() or not (scene_root / "sparse").is_dir():
+        return None
+    from engine.scene import SceneOptions, load_scene
+
+    try:
+        scene = load_scene(scene_root, SceneOptions(max_image_size=1024))
+    except DeepCError as exc:
+        print(f"deepc: warning: ground-truth depth maps not used ({exc})", file=sys.stderr)
+        return None
+    views = []
+    for i, v in enumerate(scene.views):
+        depth = scene.gt_depth(i)
+        if depth is not None:
+            views.append((v.camera, depth))
+    return views or None
+
+
+def run_eval(recon: str | Path, gt: str | Path, options: EvaluationOptions) -> EvaluationResult:
+    recon_xyz = read_points(recon)
+    gt = Path(gt)
+    if gt.suffix.lower() == ".mlp":
+        return evaluate_eth3d(recon_xyz, gt, options)
+    gt_xyz = read_points(gt)
+    return evaluate_points(recon_xyz, gt_xyz, options, _gt_views_for(gt))
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    """Handler for ``deepc eval``; args has recon, gt, tolerances (str), json (str | None)."""
+    tolerances = getattr(args, "tolerances", None)
+    options = EvaluationOptions() if not tolerances else EvaluationOptions(tolerances=parse_tolerances(tolerances))
+    options.validate()
+    result = run_eval(args.recon, args.gt, options)
+    print(f"{args.recon} vs {args.gt}")
+    print(result.format_table())
+    if getattr(args, "json", None):
+        payload = result.to_dict()
+        payload.update({"num_reconstruction": result.num_reconstruction,
+                        "num_ground_truth": result.num_ground_truth,
+                        "unobserved": result.unobserved, "notes": result.notes,
+                        "options": options.to_dict()})
+        atomic_write_text(args.json, json.dumps(payload, indent=2) + "\n")
+    return 0

@@ -1,0 +1,285 @@
+"""A viewer session: one scene, its cached PatchMatch maps, and a cache per downstream stage.
+
+The data flow is one way — maps -> filter (pipeline, τ, k) -> fusion (thresholds) -> evaluation — and
+each stage is cached under the options it depends on, so a change recomputes only what lies
+downstream of it. Cheap previews mask the *unfiltered* fused cloud by its per-point attributes
+(mean confidence, supporting views) and answer at once; the exact recomputation follows.
+
+Nothing here imports viser: the session is driven by ``workbench/viewer.py`` and by tests.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.errors import DeepCError
+from engine.evaluation import EvaluationOptions, evaluate_points
+from engine.filtering import filter_by_confidence, filter_by_counter
+from engine.fusion import FusedCloud, FusionOptions, fuse, views_from_scene
+from engine.io.outputs import read_map, read_metrics
+from engine.io.ply import read_points
+from engine.scene import Scene, SceneOptions, load_scene
+
+COLOR_MODES = ("rgb", "confidence", "views", "error")
+REPORT_TOLERANCE = 0.02  # the paper's and ETH3D's headline tolerance (model units: metres)
+
+
+@dataclasses.dataclass(frozen=True)
+class ViewParams:
+    """Everything downstream of PatchMatch that the viewer lets a user tune."""
+
+    pipeline: str = "vanilla"
+    conf_tau: float = 0.05
+    mask_k: int = 0  # 0 = no counter filter
+    fusion: FusionOptions = dataclasses.field(default_factory=FusionOptions)
+
+    def filter_key(self) -> tuple:
+        tau = self.conf_tau if self.pipeline != "vanilla" else 0.0
+        return (self.pipeline, round(tau, 6), self.mask_k)
+
+    def fusion_key(self) -> tuple:
+        return (self.filter_key(), tuple(sorted(self.fusion.to_dict().items())))
+
+
+@dataclasses.dataclass
+class ViewData:
+    """The maps of one view read from an output folder (None where the run did not write them)."""
+
+    depth: np.ndarray
+    normal: np.ndarray
+    counter: np.ndarray | None
+    confidence: np.ndarray | None
+    refined_depth: np.ndarray | None
+    refined_normal: np.ndarray | None
+
+
+class _LRU(OrderedDict):
+    def __init__(self, size: int):
+        super().__init__()
+        self.size = size
+
+    def put(self, key, value):
+        self[key] = value
+        self.move_to_end(key)
+        while len(self) > self.size:
+            self.popitem(last=False)
+
+
+class ViewerSession:
+    """Scene + maps + stage caches. Thread-safe: stage computations are serialised by a lock."""
+
+    def __init__(self, scene: Scene, data: list[ViewData] | None, out_dir: Path | None = None):
+        self.scene = scene
+        self.data = data
+        self.out_dir = out_dir
+        self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
+        self._compute_lock = threading.RLock()  # serialises the computations themselves
+        self._filtered = _LRU(4)
+        self._clouds = _LRU(8)
+        self._evals = _LRU(16)
+        self._gt_points: np.ndarray | None = None
+        self._gt_views: list | None = None
+
+    # ---- opening ------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, path: str | Path, scene_options: SceneOptions | None = None) -> ViewerSession:
+        """Open the output folder of ``deepc run`` (metrics.json + stereo maps) or a bare scene."""
+        path = Path(path)
+        if (path / "metrics.json").is_file():
+            metrics = read_metrics(path)
+            scene_path = Path(metrics.get("scene_path", ""))
+            if not (scene_path / "sparse").is_dir():
+                raise DeepCError(f"the scene this run was made from is gone ({scene_path})", path / "metrics.json")
+            options = scene_options or SceneOptions.from_dict(metrics.get("options", {}).get("scene", {}))
+            scene = load_scene(scene_path, options)
+            return cls(scene, _read_view_data(path, scene), path)
+        if (path / "sparse").is_dir() or (path / "sparse" / "0").is_dir():
+            return cls(load_scene(path, scene_options or SceneOptions()), None, None)
+        raise DeepCError("neither an output folder of deepc run (no metrics.json) nor a COLMAP workspace", path)
+
+    # ---- what exists ----------------------------------------------------------------------------
+    @property
+    def has_maps(self) -> bool:
+        return self.data is not None
+
+    @property
+    def pipelines(self) -> list[str]:
+        if not self.data:
+            return []
+        found = ["vanilla"]
+        if all(d.confidence is not None for d in self.data):
+            found.append("fast")
+            if all(d.refined_depth is not None for d in self.data):
+                found.append("full")
+        return found
+
+    @property
+    def has_confidence(self) -> bool:
+        return "fast" in self.pipelines
+
+    @property
+    def has_counter(self) -> bool:
+        return bool(self.data) and all(d.counter is not None for d in self.data)
+
+    @property
+    def has_gt(self) -> bool:
+        return self.scene.has_gt_points
+
+    # ---- stages -----------------------------------------------------------------------------------
+    def _cached(self, cache: _LRU, key, compute):
+        with self._cache_lock:
+            if key in cache:
+                return cache[key]
+        with self._compute_lock:
+            with self._cache_lock:
+                if key in cache:
+                    return cache[key]
+            value = compute()
+            with self._cache_lock:
+                cache.put(key, value)
+            return value
+
+    def filtered_maps(self, params: ViewParams) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(depth, normal) per view after the pipeline's filter (cached by pipeline, τ, k)."""
+        if not self.data:
+            raise DeepCError("no PatchMatch maps in this session: open the output folder of deepc run")
+        if params.pipeline not in self.pipelines:
+            raise DeepCError(f"pipeline {params.pipeline!r} has no maps here (available: {', '.join(self.pipelines)})")
+        return self._cached(self._filtered, params.filter_key(), lambda: self._filter(params))
+
+    def _filter(self, params: ViewParams) -> list[tuple[np.ndarray, np.ndarray]]:
+        out = []
+        for d in self.data:
+            depth, normal = d.depth, d.normal
+            if params.pipeline == "full":
+                depth, normal = d.refined_depth, d.refined_normal
+            if params.pipeline != "vanilla" and params.conf_tau > 0:
+                depth, normal = filter_by_confidence(depth, normal, d.confidence, params.conf_tau)
+            if params.mask_k > 0 and d.counter is not None:
+                depth, normal = filter_by_counter(depth, normal, d.counter, params.mask_k)
+            out.append((depth, normal))
+        return out
+
+    def cloud(self, params: ViewParams) -> FusedCloud:
+        """The exactly fused cloud for ``params`` (cached by filter and fusion options)."""
+        def compute() -> FusedCloud:
+            maps = self.filtered_maps(params)
+            confidence = [d.confidence for d in self.data] if self.has_confidence else None
+            views = views_from_scene(self.scene, [m[0] for m in maps], [m[1] for m in maps], confidence,
+                                     params.fusion.check_num_images)
+            return fuse(views, params.fusion)
+        return self._cached(self._clouds, params.fusion_key(), compute)
+
+    def cached_cloud(self, params: ViewParams) -> FusedCloud | None:
+        """The cloud for ``params`` if it is already computed, else None (never computes)."""
+        with self._cache_lock:
+            return self._clouds.get(params.fusion_key())
+
+    def base_cloud(self, params: ViewParams) -> FusedCloud:
+        """The cloud of ``params`` with no confidence or counter filter and at least 1 view: the
+        superset that previews mask."""
+        loose = dataclasses.replace(params, conf_tau=0.0, mask_k=0,
+                                    fusion=params.fusion.replace(min_num_pixels=1))
+        return self.cloud(loose)
+
+    @staticmethod
+    def preview_mask(base: FusedCloud, params: ViewParams) -> np.ndarray:
+        """Approximate the exact cloud by masking the base cloud by per-point attributes (fast)."""
+        keep = base.num_views >= max(1, params.fusion.min_num_pixels)
+        if params.pipeline != "vanilla" and params.conf_tau > 0 and np.isfinite(base.mean_confidence).any():
+            with np.errstate(invalid="ignore"):
+                keep &= base.mean_confidence >= params.conf_tau
+        if params.mask_k > 0:
+            keep &= base.num_views >= params.mask_k + 1
+        return keep
+
+    def evaluate(self, params: ViewParams, cloud: FusedCloud | None = None) -> dict[str, float] | None:
+        """Accuracy, completeness, F1 (percent) at 2 cm against the GT points; None without GT."""
+        if not self.has_gt:
+            return None
+        def compute() -> dict[str, float]:
+            points = self.cloud(params) if cloud is None else cloud
+            gt_points, gt_views = self._ground_truth()
+            result = evaluate_points(np.asarray(points.xyz, np.float64), gt_points,
+                                     EvaluationOptions(tolerances=(REPORT_TOLERANCE,)), gt_views)
+            return result.at(REPORT_TOLERANCE)
+        return self._cached(self._evals, params.fusion_key(), compute)
+
+    def _ground_truth(self) -> tuple[np.ndarray, list | None]:
+        if self._gt_points is None:
+            self._gt_points = read_points(self.scene.gt_points_path)
+            views = []
+            for v in self.scene.views:
+                gt = self.scene.gt_depth(v.index)
+                if gt is not None:
+                    views.append((v.camera, gt))
+            self._gt_views = views or None
+        return self._gt_points, self._gt_views
+
+    # ---- colours and per-view images ----------------------------------------------------------------
+    def colors(self, cloud: FusedCloud, mode: str) -> np.ndarray:
+        """(N, 3) uint8 colours of the cloud for a colour mode."""
+        from workbench.stream import colorize
+
+        if mode == "rgb" or len(cloud) == 0:
+            return cloud.rgb
+        if mode == "confidence":
+            values = np.nan_to_num(cloud.mean_confidence, nan=0.0)
+            return colorize(values[None, :], 0.0, 1.0, "viridis")[0]
+        if mode == "views":
+            return colorize(cloud.num_views[None, :].astype(np.float32), 1.0, max(2, len(self.scene.views)),
+                            "plasma")[0]
+        if mode == "error":
+            if not self.has_gt:
+                return cloud.rgb
+            from scipy.spatial import cKDTree
+
+            gt_points, _ = self._ground_truth()
+            dist, _ = cKDTree(gt_points).query(np.asarray(cloud.xyz, np.float64), k=1,
+                                               distance_upper_bound=4 * REPORT_TOLERANCE)
+            return colorize(np.minimum(dist, 4 * REPORT_TOLERANCE)[None, :], 0.0, 2 * REPORT_TOLERANCE,
+                            "inferno")[0]
+        raise DeepCError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")
+
+    def view_images(self, i: int) -> dict[str, np.ndarray]:
+        """uint8 RGB images of view ``i``'s maps for the side panel: image, depth, normal, counter, confidence."""
+        from workbench.stream import colorize, normal_to_rgb
+
+        images = {"image": (np.asarray(self.scene.image(i)) * 255 + 0.5).astype(np.uint8)}
+        if not self.data:
+            return images
+        d = self.data[i]
+        lo, hi = self.scene.views[i].depth_range
+        images["depth"] = colorize(d.depth, lo, hi, "turbo", d.depth <= 0)
+        images["normal"] = normal_to_rgb(d.normal)
+        if d.counter is not None:
+            images["counter"] = colorize(d.counter, 0, 5, "coolwarm", d.depth <= 0)
+        if d.confidence is not None:
+            images["confidence"] = colorize(d.confidence, 0.0, 1.0, "viridis", d.depth <= 0)
+        return images
+
+
+def _read_view_data(out_dir: Path, scene: Scene) -> list[ViewData]:
+    data = []
+    for v in scene.views:
+        depth = read_map(out_dir, "depth", v.name)
+        normal = read_map(out_dir, "normal", v.name)
+        if depth is None or normal is None:
+            raise DeepCError(f"the run has no depth/normal map for view {v.name}", out_dir)
+        data.append(ViewData(depth, normal, read_map(out_dir, "counter", v.name),
+                             read_map(out_dir, "confidence", v.name), read_map(out_dir, "refined_depth", v.name),
+                             read_map(out_dir, "refined_normal", v.name)))
+    return data
+
+
+def describe(scores: dict[str, Any] | None) -> str:
+    if not scores:
+        return "no ground truth"
+    return (f"F1 {scores['f1']:.1f} · accuracy {scores['accuracy']:.1f} · "
+            f"completeness {scores['completeness']:.1f} (at {REPORT_TOLERANCE * 100:.0f} cm)")

@@ -1,0 +1,207 @@
+"""Engine events -> rerun logs: watch PatchMatch converge, iteration by iteration, view by view.
+
+Entity tree (one per recording; the same code writes to a live viewer or an ``.rrd`` file)::
+
+    world/cameras/<view>            Transform3D (camera -> world) + Pinhole + rgb image
+    maps/<view>/depth               DepthImage in model units (colormapped)
+    maps/<view>/normal              normals colour-coded as RGB = (n + 1) / 2
+    maps/<view>/cost                matching cost, colormapped (0 = perfect, 2 = no match)
+    maps/<view>/selected_count      number of selected source views per pixel
+    maps/<view>/selected_views      uint32 bitmask over the view's source list (see selected_views_list)
+    maps/<view>/error               |z - z_gt| / z_gt colormapped, when GT exists
+    stats/<view>/{mean_cost,changed_pct,within_1pct,seconds,level,pass}   scalars
+    world/fused/<pipeline>          fused cloud, when a fusion stage reports one
+
+Timeline ``iteration`` is the engine's global step; level and pass are logged as scalars with every
+step. Logging can be thinned (every k-th iteration, one view, reduced resolution).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import rerun as rr
+
+from engine.camera import Camera
+from engine.observer import IterationEvent, NullObserver
+from engine.options import Options, check, option
+
+
+@dataclasses.dataclass
+class StreamOptions(Options):
+    """What the rerun stream logs (thinning keeps recordings small)."""
+
+    every: int = option(1, "log every k-th red-black iteration (the last one of each pass is always logged)")
+    view: int | None = option(None, "log the per-iteration maps of this view index only (default: all views)")
+    max_size: int = option(0, "downscale logged maps so the longer side is at most this (0 = full size)")
+    selected_views_mask: bool = option(True, "log the raw selected-views bitmask (uint32) as well as the count")
+
+    def validate(self) -> StreamOptions:
+        super().validate()
+        check(self.every >= 1, "every", self.every, "must be >= 1")
+        check(self.view is None or self.view >= 0, "view", self.view, "must be a view index >= 0")
+        check(self.max_size >= 0, "max_size", self.max_size, "must be >= 0")
+        return self
+
+
+def entity_name(index: int, name: str) -> str:
+    """Entity-path-safe name of a view: index plus the image name (which may hold '/' or '.')."""
+    return rr.escape_entity_path_part(f"{index:03d}_{name}")
+
+
+def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
+    """Decode a selected-views bitmask into view indices (bit k = ``source_views[k]``)."""
+    return [view for bit, view in enumerate(source_views) if mask >> bit & 1]
+
+
+def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis",
+             invalid: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) scalars -> (H, W, 3) uint8 through a matplotlib colormap; ``invalid`` pixels black."""
+    from matplotlib import colormaps
+
+    scaled = np.clip((np.nan_to_num(values, nan=vmin) - vmin) / max(vmax - vmin, 1e-12), 0.0, 1.0)
+    lut = (colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
+    rgb = lut[(scaled * 255).astype(np.uint8)]
+    if invalid is not None:
+        rgb[invalid] = 0
+    return rgb
+
+
+def normal_to_rgb(normal: np.ndarray) -> np.ndarray:
+    """(H, W, 3) unit normals -> uint8 RGB (n + 1) / 2; missing normals black."""
+    rgb = ((np.clip(normal, -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
+    rgb[~normal.any(axis=2)] = 0
+    return rgb
+
+
+def _shrink(array: np.ndarray, max_size: int) -> np.ndarray:
+    """Nearest-neighbour subsampling by an integer step (keeps depth values real, never blended)."""
+    if max_size <= 0:
+        return array
+    step = int(np.ceil(max(array.shape[:2]) / max_size))
+    return array[::step, ::step] if step > 1 else array
+
+
+class RerunStream(NullObserver):
+    """An engine observer that logs every PatchMatch iteration to a rerun recording stream.
+
+    Args:
+        rec: the recording stream (``rr.RecordingStream``), already connected to a sink.
+        views: per view (name, camera at the working resolution, rgb image float32, source_views).
+        gt_depths: optional per-view GT depth at the working resolution (None entries allowed).
+        options: thinning.
+        pass_iterations: iterations of a pass given its index (``PatchMatchOptions.pass_iterations``), so
+            that the last iteration of every pass is logged whatever the thinning.
+    """
+
+    def __init__(self, rec: rr.RecordingStream, views: list[tuple[str, Camera, np.ndarray, list[int]]],
+                 gt_depths: list[np.ndarray | None] | None = None, options: StreamOptions | None = None,
+                 pass_iterations: Callable[[int], int] | None = None):
+        self.rec = rec
+        self.pass_iterations = pass_iterations
+        self.views = views
+        self.gt_depths = gt_depths or [None] * len(views)
+        self.options = (options or StreamOptions()).validate()
+        self._previous_depth: dict[int, np.ndarray] = {}
+        self._depth_range = [(0.0, 1.0)] * len(views)
+        self._point_radius = 0.01  # model units; set_depth_ranges derives one from the scene
+        self.logged_steps = 0
+        self._log_cameras()
+
+    # ---- static scene --------------------------------------------------------------------------
+    def _log_cameras(self) -> None:
+        rec = self.rec
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
+        for index, (name, camera, rgb, _sources) in enumerate(self.views):
+            path = f"world/cameras/{entity_name(index, name)}"
+            rec.log(path, rr.Transform3D(translation=camera.center, mat3x3=camera.R.T), static=True)
+            rec.log(path, rr.Pinhole(image_from_camera=camera.K, width=camera.width, height=camera.height,
+                                     camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3), static=True)
+            rec.log(f"{path}/rgb", rr.Image((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)), static=True)
+
+    def set_depth_ranges(self, ranges: list[tuple[float, float]]) -> None:
+        """Fix the colormap range of each view's depth (e.g. its PatchMatch depth range)."""
+        self._depth_range = list(ranges)
+        typical = float(np.median([np.sqrt(lo * hi) for lo, hi in ranges]))
+        focal = float(np.median([c.fx for _n, c, _r, _s in self.views]))
+        self._point_radius = 0.5 * typical / focal
+
+    # ---- per iteration --------------------------------------------------------------------------
+    def _wanted(self, event: IterationEvent) -> bool:
+        if self.options.view is not None and event.view != self.options.view:
+            return False
+        last = self.pass_iterations is not None and event.iteration == self.pass_iterations(event.pass_index) - 1
+        return last or event.iteration % self.options.every == 0
+
+    def on_iteration(self, event: IterationEvent) -> None:
+        view = event.view
+        depth = event.depth
+        valid = depth > 0
+        previous = self._previous_depth.get(view)
+        changed = float("nan")
+        if previous is not None and previous.shape == depth.shape:
+            changed = 100.0 * float(np.count_nonzero(previous != depth)) / depth.size
+        self._previous_depth[view] = depth.copy()
+        if not self._wanted(event):
+            return
+        rec = self.rec
+        rec.set_time("iteration", sequence=event.step)
+        name, _camera, _rgb, _sources = self.views[view]
+        base = entity_name(view, name)
+        small = self.options.max_size
+        dmin, dmax = self._depth_range[view]
+        rec.log(f"maps/{base}/depth", rr.DepthImage(_shrink(depth, small), meter=1.0, colormap="turbo",
+                                                    depth_range=[dmin, dmax]))
+        rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(_shrink(event.normal, small))))
+        cost = _shrink(event.cost, small)
+        rec.log(f"maps/{base}/cost", rr.Image(colorize(cost, 0.0, 2.0, "magma_r", _shrink(~valid, small))))
+        mask = _shrink(event.selected_views, small)
+        count = np.zeros(mask.shape, np.uint8)
+        for bit in range(32):
+            count += ((mask >> np.uint32(bit)) & np.uint32(1)).astype(np.uint8)
+        rec.log(f"maps/{base}/selected_count", rr.Image(colorize(count, 0, max(1, len(self.views[view][3])),
+                                                                 "viridis", count == 0)))
+        if self.options.selected_views_mask:
+            rec.log(f"maps/{base}/selected_views", rr.Image(np.ascontiguousarray(mask), color_model="L"))
+        stats = f"stats/{base}"
+        mean_cost = float(event.cost[valid].mean()) if valid.any() else float("nan")
+        rec.log(f"{stats}/mean_cost", rr.Scalars(mean_cost))
+        rec.log(f"{stats}/changed_pct", rr.Scalars(changed))
+        rec.log(f"{stats}/seconds", rr.Scalars(event.seconds))
+        rec.log(f"{stats}/level", rr.Scalars(event.level))
+        rec.log(f"{stats}/pass", rr.Scalars(event.pass_index))
+        gt = self.gt_depths[view]
+        if gt is not None and gt.shape == depth.shape:
+            has_gt = gt > 0
+            rel = np.where(has_gt & valid, np.abs(depth - gt) / np.where(has_gt, gt, 1.0), np.nan)
+            both = has_gt & valid
+            within = 100.0 * float((rel[both] < 0.01).sum()) / max(1, int(has_gt.sum()))
+            rec.log(f"{stats}/within_1pct", rr.Scalars(within))
+            rec.log(f"maps/{base}/error", rr.Image(colorize(_shrink(rel, small), 0.0, 0.05, "inferno",
+                                                            _shrink(~both, small))))
+        self.logged_steps += 1
+
+    # ---- later stages ---------------------------------------------------------------------------
+    def log_view_map(self, view: int, kind: str, image: np.ndarray, step: int | None = None) -> None:
+        """Log a per-view map of a later stage (counter, confidence, label, refined depth, ...)."""
+        if step is not None:
+            self.rec.set_time("iteration", sequence=step)
+        name = self.views[view][0]
+        self.rec.log(f"maps/{entity_name(view, name)}/{kind}", rr.Image(image))
+
+    def log_cloud(self, pipeline: str, xyz: np.ndarray, rgb: np.ndarray, radius: float = 0.01) -> None:
+        """Log a fused cloud under ``world/fused/<pipeline>``."""
+        self.rec.log(f"world/fused/{pipeline}", rr.Points3D(xyz, colors=rgb, radii=radius), static=True)
+
+    def on_stage(self, name: str, **info: Any) -> None:
+        """Log what a finished stage produced: counter maps after PatchMatch, the fused cloud after fusion."""
+        self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
+        for view, counter in enumerate(info.get("counter") or []):
+            self.log_view_map(view, "counter", colorize(counter, 0, 5, "coolwarm", counter <= 0))
+        cloud = info.get("cloud")
+        if cloud is not None:
+            self.log_cloud(str(info.get("pipeline", "vanilla")), np.asarray(cloud.xyz, np.float32), cloud.rgb,
+                           radius=self._point_radius)

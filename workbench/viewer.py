@@ -1,0 +1,340 @@
+"""The live-tuning browser viewer (viser): ``deepc view OUT_OR_SCENE``.
+
+Camera frustums with their images, the fused cloud coloured by RGB / confidence / supporting views /
+error against GT, and a panel to tune the pipeline, the confidence threshold, mask-k and the fusion
+thresholds. A change answers at once with a preview (the unfiltered cloud masked by per-point
+attributes) and the exact recomputation follows from a worker thread; only stages downstream of the
+change are recomputed (``workbench/session.py``). The GUI thread never computes. All browser tabs
+share one session. Binds 127.0.0.1 unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import viser
+
+from engine.io.ply import write_ply
+from workbench.session import COLOR_MODES, ViewerSession, ViewParams, describe
+
+THUMBNAIL = 160  # longest side of the images sent with the frustums
+
+
+def rotation_to_wxyz(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix."""
+    m = np.asarray(R, np.float64)
+    t = np.trace(m)
+    if t > 0:
+        s = np.sqrt(t + 1.0) * 2
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    q = np.array(q)
+    return q / np.linalg.norm(q)
+
+
+def safe_file_name(text: str, suffix: str) -> str:
+    """A file name made only of [A-Za-z0-9._-], never a path: names from the GUI cannot escape the folder."""
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(text).name).strip("._") or "export"
+    return stem[:80] + suffix
+
+
+def _thumbnail(image: np.ndarray, size: int = THUMBNAIL) -> np.ndarray:
+    step = max(1, int(np.ceil(max(image.shape[:2]) / size)))
+    return np.ascontiguousarray(image[::step, ::step])
+
+
+class ViewerApp:
+    """The viser server, its GUI and the worker that recomputes exact results."""
+
+    def __init__(self, session: ViewerSession, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False):
+        self.session = session
+        self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        self.port = self.server.get_port()
+        self.host = host
+        self._pending: ViewParams | None = None
+        self._generation = 0  # bumped by every request
+        self._done_generation = 0  # last generation whose exact cloud and scores are shown
+        self._cond = threading.Condition()
+        self._stopping = False
+        self._state_lock = threading.Lock()
+        self.cloud = None
+        self.cloud_params: ViewParams | None = None
+        self.last_update = 0.0
+        self.updates = 0
+        self._selected_view = 0
+        self._build_scene()
+        self._build_gui()
+        self._worker = threading.Thread(target=self._work, name="deepc-viewer-worker", daemon=True)
+        self._worker.start()
+        if session.has_maps:
+            self.request(self.params())
+
+    # ---- scene ----------------------------------------------------------------------------------
+    def _build_scene(self) -> None:
+        scene = self.session.scene
+        depths = [np.mean(v.depth_range) for v in scene.views]
+        centers = np.stack([v.camera.center for v in scene.views])
+        spread = float(np.median(np.linalg.norm(centers - centers.mean(axis=0), axis=1))) or 1.0
+        self.frustum_scale = 0.15 * spread
+        # about one pixel footprint at a typical depth
+        self.default_point_size = float(np.median(depths) * 0.5 / np.median([v.camera.fx for v in scene.views]))
+        self.server.scene.set_up_direction("-y")
+        first = scene.views[0].camera
+        home_position = first.center - first.R[2] * 0.2 * float(np.median(depths))
+        home_target = first.center + first.R[2] * float(np.median(depths))
+
+        @self.server.on_client_connect
+        def _(client: viser.ClientHandle) -> None:
+            # Start behind the first camera, looking where it looks, its image "up" on screen.
+            client.camera.position = home_position
+            client.camera.look_at = home_target
+            client.camera.up_direction = -first.R[1]
+        self.frustums = []
+        for v in scene.views:
+            cam = v.camera
+            fov = 2 * np.arctan2(cam.height / 2, cam.fy)
+            image = (np.asarray(scene.image(v.index)) * 255 + 0.5).astype(np.uint8)
+            frustum = self.server.scene.add_camera_frustum(
+                f"/cameras/{v.index:03d}", fov=float(fov), aspect=cam.width / cam.height, scale=self.frustum_scale,
+                image=_thumbnail(image), format="jpeg", wxyz=rotation_to_wxyz(cam.R.T), position=cam.center,
+                color=(60, 60, 200))
+            frustum.on_click(lambda event, i=v.index: self.select_view(i))
+            self.frustums.append(frustum)
+        if not self.session.has_maps and len(scene.model.points):
+            self.server.scene.add_point_cloud("/sparse", scene.model.points.astype(np.float32),
+                                              colors=(200, 120, 30), point_size=self.default_point_size * 3,
+                                              precision="float32")
+        self.cloud_handle = None
+
+    # ---- GUI --------------------------------------------------------------------------------------
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        s = self.session
+        defaults = ViewParams()
+        gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {len(s.scene.views)} views")
+        with gui.add_folder("Pipeline"):
+            self.pipeline = gui.add_dropdown("Pipeline", options=tuple(s.pipelines or ["vanilla"]),
+                                             initial_value=(s.pipelines or ["vanilla"])[0],
+                                             disabled=len(s.pipelines) <= 1)
+            self.conf_tau = gui.add_slider("Confidence τ", min=0.0, max=1.0, step=0.01,
+                                           initial_value=defaults.conf_tau, disabled=not s.has_confidence,
+                                           hint="keep pixels with confidence ≥ τ (fast and full pipelines)")
+            self.mask_k = gui.add_slider("Mask k", min=0, max=10, step=1, initial_value=0,
+                                         disabled=not s.has_counter,
+                                         hint="keep pixels with ≥ k consistent source views (0 = off)")
+        with gui.add_folder("Fusion"):
+            f = defaults.fusion
+            self.reproj = gui.add_slider("Reprojection error (px)", min=0.25, max=4.0, step=0.25,
+                                         initial_value=f.max_reproj_error)
+            self.depth_err = gui.add_slider("Depth error (rel.)", min=0.001, max=0.05, step=0.001,
+                                            initial_value=f.max_depth_error)
+            self.normal_err = gui.add_slider("Normal angle (°)", min=1.0, max=90.0, step=1.0,
+                                             initial_value=f.max_normal_error)
+            self.min_views = gui.add_slider("Min views", min=1, max=10, step=1, initial_value=f.min_num_pixels,
+                                            hint="fewest fused pixels per point, the seed included")
+        with gui.add_folder("Display"):
+            self.point_size = gui.add_slider("Point size", min=self.default_point_size / 10,
+                                             max=self.default_point_size * 10, step=self.default_point_size / 10,
+                                             initial_value=self.default_point_size)
+            self.color_mode = gui.add_dropdown("Colour", options=COLOR_MODES, initial_value="rgb")
+        with gui.add_folder("Metrics"):
+            self.metrics = gui.add_markdown("computing…" if s.has_maps else
+                                            "no maps: run `deepc run` and open its output folder")
+        with gui.add_folder("Export"):
+            self.export_name = gui.add_text("File name", initial_value="cloud")
+            self.export_button = gui.add_button("Export cloud (PLY)", disabled=not s.has_maps)
+            self.rrd_button = gui.add_button("Save state (.rrd)", disabled=not s.has_maps)
+            self.export_status = gui.add_markdown("")
+        with gui.add_folder("View"):
+            self.view_title = gui.add_markdown("")
+            self.view_images: dict[str, Any] = {}
+            for kind, image in s.view_images(0).items():
+                self.view_images[kind] = gui.add_image(_thumbnail(image, 320), label=kind, format="jpeg")
+        self.select_view(0)
+
+        for handle in (self.pipeline, self.conf_tau, self.mask_k, self.reproj, self.depth_err, self.normal_err,
+                       self.min_views):
+            handle.on_update(lambda _event: self.request(self.params()))
+        self.color_mode.on_update(lambda _event: self._recolor())
+        self.point_size.on_update(lambda _event: self._set_point_size())
+        self.export_button.on_click(lambda _event: self.export_ply())
+        self.rrd_button.on_click(lambda _event: self.save_rrd())
+
+    def params(self) -> ViewParams:
+        fusion = ViewParams().fusion.replace(
+            max_reproj_error=float(self.reproj.value), max_depth_error=float(self.depth_err.value),
+            max_normal_error=float(self.normal_err.value), min_num_pixels=int(self.min_views.value))
+        return ViewParams(pipeline=str(self.pipeline.value), conf_tau=float(self.conf_tau.value),
+                          mask_k=int(self.mask_k.value), fusion=fusion)
+
+    # ---- updates ----------------------------------------------------------------------------------
+    def request(self, params: ViewParams) -> None:
+        """Show a preview now (when the base cloud is ready) and queue the exact recomputation."""
+        if not self.session.has_maps:
+            return
+        base_params = dataclasses.replace(params, conf_tau=0.0, mask_k=0,
+                                          fusion=params.fusion.replace(min_num_pixels=1))
+        base = self.session.cached_cloud(base_params)
+        if base is not None and self.session.cached_cloud(params) is None:
+            mask = ViewerSession.preview_mask(base, params)
+            self._show(base.subset(mask), params, preview=True)
+        with self._cond:
+            self._generation += 1
+            self._pending = params
+            self._cond.notify()
+
+    def _work(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._stopping:
+                    self._cond.wait()
+                if self._stopping:
+                    return
+                params, generation = self._pending, self._generation
+                self._pending = None
+            try:
+                self.session.base_cloud(params)  # makes later previews possible
+                cloud = self.session.cloud(params)
+                if generation != self._generation:
+                    continue  # a newer request is queued: skip the stale push
+                self._show(cloud, params, preview=False)
+                scores = self.session.evaluate(params, cloud)
+                if generation == self._generation:
+                    self.metrics.content = self._metrics_text(cloud, scores)
+            except Exception as exc:  # the viewer must survive any one bad computation
+                self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
+            self._done_generation = generation
+
+    def _metrics_text(self, cloud, scores, preview: bool = False) -> str:
+        if preview:
+            return f"**{len(cloud):,} points** (preview)  \nexact result follows…"
+        return f"**{len(cloud):,} points**  \n{describe(scores)}"
+
+    def _show(self, cloud, params: ViewParams, preview: bool) -> None:
+        with self._state_lock:
+            colors = self.session.colors(cloud, str(self.color_mode.value))
+            points = np.asarray(cloud.xyz, np.float32)
+            with self.server.atomic():
+                if self.cloud_handle is None:
+                    self.cloud_handle = self.server.scene.add_point_cloud(
+                        "/fused", points, colors=colors, point_size=float(self.point_size.value),
+                        precision="float32")
+                else:
+                    self.cloud_handle.points = points
+                    self.cloud_handle.colors = colors
+                if preview:
+                    self.metrics.content = self._metrics_text(cloud, None, preview=True)
+                elif self.session.has_gt:
+                    self.metrics.content = f"**{len(cloud):,} points**  \nscoring…"
+            self.cloud, self.cloud_params = cloud, params
+            self.last_update = time.perf_counter()
+            self.updates += 1
+
+    def _recolor(self) -> None:
+        if self.cloud is not None:
+            self._show(self.cloud, self.cloud_params, preview=False)
+            scores = self.session.evaluate(self.cloud_params, self.cloud) if self.cloud_params else None
+            self.metrics.content = self._metrics_text(self.cloud, scores)
+
+    def _set_point_size(self) -> None:
+        if self.cloud_handle is not None:
+            self.cloud_handle.point_size = float(self.point_size.value)
+
+    def select_view(self, index: int) -> None:
+        """Show view ``index``'s image and maps in the side panel (also on a frustum click)."""
+        self._selected_view = index
+        view = self.session.scene.views[index]
+        self.view_title.content = f"**view {index}: {view.name}**  \nsources: {view.source_views}"
+        for kind, image in self.session.view_images(index).items():
+            if kind in self.view_images:
+                self.view_images[kind].image = _thumbnail(image, 320)
+        for i, frustum in enumerate(self.frustums):
+            frustum.color = (230, 60, 40) if i == index else (60, 60, 200)
+
+    # ---- exports ----------------------------------------------------------------------------------
+    def _export_dir(self) -> Path:
+        base = self.session.out_dir or Path.cwd()
+        return base / "exports"
+
+    def export_ply(self, name: str | None = None) -> Path | None:
+        """Write the current cloud to OUT/exports/<sanitised name>.ply."""
+        if self.cloud is None:
+            return None
+        path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".ply")
+        c = self.cloud
+        write_ply(path, np.asarray(c.xyz), c.normal, c.rgb, extra={"num_views": c.num_views.astype(np.int32)})
+        self.export_status.content = f"wrote `{path}` ({len(c):,} points)"
+        return path
+
+    def save_rrd(self, name: str | None = None) -> Path | None:
+        """Save cameras, the selected view's maps and the current cloud as OUT/exports/<name>.rrd."""
+        if self.cloud is None:
+            return None
+        import rerun as rr
+
+        from workbench.recording import Recording
+        from workbench.stream import RerunStream
+
+        path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
+        recording = Recording(path)
+        try:
+            scene = self.session.scene
+            views = [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views]
+            stream = RerunStream(recording.rec, views)
+            stream.log_cloud(str(self.cloud_params.pipeline), np.asarray(self.cloud.xyz, np.float32), self.cloud.rgb,
+                             radius=float(self.point_size.value) / 2)
+            for kind, image in self.session.view_images(self._selected_view).items():
+                stream.log_view_map(self._selected_view, kind, image)
+            recording.rec.log("params", rr.TextDocument(str(dataclasses.asdict(self.cloud_params))), static=True)
+        except BaseException:
+            recording.abandon()
+            raise
+        recording.finish()
+        self.export_status.content = f"wrote `{path}`"
+        return path
+
+    # ---- lifecycle ----------------------------------------------------------------------------------
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        """Block until no recomputation is pending or running (for tests and benchmarks)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self._cond:
+                if self._pending is None and self._done_generation == self._generation:
+                    return True
+            time.sleep(0.02)
+        return False
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        self._worker.join(timeout=10)
+        self.server.stop()
+
+
+def serve(path: str, host: str = "127.0.0.1", port: int = 8080) -> None:
+    """Open a session and serve until interrupted (``deepc view``)."""
+    session = ViewerSession.open(path)
+    app = ViewerApp(session, host=host, port=port, verbose=False)
+    print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
