@@ -72,36 +72,15 @@ def fake_run(tmp_path_factory) -> Path:
     return make_fake_run(SAMPLES / "tiny", tmp_path_factory.mktemp("fake_run"))
 
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--disable-dev-shm-usage", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
-
-
 @pytest.fixture(scope="session")
-def browser_context(tmp_path_factory):
+def browser_context():
     """Debian chromium driven by playwright; requests leaving 127.0.0.1 are blocked."""
+    from workbench.browser import CHROMIUM, chromium
+
     if not CHROMIUM.exists():
         pytest.skip("needs /usr/bin/chromium (scripts/setup.sh --test installs it)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        context = p.chromium.launch_persistent_context(
-            str(tmp_path_factory.mktemp("chromium")), executable_path=str(CHROMIUM), headless=True,
-            args=CHROMIUM_ARGS, viewport={"width": 1000, "height": 700})
-        context.set_default_timeout(30_000)
-
-        def only_loopback(route):
-            url = route.request.url
-            if url.startswith(("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:", "about:")):
-                route.continue_()
-            else:
-                route.abort()
-        context.route("**/*", only_loopback)
-        try:
-            yield context
-        finally:
-            context.close()
+    with chromium() as context:
+        yield context
 
 
 def wait_for(predicate, timeout: float = 30.0, interval: float = 0.05):

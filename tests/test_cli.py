@@ -69,7 +69,69 @@ def test_bad_option_values_give_exit_2(tmp_path):
     assert result.returncode == 2 and "--depth-range" in result.stderr
 
 
-@pytest.mark.parametrize("args", [["eval", "a.ply", "b.ply"], ["view", "x"], ["replay", "x.rrd"], ["regress"],
-                                  ["train"]])
-def test_stages_that_do_not_exist_yet_say_so(args):
+@pytest.mark.parametrize("args", [["regress"], ["train"], ["run", "sample_scenes/tiny", "--out", "x", "--pipeline",
+                                                                "fast", "--headless"]])
+def test_stages_that_do_not_exist_yet_say_so(args, tmp_path):
     _one_line_error(deepc(*args), "does not exist yet")
+
+
+def test_view_and_replay_refuse_bad_paths(tmp_path):
+    _one_line_error(deepc("view", tmp_path), "neither")
+    _one_line_error(deepc("replay", tmp_path / "missing.rrd"), "not found")
+    (tmp_path / "bad.rrd").write_bytes(b"garbage")
+    _one_line_error(deepc("replay", tmp_path / "bad.rrd", "--web"), "bad.rrd")
+
+
+def test_eval_prints_the_table_and_writes_json(tmp_path):
+    import json
+
+    import numpy as np
+
+    from engine.io.ply import write_ply
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(0, 1, (4000, 3))
+    write_ply(tmp_path / "gt.ply", gt)
+    write_ply(tmp_path / "rec.ply", gt[:2000] + rng.normal(0, 0.002, (2000, 3)), coordinate_dtype="f8")
+    result = deepc("eval", tmp_path / "rec.ply", tmp_path / "gt.ply", "--tolerances", "0.01,0.05",
+                   "--json", tmp_path / "out.json")
+    assert result.returncode == 0, result.stderr
+    assert "F1" in result.stdout
+    scores = json.loads((tmp_path / "out.json").read_text())
+    assert scores["tolerances"] == [0.01, 0.05]
+    assert scores["accuracy"][1] > 95 and 40 < scores["completeness"][0] < 65  # half the GT is covered
+    _one_line_error(deepc("eval", tmp_path / "rec.ply", tmp_path / "gt.ply", "--tolerances", "0,-1"), "toleran")
+
+
+def test_run_writes_the_contract_outputs_and_a_recording(tmp_path):
+    """CONTRACT §4/§5 on the tiny scene with a short schedule (the quality tests use the full one)."""
+    import json
+
+    from rerun.chunk import RrdReader
+
+    from engine.io.dense import read_dense_map
+    out = tmp_path / "out"
+    result = deepc("run", SAMPLES / "tiny", "--out", out, "--headless", "--record", "--iterations", "2",
+                   "--levels", "2", "--geom-passes", "1", timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    names = [f"view_{i:03d}.png" for i in range(5)]
+    for kind, channels in (("depth", 1), ("normal", 3), ("cost", 1), ("counter", 1)):
+        for name in names:
+            array = read_dense_map(out / "stereo" / f"{kind}_maps" / f"{name}.bin")
+            assert array.shape[:2] == (120, 160) and (array.ndim == 2) == (channels == 1)
+    assert (out / "fused.ply").stat().st_size > 1000
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["scene"] == "tiny" and metrics["pipeline"] == "vanilla" and metrics["num_images"] == 5
+    assert metrics["image_size"] == [160, 120] and metrics["fused_points"] > 1000
+    assert set(metrics["seconds"]) >= {"patchmatch", "confidence", "refinement", "fusion", "total"}
+    assert set(metrics["depth"]) >= {"abs_rel", "within_1pct", "within_5pct", "valid_fraction"}
+    assert metrics["eval"]["tolerances"] == [0.01, 0.02, 0.05, 0.1, 0.2, 0.5]
+    assert len(metrics["eval"]["f1"]) == 6 and metrics["eval"]["f1"][2] > 30
+    # The recording: every view's maps at every iteration of every pass and level (2 levels x 2 passes x 2).
+    store = RrdReader(str(out / "recording.rrd")).stream().collect()
+    summary = str(store.summary())
+    for entity in ("/world/cameras/", "/maps/000_view_000.png/depth", "/maps/004_view_004.png/normal",
+                   "/maps/002_view_002.png/counter", "/stats/001_view_001.png/mean_cost", "/world/fused/vanilla"):
+        assert entity in summary
+    table = store.reader(index="iteration", contents="/maps/003_view_003.png/depth").to_arrow_table()
+    assert table.num_rows == 2 * 2 * 2
+    assert not list(out.rglob(".*.tmp"))

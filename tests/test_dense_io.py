@@ -8,8 +8,14 @@ import numpy as np
 import pytest
 
 from engine.errors import DeepCError
-from engine.io.dense import (encode_dense_map, read_dense_map, read_dense_map_header, read_depth_map,
-                             read_normal_map, write_dense_map)
+from engine.io.dense import (
+    encode_dense_map,
+    read_dense_map,
+    read_dense_map_header,
+    read_depth_map,
+    read_normal_map,
+    write_dense_map,
+)
 
 
 def colmap_documented_bytes(array: np.ndarray) -> bytes:

@@ -10,11 +10,12 @@ import argparse
 import sys
 import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from engine import __version__
 from engine.errors import DeepCError
 from engine.scene import SceneOptions, load_scene
-from workbench.flags import add_options_flags, options_from_args
+from workbench.flags import add_options_flags, options_from_args, section_overrides
 
 EXIT_OK, EXIT_REGRESSED, EXIT_USAGE = 0, 1, 2
 
@@ -29,17 +30,114 @@ def _not_yet(command: str, stage: str) -> Callable[[argparse.Namespace], int]:
     return handler
 
 
+def _eval(args: argparse.Namespace) -> int:
+    from workbench.eval_command import cmd_eval
+    return cmd_eval(args)
+
+
+def _view(args: argparse.Namespace) -> int:
+    from workbench.viewer import serve
+    serve(args.target, host=args.host, port=args.port)
+    return EXIT_OK
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from workbench.replay import replay
+    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port)
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, options_from_args(SceneOptions, args))
     print(scene.summary())
     return EXIT_OK
 
 
+# PatchMatch options offered as flags; the rest are reachable with --set patchmatch.NAME=VALUE.
+RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_propagation", "ncc_weighting",
+                        "view_sampling", "levels", "geom_passes", "num_threads"]
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    scene = load_scene(args.scene, options_from_args(SceneOptions, args))
-    print(scene.summary())
-    raise NotYetImplemented("deepc run: the PatchMatch stage does not exist yet in this version "
-                            "(the scene above loaded and is valid)")
+    from engine.fusion import FUSION_PRESETS, FusionOptions
+    from engine.patchmatch import PatchMatchOptions
+    from engine.pipeline import PipelineOptions, run_pipeline
+    from workbench.progress import PassProgress
+
+    scene_options = options_from_args(SceneOptions, args)
+    patchmatch = options_from_args(PatchMatchOptions, args,
+                                   **section_overrides(args.set, "patchmatch", PatchMatchOptions))
+    fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[args.fusion_preset],
+                               **section_overrides(args.set, "fusion", FusionOptions))
+    options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, fusion=fusion).validate()
+    if options.pipeline != "vanilla":
+        raise NotYetImplemented(f"deepc run --pipeline {options.pipeline}: the confidence network does not "
+                                "exist yet in this version (use --pipeline vanilla)")
+    scene = load_scene(args.scene, scene_options)
+    print(scene.summary(), file=sys.stderr)
+    record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
+    live = recording = None
+    progress = PassProgress()
+    try:
+        if not args.headless:
+            from workbench.replay import live_viewer
+            live = live_viewer(args.host)
+            print(f"live PatchMatch stream: {live.url}", file=sys.stderr)
+        if record or live:
+            recording = _open_recording(record, scene, options, live.grpc_url if live else None)
+        try:
+            result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
+                                  progress=progress)
+        except BaseException:
+            if recording:
+                recording.abandon()
+            raise
+        finally:
+            progress.close()
+        if recording:
+            recording.finish()
+            if record:
+                print(f"recording: {record} ({recording.stream.logged_steps} logged iterations)", file=sys.stderr)
+        _print_run_summary(result.metrics, args.out)
+        if not args.headless:
+            from workbench.viewer import serve
+            serve(args.out, host=args.host, port=args.port)
+    finally:
+        if live:
+            live.stop()
+    return EXIT_OK
+
+
+def _open_recording(path: str | None, scene, options, live_url: str | None = None):
+    from layouts import DEFAULT, LAYOUTS
+    from workbench.recording import Recording
+    from workbench.stream import RerunStream, StreamOptions, entity_name
+
+    blueprint = LAYOUTS[DEFAULT]([entity_name(v.index, v.name) for v in scene.views])
+    recording = Recording(path, blueprint, live_url)
+    views = [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views]
+    gt = [scene.gt_depth(v.index) for v in scene.views]
+    recording.stream = RerunStream(recording.rec, views, gt, StreamOptions(),
+                                   pass_iterations=options.patchmatch.pass_iterations)
+    recording.stream.set_depth_ranges([v.depth_range for v in scene.views])
+    return recording
+
+
+def _print_run_summary(metrics: dict, out: str) -> None:
+    seconds = metrics["seconds"]
+    print(f"{metrics['scene']}: {metrics['num_images']} views at {metrics['image_size'][0]}x"
+          f"{metrics['image_size'][1]}, pipeline {metrics['pipeline']}, {seconds['total']:.1f} s "
+          f"(PatchMatch {seconds['patchmatch']:.1f} s)")
+    if "depth" in metrics:
+        d = metrics["depth"]
+        print(f"depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
+              f"valid {d['valid_fraction']:.1f}%, abs rel {d['abs_rel']:.4f}")
+    print(f"fused cloud: {metrics['fused_points']:,} points ({seconds['fusion']:.1f} s)")
+    if "eval" in metrics:
+        e = metrics["eval"]
+        for t, a, c, f in zip(e["tolerances"], e["accuracy"], e["completeness"], e["f1"], strict=True):
+            if abs(t - 0.02) < 1e-9 or abs(t - 0.05) < 1e-9:
+                print(f"at {t * 100:g} cm: F1 {f:.1f}, accuracy {a:.1f}, completeness {c:.1f}")
+    print(f"outputs in {out}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,13 +154,24 @@ def build_parser() -> argparse.ArgumentParser:
                      help="vanilla: PatchMatch + fusion; fast: + confidence filtering; full: + refinement")
     scene_group = run.add_argument_group("scene")
     add_options_flags(scene_group, SceneOptions)
-    pm = run.add_argument_group("patchmatch")
-    pm.add_argument("--schedule", choices=("paper", "acmm"), default=None,
-                    help="red-black iterations per pass: paper = 8 in every pass, acmm = 3/2/2")
-    pm.add_argument("--iterations", type=int, default=None, help="override the iteration count of every pass")
-    pm.add_argument("--seed", type=int, default=None, help="random seed (same seed, same output)")
-    run.add_argument("--record", metavar="FILE.rrd", default=None, help="write a rerun recording")
-    run.add_argument("--headless", action="store_true", help="no viewer, no window: print progress and exit")
+    from engine.patchmatch import PatchMatchOptions
+    add_options_flags(run.add_argument_group("patchmatch"), PatchMatchOptions, only=RUN_PATCHMATCH_FLAGS)
+    from engine.fusion import FUSION_PRESETS, FusionOptions
+    fusion_group = run.add_argument_group("fusion")
+    fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default="deepc",
+                              help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels); "
+                                   "the flags below override single values")
+    add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
+                                                         "min_num_pixels"])
+    run.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
+                     help="any other stage option, e.g. --set patchmatch.tau0=0.7 (repeatable)")
+    run.add_argument("--record", metavar="FILE.rrd", nargs="?", const="", default=None,
+                     help="write a rerun recording (default path: OUT/recording.rrd)")
+    run.add_argument("--headless", action="store_true",
+                     help="no viewer, no window: print progress and exit (otherwise the run streams live to rerun "
+                          "and the result opens in the browser viewer)")
+    run.add_argument("--host", default="127.0.0.1", help="address the viewers bind (default: 127.0.0.1)")
+    run.add_argument("--port", type=int, default=8080, help="port of the browser viewer (default: 8080)")
     run.set_defaults(handler=cmd_run)
 
     info = sub.add_parser("info", help="load a scene and print its views, depth ranges and source views")
@@ -75,18 +184,23 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("gt", metavar="GT.ply", help="ground-truth points (or an ETH3D scan_alignment.mlp)")
     ev.add_argument("--tolerances", default="0.01,0.02,0.05,0.1,0.2,0.5", help="comma-separated, model units")
     ev.add_argument("--json", metavar="OUT.json", help="also write the table as JSON")
-    ev.set_defaults(handler=_not_yet("eval", "the evaluation stage"))
+    ev.set_defaults(handler=_eval)
 
     view = sub.add_parser("view", help="the live-tuning browser viewer (viser)")
     view.add_argument("target", metavar="OUT_OR_SCENE")
     view.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)")
     view.add_argument("--port", type=int, default=8080)
-    view.set_defaults(handler=_not_yet("view", "the viewer"))
+    view.set_defaults(handler=_view)
 
     replay = sub.add_parser("replay", help="replay a .rrd recording in the rerun viewer")
     replay.add_argument("recording", metavar="FILE.rrd")
-    replay.add_argument("--layout", default=None, help="layout name from layouts/")
-    replay.set_defaults(handler=_not_yet("replay", "the rerun replay"))
+    replay.add_argument("--layout", default=None,
+                        help="blueprint from layouts/: iterations, pipelines or confidence (default: the one "
+                             "embedded in the recording)")
+    replay.add_argument("--web", action="store_true", help="serve the web viewer even when there is a display")
+    replay.add_argument("--host", default="127.0.0.1", help="address of the web viewer (default: 127.0.0.1)")
+    replay.add_argument("--port", type=int, default=9090, help="port of the web viewer")
+    replay.set_defaults(handler=_replay)
 
     regress = sub.add_parser("regress", help="headless regression runs against committed baselines")
     regress.add_argument("--suite", help="suite file (TOML)")

@@ -73,15 +73,50 @@ def add_options_flags(parser: argparse.ArgumentParser | argparse._ArgumentGroup,
     return added
 
 
-def options_from_args(cls: type[Options], args: argparse.Namespace, **overrides: Any) -> Options:
-    """Build ``cls`` from the flags that were given (others keep their defaults), validated."""
-    values = {}
+def given_flags(cls: type[Options], args: argparse.Namespace) -> dict[str, Any]:
+    """The fields of ``cls`` whose flags were given on the command line."""
     prefix = f"{cls.__name__}."
-    for key, value in vars(args).items():
-        if key.startswith(prefix) and value is not None:
-            values[key[len(prefix):]] = value
-    values.update(overrides)
+    return {key[len(prefix):]: value for key, value in vars(args).items()
+            if key.startswith(prefix) and value is not None}
+
+
+def options_from_args(cls: type[Options], args: argparse.Namespace, base: Options | None = None,
+                      **overrides: Any) -> Options:
+    """Build ``cls`` from the flags that were given, validated; the others keep the values of
+    ``base`` (a preset) or the dataclass defaults."""
+    values = {**given_flags(cls, args), **overrides}
     try:
-        return cls(**values).validate()
+        return base.replace(**values) if base is not None else cls(**values).validate()
     except TypeError as exc:
         raise OptionsError(str(exc)) from None
+
+
+def section_overrides(assignments: list[str], section: str, cls: type[Options]) -> dict[str, Any]:
+    """Parse ``--set SECTION.NAME=VALUE`` items that belong to ``section`` into typed values for ``cls``."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    values: dict[str, Any] = {}
+    for item in assignments:
+        key, sep, text = item.partition("=")
+        stage, dot, name = key.partition(".")
+        if not sep or not dot:
+            raise OptionsError(f"--set {item!r}: expected STAGE.NAME=VALUE")
+        if stage != section:
+            continue
+        if name not in names:
+            raise OptionsError(f"--set {item!r}: {cls.__name__} has no option {name!r}")
+        hint = _base_type(hints[name])
+        try:
+            if hint is bool:
+                if text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                    raise ValueError
+                values[name] = text.lower() in ("true", "1", "yes", "on")
+            elif typing.get_origin(hint) is tuple:
+                values[name] = _tuple_parser(name, typing.get_args(hint))(text)
+            elif text.lower() == "none" and hint is not str:
+                values[name] = None
+            else:
+                values[name] = hint(text)
+        except (ValueError, argparse.ArgumentTypeError):
+            raise OptionsError(f"--set {item!r}: not a valid {getattr(hint, '__name__', hint)}") from None
+    return values

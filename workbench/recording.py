@@ -15,9 +15,16 @@ APP_ID = "deepc_workbench"
 
 
 class Recording:
-    """``rec`` logs into ``<dir>/.<name>.*.tmp``; :meth:`finish` renames it to ``path``; :meth:`abandon` deletes it."""
+    """``rec`` logs into ``<dir>/.<name>.*.tmp`` (and to ``live_url``, a viewer's gRPC address, if given);
+    :meth:`finish` renames the file to ``path``; :meth:`abandon` deletes it."""
 
-    def __init__(self, path: str | Path, blueprint=None):
+    def __init__(self, path: str | Path | None, blueprint=None, live_url: str | None = None):
+        self.rec = rr.RecordingStream(APP_ID, recording_id=str(uuid.uuid4()))
+        self.stream = None
+        if path is None:  # live only
+            self.path = self.tmp = None
+            self.rec.connect_grpc(live_url, default_blueprint=blueprint)
+            return
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -27,18 +34,21 @@ class Recording:
         os.fchmod(fd, 0o644)
         os.close(fd)
         self.tmp = Path(tmp)
-        self.rec = rr.RecordingStream(APP_ID, recording_id=str(uuid.uuid4()))
-        self.rec.save(str(self.tmp), default_blueprint=blueprint)
-        self.stream = None
+        if live_url:  # the same logs go to a live viewer and to the file
+            self.rec.set_sinks(rr.GrpcSink(live_url), rr.FileSink(str(self.tmp)), default_blueprint=blueprint)
+        else:
+            self.rec.save(str(self.tmp), default_blueprint=blueprint)
 
-    def finish(self) -> Path:
+    def finish(self) -> Path | None:
         self.rec.flush()
         self.rec.disconnect()
-        os.replace(self.tmp, self.path)
+        if self.tmp is not None:
+            os.replace(self.tmp, self.path)
         return self.path
 
     def abandon(self) -> None:
         try:
             self.rec.disconnect()
         finally:
-            self.tmp.unlink(missing_ok=True)
+            if self.tmp is not None:
+                self.tmp.unlink(missing_ok=True)

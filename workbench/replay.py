@@ -15,6 +15,7 @@ import subprocess
 import tempfile
 import threading
 import time
+import urllib.parse
 from pathlib import Path
 
 from engine.errors import DeepCError
@@ -40,7 +41,8 @@ def recording_views(path: str | Path) -> list[str]:
         summary = str(RrdReader(str(path)).stream().collect().summary())
     except Exception as exc:  # the reader raises assorted types for foreign or truncated files
         raise DeepCError(f"not a readable rerun recording ({' '.join(str(exc).split())[:160]})", path) from None
-    views = sorted({m.group(1) for m in re.finditer(r"^/maps/([^/\s]+)/", summary, re.MULTILINE)})
+    # entity parts are escaped (entity_name): a '\/' inside a part does not end it
+    views = sorted({m.group(1) for m in re.finditer(r"^/maps/((?:\\.|[^/\\\s])+)/", summary, re.MULTILINE)})
     return views
 
 
@@ -57,15 +59,16 @@ def layout_file(path: str | Path, layout: str, folder: Path) -> Path:
 
 
 class WebViewer:
-    """A rerun web viewer serving one recording on ``host``; use as a context manager or call stop()."""
+    """A rerun web viewer on ``host``: serving one recording, or (``path=None``) waiting for a live
+    stream at :attr:`grpc_url`. Use as a context manager or call stop()."""
 
-    def __init__(self, path: str | Path, layout: str | None = None, host: str = "127.0.0.1", port: int = 0,
-                 timeout: float = 60.0):
+    def __init__(self, path: str | Path | None = None, layout: str | None = None, host: str = "127.0.0.1",
+                 port: int = 0, timeout: float = 60.0):
         self._tmp = tempfile.TemporaryDirectory(prefix="deepc-replay-")
-        files = [str(Path(path).resolve())]
-        if layout:
+        files = [] if path is None else [str(Path(path).resolve())]
+        if path is not None and layout:
             files.append(str(layout_file(path, layout, Path(self._tmp.name))))
-        else:
+        elif path is not None:
             recording_views(path)  # validates the file before starting anything
         cmd = [str(rerun_binary()), "--serve-web", "--bind", host, "--port", "0", "--web-viewer-port", str(port),
                *files]
@@ -73,6 +76,8 @@ class WebViewer:
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                      start_new_session=True, env=env)
         self.url = self._wait_for_url(timeout)
+        query = urllib.parse.parse_qs(urllib.parse.urlsplit(self.url).query)
+        self.grpc_url = query.get("url", [""])[0].replace("localhost", "127.0.0.1")
 
     def _wait_for_url(self, timeout: float) -> str:
         found: list[str] = []
@@ -133,3 +138,26 @@ def replay(path: str, layout: str | None = None, web: bool = False, host: str = 
     finally:
         viewer.stop()
     return 0
+
+
+class NativeViewer:
+    """The native rerun viewer, listening for a live stream on 127.0.0.1 (needs a display)."""
+
+    def __init__(self, host: str = "127.0.0.1"):
+        import socket
+
+        with socket.socket() as sock:
+            sock.bind((host, 0))
+            port = sock.getsockname()[1]
+        self.proc = subprocess.Popen([str(rerun_binary()), "--bind", host, "--port", str(port)],
+                                     start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.grpc_url = f"rerun+http://{host}:{port}/proxy"
+        self.url = "the native rerun viewer"
+
+    def stop(self) -> None:
+        """Leave the window open for the user; it is theirs to close."""
+
+
+def live_viewer(host: str = "127.0.0.1", web: bool = False) -> WebViewer | NativeViewer:
+    """A viewer to stream a run into: native with a display, otherwise the web viewer on ``host``."""
+    return NativeViewer(host) if has_display() and not web else WebViewer(None, host=host)

@@ -77,6 +77,22 @@ def normal_to_rgb(normal: np.ndarray) -> np.ndarray:
     return rgb
 
 
+COST_METER = 127.5  # uint8 cost map: value / 127.5 = matching cost in [0, 2]
+ERROR_METER = 10.0  # uint8 error map: value / 10 = relative depth error in percent (0 = none or no GT)
+
+
+def _to_u8(values: np.ndarray, scale: float) -> np.ndarray:
+    return np.clip(np.rint(values * scale), 0, 255).astype(np.uint8)
+
+
+def _popcount(mask: np.ndarray) -> np.ndarray:
+    """(H, W) uint32 bitmask -> (H, W) uint8 number of set bits."""
+    count = np.zeros(mask.shape, np.uint8)
+    for bit in range(32):
+        count += ((mask >> np.uint32(bit)) & np.uint32(1)).astype(np.uint8)
+    return count
+
+
 def _shrink(array: np.ndarray, max_size: int) -> np.ndarray:
     """Nearest-neighbour subsampling by an integer step (keeps depth values real, never blended)."""
     if max_size <= 0:
@@ -130,11 +146,13 @@ class RerunStream(NullObserver):
         self._point_radius = 0.5 * typical / focal
 
     # ---- per iteration --------------------------------------------------------------------------
+    def _last_of_pass(self, event: IterationEvent) -> bool:
+        return self.pass_iterations is not None and event.iteration == self.pass_iterations(event.pass_index) - 1
+
     def _wanted(self, event: IterationEvent) -> bool:
         if self.options.view is not None and event.view != self.options.view:
             return False
-        last = self.pass_iterations is not None and event.iteration == self.pass_iterations(event.pass_index) - 1
-        return last or event.iteration % self.options.every == 0
+        return self._last_of_pass(event) or event.iteration % self.options.every == 0
 
     def on_iteration(self, event: IterationEvent) -> None:
         view = event.view
@@ -149,22 +167,23 @@ class RerunStream(NullObserver):
             return
         rec = self.rec
         rec.set_time("iteration", sequence=event.step)
-        name, _camera, _rgb, _sources = self.views[view]
+        name, _camera, _rgb, sources = self.views[view]
         base = entity_name(view, name)
         small = self.options.max_size
         dmin, dmax = self._depth_range[view]
-        rec.log(f"maps/{base}/depth", rr.DepthImage(_shrink(depth, small), meter=1.0, colormap="turbo",
-                                                    depth_range=[dmin, dmax]))
+        # Scalar maps are logged compactly as colormapped depth images (float16 or uint8 with a
+        # ``meter`` scale, so hovering shows the real value); ~0.6 MB per view and iteration at 320x240.
+        rec.log(f"maps/{base}/depth", rr.DepthImage(_shrink(depth, small).astype(np.float16), meter=1.0,
+                                                    colormap="turbo", depth_range=[dmin, dmax]))
         rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(_shrink(event.normal, small))))
         cost = _shrink(event.cost, small)
-        rec.log(f"maps/{base}/cost", rr.Image(colorize(cost, 0.0, 2.0, "magma_r", _shrink(~valid, small))))
+        rec.log(f"maps/{base}/cost", rr.DepthImage(_to_u8(cost, COST_METER), meter=COST_METER, colormap="magma",
+                                                   depth_range=[0, 255]))
         mask = _shrink(event.selected_views, small)
-        count = np.zeros(mask.shape, np.uint8)
-        for bit in range(32):
-            count += ((mask >> np.uint32(bit)) & np.uint32(1)).astype(np.uint8)
-        rec.log(f"maps/{base}/selected_count", rr.Image(colorize(count, 0, max(1, len(self.views[view][3])),
-                                                                 "viridis", count == 0)))
-        if self.options.selected_views_mask:
+        count = _popcount(mask)
+        rec.log(f"maps/{base}/selected_count", rr.DepthImage(count, meter=1.0, colormap="viridis",
+                                                             depth_range=[0, max(1, len(sources))]))
+        if self.options.selected_views_mask and self._last_of_pass(event):
             rec.log(f"maps/{base}/selected_views", rr.Image(np.ascontiguousarray(mask), color_model="L"))
         stats = f"stats/{base}"
         mean_cost = float(event.cost[valid].mean()) if valid.any() else float("nan")
@@ -180,8 +199,8 @@ class RerunStream(NullObserver):
             both = has_gt & valid
             within = 100.0 * float((rel[both] < 0.01).sum()) / max(1, int(has_gt.sum()))
             rec.log(f"{stats}/within_1pct", rr.Scalars(within))
-            rec.log(f"maps/{base}/error", rr.Image(colorize(_shrink(rel, small), 0.0, 0.05, "inferno",
-                                                            _shrink(~both, small))))
+            rec.log(f"maps/{base}/error", rr.DepthImage(_to_u8(np.nan_to_num(_shrink(rel, small) * 100), ERROR_METER),
+                                                        meter=ERROR_METER, colormap="inferno", depth_range=[0, 50]))
         self.logged_steps += 1
 
     # ---- later stages ---------------------------------------------------------------------------

@@ -1,0 +1,161 @@
+"""Counter maps (SPEC.md §3): per pixel, the number of source views that confirm the final estimate.
+
+A source view j of reference r is *consistent* at pixel p (with depth z and normal n) iff
+  1. geometric: the forward-backward reprojection error through j's final depth map is
+     <= ``reproj_px`` (nearest source pixel, no truncation);
+  2. photometric: the bilateral NCC cost m_j(z, n) <= 1 - ``ncc_min``;
+  3. viewing geometry: the triangulation angle between the rays from X to both camera centres is
+     >= ``tri_angle_min_deg`` and, with ``check_facing``, n faces camera j;
+  4. optionally (``rel_depth``): the reprojected point's depth in r differs from z by < rel_depth·z.
+K(p) = number of consistent views (0 where z = 0), clipped to ``cap``, as uint8.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from engine.options import Options, check, option
+from engine.patchmatch.context import build_context
+from engine.patchmatch.engine import PatchMatchView, ViewMaps
+from engine.patchmatch.geometry import plane_vector, ray
+from engine.patchmatch.kernels import photometric_cost
+from engine.patchmatch.options import PatchMatchOptions
+
+
+@dataclasses.dataclass
+class CounterOptions(Options):
+    """Consistency checks of the counter map (SPEC.md §3, §12 ``counter``)."""
+
+    reproj_px: float = option(1.0, "max forward-backward reprojection error (px)")
+    ncc_min: float = option(0.1, "min NCC (cost <= 1 - ncc_min)")
+    tri_angle_min_deg: float = option(3.0, "min triangulation angle between the two viewing rays (degrees)")
+    check_facing: bool = option(True, "require the normal to face the source camera")
+    rel_depth: float | None = option(None, "optional max relative depth difference after reprojection (e.g. 0.01)")
+    cap: int = option(10, "counts are clipped to this value (the confidence network divides by it)")
+
+    def validate(self) -> CounterOptions:
+        super().validate()
+        check(self.reproj_px > 0, "reproj_px", self.reproj_px, "must be > 0")
+        check(-1.0 <= self.ncc_min <= 1.0, "ncc_min", self.ncc_min, "must be in [-1, 1]")
+        check(0 <= self.tri_angle_min_deg < 90, "tri_angle_min_deg", self.tri_angle_min_deg, "must be in [0, 90)")
+        check(self.rel_depth is None or self.rel_depth > 0, "rel_depth", self.rel_depth, "must be None or > 0")
+        check(1 <= self.cap <= 255, "cap", self.cap, "must be in 1..255")
+        return self
+
+
+@njit(cache=True)
+def reprojection_check(A, b, B, c, sizes, sdepth, j, x, y, z):
+    """(error px, depth of the reprojected point in the reference camera); error -1 if unavailable."""
+    X0 = z * (A[j, 0] * x + A[j, 1] * y + A[j, 2]) + b[j, 0]
+    X1 = z * (A[j, 3] * x + A[j, 4] * y + A[j, 5]) + b[j, 1]
+    X2 = z * (A[j, 6] * x + A[j, 7] * y + A[j, 8]) + b[j, 2]
+    if X2 <= 0.0:
+        return -1.0, 0.0
+    u = X0 / X2
+    v = X1 / X2
+    iu = int(math.floor(u + 0.5))
+    iv = int(math.floor(v + 0.5))
+    if iu < 0 or iv < 0 or iu >= sizes[j, 0] or iv >= sizes[j, 1]:
+        return -1.0, 0.0
+    zs = sdepth[j, iv, iu]
+    if zs <= 0.0:
+        return -1.0, 0.0
+    Y0 = zs * (B[j, 0] * u + B[j, 1] * v + B[j, 2]) + c[j, 0]
+    Y1 = zs * (B[j, 3] * u + B[j, 4] * v + B[j, 5]) + c[j, 1]
+    Y2 = zs * (B[j, 6] * u + B[j, 7] * v + B[j, 8]) + c[j, 2]
+    if Y2 <= 0.0:
+        return -1.0, 0.0
+    dx = Y0 / Y2 - x
+    dy = Y1 / Y2 - y
+    return math.sqrt(dx * dx + dy * dy), Y2
+
+
+@njit(cache=True, parallel=True)
+def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdepth, kinv, wgt, wa, mu_a, var_a, ox,
+                   oy, min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
+    """Fill ``out`` (H, W) uint8 with the number of consistent source views (module doc)."""
+    h, w = Z.shape
+    n_views = A.shape[0]
+    for y in prange(h):
+        for x in range(w):
+            z = np.float64(Z[y, x])
+            out[y, x] = 0
+            if z <= 0.0:
+                continue
+            rp = ray(kinv, x, y)
+            nx = np.float64(Nrm[y, x, 0])
+            ny = np.float64(Nrm[y, x, 1])
+            nz = np.float64(Nrm[y, x, 2])
+            m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
+            if not ok:
+                continue
+            px = z * rp[0]
+            py = z * rp[1]
+            pz = z * rp[2]
+            count = 0
+            for j in range(n_views):
+                err, zr = reprojection_check(A, b, B, c, sizes, sdepth, j, x, y, z)
+                if err < 0.0 or err > reproj_px:
+                    continue
+                if rel_depth > 0.0 and abs(zr - z) >= rel_depth * z:
+                    continue
+                # rays from X to both camera centres (reference centre = origin)
+                ax, ay, az = -px, -py, -pz
+                bx, by, bz = centers[j, 0] - px, centers[j, 1] - py, centers[j, 2] - pz
+                na = math.sqrt(ax * ax + ay * ay + az * az)
+                nb = math.sqrt(bx * bx + by * by + bz * bz)
+                if na <= 0.0 or nb <= 0.0:
+                    continue
+                if (ax * bx + ay * by + az * bz) / (na * nb) > cos_tri_max:
+                    continue
+                if check_facing and nx * bx + ny * by + nz * bz <= 0.0:
+                    continue
+                cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x], mu_a[y, x],
+                                        var_a[y, x], ox, oy, x, y, m0, m1, m2, min_var)
+                if cost > max_cost:
+                    continue
+                count += 1
+            out[y, x] = min(count, cap)
+
+
+def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], options: CounterOptions | None = None,
+                         ncc_options: PatchMatchOptions | None = None) -> list[np.ndarray]:
+    """Counter map (H, W) uint8 of every view from the final maps of all views.
+
+    Args:
+        views: the PatchMatch inputs (images, cameras, source lists) at the maps' resolution.
+        maps: final maps of every view (same order).
+        options: the checks (defaults: SPEC §12 ``counter``).
+        ncc_options: window and weighting of the photometric check (defaults: PatchMatchOptions()).
+    Views without source views or with empty maps get an all-zero map.
+    """
+    options = (options or CounterOptions()).validate()
+    ncc_options = (ncc_options or PatchMatchOptions()).validate()
+    if len(views) != len(maps):
+        raise ValueError(f"{len(views)} views but {len(maps)} maps")
+    out = []
+    for i, v in enumerate(views):
+        m = maps[i]
+        h, w = m.depth.shape
+        counter = np.zeros((h, w), np.uint8)
+        src_idx = list(v.source_views)
+        if not src_idx or not np.any(m.depth > 0):
+            out.append(counter)
+            continue
+        if (v.camera.width, v.camera.height) != (w, h):
+            raise ValueError(f"view {i}: maps are {w}x{h} but the camera is {v.camera.width}x{v.camera.height}")
+        ctx = build_context(np.asarray(v.image_gray, np.float32), v.camera,
+                            [np.asarray(views[j].image_gray, np.float32) for j in src_idx],
+                            [views[j].camera for j in src_idx], ncc_options, [maps[j].depth for j in src_idx])
+        counter_kernel(np.ascontiguousarray(m.depth, np.float32), np.ascontiguousarray(m.normal, np.float32),
+                       ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.centers,
+                       ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy,
+                       float(ncc_options.min_var), float(options.reproj_px), 1.0 - float(options.ncc_min),
+                       math.cos(math.radians(options.tri_angle_min_deg)), bool(options.check_facing),
+                       float(options.rel_depth or 0.0), int(options.cap), counter)
+        out.append(counter)
+    return out

@@ -1,0 +1,316 @@
+"""Multi-scale PatchMatch driver (SPEC.md §2.11): levels, passes over all views, iterations, events.
+
+Schedule per level ℓ = L-1 .. 0 (L-1 coarsest): photometric pass (random init at the coarsest level,
+JBU-upsampled maps plus detail restorer elsewhere), then ``geom_passes`` geometric passes reading
+the other views' depth maps of the previous pass. Every pass runs over all views before the next
+starts; each view: initial cost (top-k rule), then T red-black iterations (black, red half-steps).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import numba
+import numpy as np
+
+from engine.camera import Camera
+from engine.errors import DeepCError
+from engine.observer import IterationEvent, readonly
+from engine.patchmatch import kernels as K
+from engine.patchmatch.context import ViewContext, build_context
+from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.propagation import sampling_pattern
+from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
+from engine.patchmatch.rng import stream_key
+
+MAX_SOURCES = 32  # selected-view masks are uint32
+RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
+
+ProgressFn = Callable[[str, int, int], Any]
+
+
+@dataclasses.dataclass
+class PatchMatchView:
+    """One input view.
+
+    Attributes:
+        name: image name.
+        image_gray: (H, W) float32 grey image in [0, 1].
+        camera: camera at the image's resolution (``camera.width == W``).
+        depth_min, depth_max: depth range (camera z, scene units) for sampling and validity.
+        source_views: indices into the list of views (not itself), at most 32.
+    """
+
+    name: str
+    image_gray: np.ndarray
+    camera: Camera
+    depth_min: float
+    depth_max: float
+    source_views: list[int]
+
+
+@dataclasses.dataclass
+class ViewMaps:
+    """PatchMatch output of one view at level 0 (the input resolution).
+
+    depth (H, W) f32 camera z, 0 = none; normal (H, W, 3) f32 unit, camera frame, facing the camera,
+    zeros where depth is 0; cost (H, W) f32 final aggregated cost; selected_views (H, W) uint32 bitmask
+    over positions in the view's ``source_views``.
+    """
+
+    depth: np.ndarray
+    normal: np.ndarray
+    cost: np.ndarray
+    selected_views: np.ndarray
+
+    @classmethod
+    def empty(cls, height: int, width: int) -> ViewMaps:
+        return cls(np.zeros((height, width), np.float32), np.zeros((height, width, 3), np.float32),
+                   np.zeros((height, width), np.float32), np.zeros((height, width), np.uint32))
+
+
+@dataclasses.dataclass
+class _State:
+    """Mutable per-view maps at the current level."""
+
+    Z: np.ndarray
+    N: np.ndarray
+    C: np.ndarray
+    S: np.ndarray
+
+
+def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
+    """Validate inputs; returns which views are processed (others are skipped with a warning)."""
+    active = []
+    for i, v in enumerate(views):
+        img = np.asarray(v.image_gray)
+        if img.ndim != 2:
+            raise DeepCError(f"view {i} ({v.name}): image_gray must be (H, W), got shape {img.shape}")
+        h, w = img.shape
+        if (v.camera.width, v.camera.height) != (w, h):
+            raise DeepCError(f"view {i} ({v.name}): image is {w}x{h} but its camera is "
+                             f"{v.camera.width}x{v.camera.height}")
+        if min(w, h) < options.window:
+            raise DeepCError(f"view {i} ({v.name}): image {w}x{h} is smaller than the "
+                             f"{options.window}x{options.window} matching window")
+        src = list(v.source_views)
+        if len(src) > MAX_SOURCES:
+            raise DeepCError(f"view {i} ({v.name}): {len(src)} source views, at most {MAX_SOURCES} supported")
+        for j in src:
+            if not (0 <= j < len(views)) or j == i:
+                raise DeepCError(f"view {i} ({v.name}): invalid source view index {j}")
+        if len(set(src)) != len(src):
+            raise DeepCError(f"view {i} ({v.name}): duplicate source views {src}")
+        ok = True
+        if not src:
+            warnings.warn(f"PatchMatch: view {i} ({v.name}) has no source view; skipped (empty maps)",
+                          stacklevel=3)
+            ok = False
+        zmin, zmax = float(v.depth_min), float(v.depth_max)
+        if ok and not (math.isfinite(zmin) and math.isfinite(zmax) and 0.0 < zmin < zmax):
+            warnings.warn(f"PatchMatch: view {i} ({v.name}) has a degenerate depth range [{zmin}, {zmax}]; "
+                          "skipped (empty maps)", stacklevel=3)
+            ok = False
+        active.append(ok)
+    return active
+
+
+def effective_levels(views: list[PatchMatchView], options: PatchMatchOptions) -> int:
+    """Number of pyramid levels actually used: at most ``options.levels``, and the coarsest level's
+    shorter side must be >= max(min_level_size, window) for every view."""
+    need = max(options.min_level_size, options.window)
+    levels = options.levels
+    while levels > 1:
+        ok = all(min(level_size(v.camera.width, v.camera.height, levels - 1)) >= need for v in views)
+        if ok:
+            break
+        levels -= 1
+    return levels
+
+
+def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int, geometric: bool,
+            detail: bool, n_regions: int) -> tuple[np.ndarray, np.ndarray]:
+    fp = np.zeros(K.N_FP, np.float64)
+    ip = np.zeros(K.N_IP, np.int64)
+    fp[K.F_ZMIN] = zmin
+    fp[K.F_ZMAX] = zmax
+    fp[K.F_EPS] = 2.0 ** (-iteration)
+    fp[K.F_TAU_G] = options.tau0 * math.exp(-(iteration**2) / options.alpha)
+    fp[K.F_TAU_BAD] = options.tau_bad
+    fp[K.F_BETA] = options.beta
+    fp[K.F_BETA_FB] = options.beta_fallback
+    fp[K.F_PRIOR_IN] = options.prior_in
+    fp[K.F_PRIOR_OUT] = options.prior_out
+    fp[K.F_GEOM_LAMBDA] = options.geom_lambda
+    fp[K.F_GEOM_MAX] = options.geom_max
+    fp[K.F_MIN_VAR] = options.min_var
+    fp[K.F_DETAIL_DELTA] = options.detail_restorer_delta
+    ip[K.I_K_VS] = options.k_viewsel
+    ip[K.I_K_UP] = options.k_update
+    ip[K.I_PLANE] = int(options.plane_propagation)
+    ip[K.I_GEOM] = int(geometric)
+    ip[K.I_DETAIL] = int(detail)
+    ip[K.I_DETERMINISTIC] = int(options.view_sampling == "deterministic")
+    ip[K.I_MC] = options.mc_samples
+    ip[K.I_N_GOOD] = options.n_good_gt
+    ip[K.I_N_BAD] = options.n_bad_lt
+    ip[K.I_ALL8] = int(options.combos == "all8")
+    ip[K.I_RETRIES] = options.normal_perturb_retries
+    ip[K.I_TOP_K] = options.init_top_k
+    ip[K.I_N_REGIONS] = n_regions
+    return fp, ip
+
+
+def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray) -> None:
+    """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule)."""
+    K.init_cost_kernel(state.Z, state.N, state.C, state.S, ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b,
+                       ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, fp, ip)
+
+
+def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
+              region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> None:
+    """One red or black half-step on one view (in place)."""
+    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, cpre, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
+                       ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
+                       ctx.oy, pat, region, key, fp, ip)
+
+
+def _fix_normals(state: _State, cam: Camera) -> None:
+    """Turn upsampled normals that face away from the camera (averaging can do that)."""
+    rays = cam.pixel_rays().astype(np.float32)
+    flip = np.einsum("hwc,hwc->hw", state.N, rays) > 0
+    state.N[flip] *= -1.0
+
+
+def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | None = None,
+                   observer: Any = None, progress: ProgressFn | None = None) -> list[ViewMaps]:
+    """Multi-scale PatchMatch MVS over all views; returns one :class:`ViewMaps` per view.
+
+    Args:
+        views: the views; ``source_views`` index into this list.
+        options: settings (defaults: SPEC.md §12).
+        observer: optional; ``on_iteration(IterationEvent)`` after every red-black iteration of every
+            view, pass and level, ``on_stage(name, **info)`` at pass boundaries. Either may be absent.
+        progress: optional ``progress(description, done, total)``, called after each view finishes a
+            pass, e.g. ``("level 2 photometric", 3, 11)``.
+
+    Views without source views or with a degenerate depth range are skipped with a warning and get
+    empty (zero) maps; they still serve as source images for others. Invalid inputs (image/camera
+    size mismatch, images smaller than the matching window, bad source indices, more than 32 sources)
+    raise :class:`DeepCError`. Same inputs, options and seed give identical maps on any thread count.
+    """
+    options = (options or PatchMatchOptions()).validate()
+    if not views:
+        return []
+    active = _check_views(views, options)
+    n_levels = effective_levels(views, options)
+    if n_levels < options.levels:
+        warnings.warn(f"PatchMatch: images too small for {options.levels} levels; using {n_levels}", stacklevel=2)
+    on_iter = getattr(observer, "on_iteration", None) if observer is not None else None
+    on_stage = getattr(observer, "on_stage", None) if observer is not None else None
+    old_threads = numba.get_num_threads()
+    if options.num_threads > 0:
+        numba.set_num_threads(min(options.num_threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        return _run(views, options, active, n_levels, on_iter, on_stage, progress)
+    finally:
+        numba.set_num_threads(old_threads)
+
+
+def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
+         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None) -> list[ViewMaps]:
+    pat, region = sampling_pattern(options.pattern)
+    n_regions = int(region.max()) + 1
+    n_views = len(views)
+    # pyramid of images and cameras
+    images: list[list[np.ndarray]] = []
+    cameras: list[list[Camera]] = []
+    for v in views:
+        img0 = np.ascontiguousarray(v.image_gray, dtype=np.float32)
+        imgs, cams = [], []
+        for level in range(n_levels):
+            w, h = level_size(v.camera.width, v.camera.height, level)
+            imgs.append(area_resize(img0, w, h))
+            cams.append(v.camera if level == 0 else v.camera.rescaled(w, h))
+        images.append(imgs)
+        cameras.append(cams)
+    states: list[_State | None] = [None] * n_views
+    step = 0
+    for level in range(n_levels - 1, -1, -1):
+        coarsest = level == n_levels - 1
+        new_states: list[_State | None] = []
+        for i, v in enumerate(views):
+            h, w = images[i][level].shape
+            st = _State(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32),
+                        np.zeros((h, w), np.float32), np.zeros((h, w), np.uint32))
+            if active[i]:
+                cam = cameras[i][level]
+                kinv = np.linalg.inv(cam.K_idx).ravel()
+                if not coarsest:
+                    prev = states[i]
+                    st.Z, st.N = jbu_upsample(prev.Z, prev.N, images[i][level], options.jbu_radius,
+                                              options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
+                    _fix_normals(st, cam)
+                key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
+                K.random_init_kernel(st.Z, st.N, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
+            new_states.append(st)
+        states = new_states
+        for pass_index in range(1 + options.geom_passes):
+            geometric = pass_index > 0
+            kind = "geometric" if geometric else "photometric"
+            detail = (not geometric) and (not coarsest) and options.detail_restorer
+            n_iter = options.pass_iterations(pass_index)
+            if on_stage is not None:
+                on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
+            snapshot = [s.Z.copy() for s in states] if geometric else None
+            for i, v in enumerate(views):
+                st = states[i]
+                if active[i]:
+                    step = _run_view_pass(i, v, st, images, cameras, snapshot, level, pass_index, kind, detail,
+                                          n_iter, options, pat, region, n_regions, on_iter, step)
+                if progress is not None:
+                    progress(f"level {level} {kind}", i + 1, n_views)
+    out = []
+    for i, st in enumerate(states):
+        if not active[i]:
+            h, w = images[i][0].shape
+            out.append(ViewMaps.empty(h, w))
+            continue
+        valid = st.Z > 0
+        st.N[~valid] = 0.0
+        st.C[~valid] = 0.0
+        out.append(ViewMaps(st.Z, st.N, st.C, st.S))
+    if on_stage is not None:
+        on_stage("patchmatch_done", levels=n_levels, views=n_views)
+    return out
+
+
+def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras: list, snapshot: list | None,
+                   level: int, pass_index: int, kind: str, detail: bool, n_iter: int, options: PatchMatchOptions,
+                   pat: np.ndarray, region: np.ndarray, n_regions: int, on_iter: Callable | None, step: int) -> int:
+    src_idx = list(v.source_views)
+    ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
+                        [cameras[j][level] for j in src_idx], options,
+                        [snapshot[j] for j in src_idx] if snapshot is not None else None)
+    zmin, zmax = float(v.depth_min), float(v.depth_max)
+    fp, ip = _params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
+    init_cost(st, ctx, fp, ip)
+    cpre = st.C.copy() if detail else st.C
+    for t in range(n_iter):
+        t0 = time.perf_counter()
+        fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions)
+        for colour in (0, 1):
+            key = np.uint64(stream_key(options.seed, i, level, pass_index, t, colour))
+            half_step(st, ctx, colour, cpre, pat, region, key, fp, ip)
+        if on_iter is not None:
+            on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
+                                   iteration=t, step=step, depth=readonly(st.Z), normal=readonly(st.N),
+                                   cost=readonly(st.C), selected_views=readonly(st.S),
+                                   seconds=time.perf_counter() - t0))
+        step += 1
+    return step

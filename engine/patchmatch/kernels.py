@@ -1,0 +1,364 @@
+"""numba kernels of one reference view at one level: random init, initial cost, red-black half-step.
+
+All kernels run ``prange`` over image rows. Per-row scratch arrays are allocated once per row (never
+per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a half-step uses the stream
+``combine(key, y * W + x)``, so results do not depend on the thread count.
+
+Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments``):
+    ref context : kinv (9,), wgt/wa (H, W, S) f32, mu_a/var_a (H, W) f32
+    sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
+                  sizes (N, 2) i32 (W, H), ox/oy (S,) f32 window offsets,
+                  A (N, 9), b (N, 3), B (N, 9), c (N, 3) f64, sdepth (N, Hm, Wm) f32 (geometric passes)
+    fp          : float64 parameters, indices F_* below
+    ip          : int64 parameters, indices I_* below
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from engine.patchmatch.geometry import perturb_normal, plane_vector, random_normal, ray, reprojection_error
+from engine.patchmatch.ncc import ncc_cost
+from engine.patchmatch.propagation import gather_candidates
+from engine.patchmatch.rng import combine, uniform
+from engine.patchmatch.view_selection import view_weights
+
+# float parameters
+F_ZMIN, F_ZMAX, F_EPS, F_TAU_G, F_TAU_BAD, F_BETA, F_BETA_FB, F_PRIOR_IN, F_PRIOR_OUT = range(9)
+F_GEOM_LAMBDA, F_GEOM_MAX, F_MIN_VAR, F_DETAIL_DELTA = range(9, 13)
+N_FP = 13
+# int parameters
+I_K_VS, I_K_UP, I_PLANE, I_GEOM, I_DETAIL, I_DETERMINISTIC, I_MC, I_N_GOOD, I_N_BAD = range(9)
+I_ALL8, I_RETRIES, I_TOP_K, I_N_REGIONS = range(9, 13)
+N_IP = 13
+
+BIG = 1e30
+
+
+@njit(cache=True, fastmath=True)
+def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2, min_var):
+    """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y)."""
+    h00 = np.float32(A[j, 0] - b[j, 0] * m0)
+    h01 = np.float32(A[j, 1] - b[j, 0] * m1)
+    h02 = np.float32(A[j, 2] - b[j, 0] * m2)
+    h10 = np.float32(A[j, 3] - b[j, 1] * m0)
+    h11 = np.float32(A[j, 4] - b[j, 1] * m1)
+    h12 = np.float32(A[j, 5] - b[j, 1] * m2)
+    h20 = np.float32(A[j, 6] - b[j, 2] * m0)
+    h21 = np.float32(A[j, 7] - b[j, 2] * m1)
+    h22 = np.float32(A[j, 8] - b[j, 2] * m2)
+    return ncc_cost(src, j * plane, stride, sizes[j, 0], sizes[j, 1], wgt_p, wa_p, mu, var, ox, oy, x, y,
+                    h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var))
+
+
+@njit(cache=True)
+def geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax):
+    """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (§2.9)."""
+    e = reprojection_error(A, b, B, c, j, sdepth, sizes[j, 0], sizes[j, 1], x, y, z)
+    if e < 0.0 or e > gmax:
+        return gmax
+    return e
+
+
+@njit(cache=True)
+def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
+                    z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, threshold):
+    """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y).
+
+    Stops early and returns BIG once the partial sum proves the result >= ``threshold`` (all terms
+    are >= 0, so this never changes which hypothesis wins a strict '<' comparison)."""
+    m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
+    if not ok:
+        return BIG
+    limit = threshold * vsum
+    acc = 0.0
+    for j in range(v.shape[0]):
+        vj = v[j]
+        if vj <= 0.0:
+            continue
+        cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2,
+                                min_var)
+        if geom:
+            cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+        acc += vj * cost
+        if acc >= limit:
+            return BIG
+    return acc / vsum
+
+
+@njit(cache=True, parallel=True)
+def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
+    """Random hypotheses (§2.4): z ~ U[zmin, zmax], Marsaglia normal facing the camera.
+
+    With ``only_invalid`` only pixels with Z <= 0 are drawn (holes after upsampling)."""
+    h, w = Z.shape
+    for y in prange(h):
+        for x in range(w):
+            if only_invalid and Z[y, x] > 0.0:
+                continue
+            pk = combine(key, y * w + x)
+            rp = ray(kinv, x, y)
+            Z[y, x] = zmin + (zmax - zmin) * uniform(pk, 0)
+            nx, ny, nz, _ = random_normal(pk, 1, rp)
+            Nrm[y, x, 0] = nx
+            Nrm[y, x, 1] = ny
+            Nrm[y, x, 2] = nz
+
+
+@njit(cache=True, parallel=True)
+def init_cost_kernel(Z, Nrm, C, Sel, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy,
+                     fp, ip):
+    """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
+
+    k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
+    views in geometric passes); Sel = {j : m_j <= k-th smallest}; k = 0 gives C = 2 (+ λ·δ), Sel = 0."""
+    h, w = Z.shape
+    n_views = A.shape[0]
+    top_k = ip[I_TOP_K]
+    geom = ip[I_GEOM] != 0
+    lam = fp[F_GEOM_LAMBDA]
+    gmax = fp[F_GEOM_MAX]
+    min_var = fp[F_MIN_VAR]
+    for y in prange(h):
+        costs = np.empty(n_views, np.float64)
+        order = np.empty(n_views, np.float64)
+        for x in range(w):
+            z = Z[y, x]
+            rp = ray(kinv, x, y)
+            nx = Nrm[y, x, 0]
+            ny = Nrm[y, x, 1]
+            nz = Nrm[y, x, 2]
+            m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
+            n_ok = 0
+            for j in range(n_views):
+                if ok and z > 0.0:
+                    costs[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x],
+                                                mu_a[y, x], var_a[y, x], ox, oy, x, y, m0, m1, m2, min_var)
+                else:
+                    costs[j] = 2.0
+                order[j] = costs[j]
+                if costs[j] < 2.0:
+                    n_ok += 1
+            k = min(n_ok, top_k)
+            if k == 0:
+                C[y, x] = 2.0 + (lam * gmax if geom else 0.0)
+                Sel[y, x] = 0
+                continue
+            order.sort()
+            kth = order[k - 1]
+            total = 0.0
+            for i in range(k):
+                total += order[i]
+            mask = np.uint32(0)
+            gsum = 0.0
+            gcount = 0
+            for j in range(n_views):
+                if costs[j] <= kth:
+                    mask |= np.uint32(1) << np.uint32(j)
+                    if geom:
+                        gsum += geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+                        gcount += 1
+            cost = total / k
+            if geom and gcount > 0:
+                cost += lam * gsum / gcount
+            C[y, x] = cost
+            Sel[y, x] = mask
+
+
+@njit(cache=True, parallel=True)
+def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa,
+                     mu_a, var_a, ox, oy, pat, region, key, fp, ip):
+    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7)."""
+    h, w = Z.shape
+    n_views = A.shape[0]
+    zmin = fp[F_ZMIN]
+    zmax = fp[F_ZMAX]
+    eps = fp[F_EPS]
+    lam = fp[F_GEOM_LAMBDA]
+    gmax = fp[F_GEOM_MAX]
+    min_var = fp[F_MIN_VAR]
+    k_vs = ip[I_K_VS]
+    k_up = ip[I_K_UP]
+    plane_prop = ip[I_PLANE] != 0
+    geom = ip[I_GEOM] != 0
+    detail = ip[I_DETAIL] != 0
+    all8 = ip[I_ALL8] != 0
+    retries = ip[I_RETRIES]
+    top_k = ip[I_TOP_K]
+    n_regions = ip[I_N_REGIONS]
+    mc = ip[I_MC]
+    for y in prange(h):
+        reg_cost = np.empty(n_regions, np.float32)
+        reg_idx = np.empty(n_regions, np.int64)
+        cand_z = np.empty(k_up, np.float64)
+        cand_n = np.empty((k_up, 3), np.float64)
+        cand_c = np.empty(k_up, np.float32)
+        M = np.empty((k_vs, n_views), np.float64)
+        omega = np.empty(n_views, np.float64)
+        v = np.empty(n_views, np.float64)
+        tmp = np.empty(n_views, np.float64)
+        hz = np.empty(8, np.float64)
+        hn = np.empty((8, 3), np.float64)
+        for x in range((y + colour) % 2, w, 2):
+            pk = combine(key, y * w + x)
+            rp = ray(kinv, x, y)
+            wgt_p = wgt[y, x]
+            wa_p = wa[y, x]
+            mu = mu_a[y, x]
+            var = var_a[y, x]
+            n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
+                                       reg_cost, reg_idx, cand_z, cand_n, cand_c)
+            n_vs = min(n_cand, k_vs)
+            # photometric cost matrix of the best candidates over all views (drives view selection)
+            for k in range(n_vs):
+                m0, m1, m2, ok = plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
+                for j in range(n_views):
+                    if ok:
+                        M[k, j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy,
+                                                   x, y, m0, m1, m2, min_var)
+                    else:
+                        M[k, j] = 2.0
+            vsum = view_weights(M, n_vs, n_views, Sel, x, y, fp[F_TAU_G], fp[F_TAU_BAD], fp[F_BETA],
+                                fp[F_BETA_FB], ip[I_N_GOOD], ip[I_N_BAD], fp[F_PRIOR_IN], fp[F_PRIOR_OUT],
+                                ip[I_DETERMINISTIC] != 0, mc, pk, 0, omega, v)
+            z0 = np.float64(Z[y, x])
+            n0x = np.float64(Nrm[y, x, 0])
+            n0y = np.float64(Nrm[y, x, 1])
+            n0z = np.float64(Nrm[y, x, 2])
+            if vsum <= 0.0:
+                # degenerate weights: the top_k views with the lowest cost of the current hypothesis
+                m0, m1, m2, ok = plane_vector(kinv, rp, z0, n0x, n0y, n0z)
+                for j in range(n_views):
+                    if ok:
+                        tmp[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy,
+                                                  x, y, m0, m1, m2, min_var)
+                    else:
+                        tmp[j] = 2.0
+                    omega[j] = tmp[j]
+                tmp.sort()
+                kth = tmp[min(top_k, n_views) - 1]
+                vsum = 0.0
+                for j in range(n_views):
+                    if omega[j] <= kth and vsum < top_k:
+                        v[j] = 1.0
+                        vsum += 1.0
+                    else:
+                        v[j] = 0.0
+            # current hypothesis, full cost (the baseline all others must beat)
+            c_cur = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy,
+                                    x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, BIG)
+            if c_cur >= BIG:
+                c_cur = 2.0 + (lam * gmax if geom else 0.0)
+            c_old = c_cur
+            best = c_cur
+            zb = z0
+            nbx = n0x
+            nby = n0y
+            nbz = n0z
+            won = False
+            # candidates with a full cost row: aggregate from M
+            for k in range(n_vs):
+                acc = 0.0
+                for j in range(n_views):
+                    if v[j] > 0.0:
+                        cost = M[k, j]
+                        if geom:
+                            cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, cand_z[k], gmax)
+                        acc += v[j] * cost
+                cost = acc / vsum
+                if cost < best:
+                    best = cost
+                    zb = cand_z[k]
+                    nbx = cand_n[k, 0]
+                    nby = cand_n[k, 1]
+                    nbz = cand_n[k, 2]
+                    won = True
+            # remaining candidates: only the selected views, early exit
+            for k in range(n_vs, n_cand):
+                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox,
+                                       oy, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v, vsum, geom,
+                                       lam, gmax, min_var, best)
+                if cost < best:
+                    best = cost
+                    zb = cand_z[k]
+                    nbx = cand_n[k, 0]
+                    nby = cand_n[k, 1]
+                    nbz = cand_n[k, 2]
+                    won = True
+            # local refinement: combinations of current, perturbed and random depth / normal
+            z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
+            z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
+            rnx, rny, rnz, draw = random_normal(pk, 102, rp)
+            pnx, pny, pnz, draw = perturb_normal(pk, 200, rp, nbx, nby, nbz, eps, retries)
+            n_h = 0
+            if all8:
+                for dz in range(3):
+                    zz = zb if dz == 0 else (z_prt if dz == 1 else z_rnd)
+                    for dn in range(3):
+                        if dz == 0 and dn == 0:
+                            continue
+                        hz[n_h] = zz
+                        if dn == 0:
+                            hn[n_h, 0] = nbx
+                            hn[n_h, 1] = nby
+                            hn[n_h, 2] = nbz
+                        elif dn == 1:
+                            hn[n_h, 0] = pnx
+                            hn[n_h, 1] = pny
+                            hn[n_h, 2] = pnz
+                        else:
+                            hn[n_h, 0] = rnx
+                            hn[n_h, 1] = rny
+                            hn[n_h, 2] = rnz
+                        n_h += 1
+            else:
+                # ACMM order: (z_rnd, n), (z, n_rnd), (z_rnd, n_rnd), (z, n_prt), (z_prt, n)
+                hz[0] = z_rnd
+                hn[0, 0] = nbx
+                hn[0, 1] = nby
+                hn[0, 2] = nbz
+                hz[1] = zb
+                hn[1, 0] = rnx
+                hn[1, 1] = rny
+                hn[1, 2] = rnz
+                hz[2] = z_rnd
+                hn[2, 0] = rnx
+                hn[2, 1] = rny
+                hn[2, 2] = rnz
+                hz[3] = zb
+                hn[3, 0] = pnx
+                hn[3, 1] = pny
+                hn[3, 2] = pnz
+                hz[4] = z_prt
+                hn[4, 0] = nbx
+                hn[4, 1] = nby
+                hn[4, 2] = nbz
+                n_h = 5
+            for i in range(n_h):
+                zi = hz[i]
+                if not (zi >= zmin and zi <= zmax):
+                    continue
+                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox,
+                                       oy, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, geom, lam, gmax,
+                                       min_var, best)
+                if cost < best:
+                    best = cost
+                    zb = zi
+                    nbx = hn[i, 0]
+                    nby = hn[i, 1]
+                    nbz = hn[i, 2]
+            if detail and not (best < Cpre[y, x] - fp[F_DETAIL_DELTA]):
+                C[y, x] = c_old  # detail restorer: keep the upsampled hypothesis
+                continue
+            Z[y, x] = zb
+            Nrm[y, x, 0] = nbx
+            Nrm[y, x, 1] = nby
+            Nrm[y, x, 2] = nbz
+            C[y, x] = best
+            if won:
+                mask = np.uint32(0)
+                for j in range(n_views):
+                    if v[j] > 0.0:
+                        mask |= np.uint32(1) << np.uint32(j)
+                Sel[y, x] = mask

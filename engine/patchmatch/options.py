@@ -1,0 +1,118 @@
+"""``PatchMatchOptions``: every PatchMatch setting with the SPEC.md §12 defaults (``ncc`` and ``pm``)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from engine.options import Options, check, option
+
+SCHEDULES = ("paper", "acmm")
+PATTERNS = ("deepc", "deepc_far", "acmm")
+WEIGHTINGS = ("colmap", "acmm")
+VIEW_SAMPLING = ("monte_carlo", "deterministic")
+COMBOS = ("acmm5", "all8")
+
+
+@dataclasses.dataclass
+class PatchMatchOptions(Options):
+    """Multi-scale PatchMatch MVS (ACMM backbone with the DeepC modifications, SPEC.md §2)."""
+
+    # --- schedule (§2.5, §2.11)
+    schedule: str = option("paper", "red-black iterations per pass: 'paper' = 8 in every pass, "
+                           "'acmm' = 3 photometric / 2 geometric", choices=SCHEDULES)
+    iterations: int | None = option(None, "override: this many red-black iterations in every pass")
+    levels: int = option(3, "pyramid levels (factor 0.5 between levels); fewer are used if the "
+                         "coarsest level would be smaller than min_level_size")
+    min_level_size: int = option(16, "smallest allowed shorter image side at the coarsest level (px)")
+    geom_passes: int = option(2, "geometric-consistency passes per level after the photometric pass")
+    # --- matching cost (§2.3)
+    window: int = option(11, "matching window size (odd, pixels)")
+    window_step: int = option(2, "sampling step inside the window (2 = ACMM's 36 samples)")
+    ncc_weighting: str = option("colmap", "bilateral weights: 'colmap' (squared Gaussian, sigma_color on "
+                                "[0,1]) or 'acmm' (non-squared, acmm_sigma_color on 0-255)", choices=WEIGHTINGS)
+    sigma_spatial: float = option(5.0, "bilateral spatial sigma (pixels)")
+    sigma_color: float = option(0.2, "bilateral colour sigma for 'colmap' weighting (intensities in [0,1])")
+    acmm_sigma_color: float = option(3.0, "bilateral colour sigma for 'acmm' weighting (0-255 grey levels)")
+    min_var: float = option(1e-5, "weighted variance below which a window is textureless (cost 2)")
+    init_top_k: int = option(4, "initial cost = mean of the k best per-view costs (§2.4)")
+    # --- sampling, propagation, refinement (§2.6, §2.7, §2.10)
+    pattern: str = option("deepc", "sampling pattern: 'deepc' (6 per direction at 3..13), 'deepc_far' "
+                          "(3..23), 'acmm' (8 adaptive regions, bugs fixed)", choices=PATTERNS)
+    plane_propagation: bool = option(True, "propagate a neighbour's plane (True) or its raw depth (False)")
+    k_viewsel: int = option(8, "best samples whose costs drive view selection")
+    k_update: int = option(16, "best samples evaluated as update candidates (>= k_viewsel)")
+    combos: str = option("acmm5", "combination hypotheses: ACMM's five or all eight {cur,prt,rnd}^2",
+                         choices=COMBOS)
+    normal_perturb_retries: int = option(3, "retries with halved angle when a perturbed normal faces away")
+    # --- view selection (§2.8)
+    view_sampling: str = option("monte_carlo", "view weights: Monte-Carlo counts or deterministic weights",
+                                choices=VIEW_SAMPLING)
+    mc_samples: int = option(15, "Monte-Carlo draws for the view weights")
+    tau0: float = option(0.8, "good-cost threshold at iteration 0: tau_g(t) = tau0 * exp(-t^2 / alpha)")
+    alpha: float = option(90.0, "decay of the good-cost threshold")
+    tau_bad: float = option(1.2, "bad-cost threshold")
+    beta: float = option(0.3, "width of the Gaussian turning good costs into view weights")
+    beta_fallback: float = option(0.4, "width used for views with few good costs")
+    n_good_gt: int = option(2, "a view needs more than this many good costs for the full weight")
+    n_bad_lt: int = option(3, "a view with this many bad costs gets weight 0")
+    prior_in: float = option(0.9, "neighbourhood prior for a view selected by a 4-neighbour")
+    prior_out: float = option(0.1, "neighbourhood prior for a view not selected by a 4-neighbour")
+    # --- geometric consistency (§2.9)
+    geom_lambda: float = option(0.2, "weight of the geometric term in geometric passes")
+    geom_max: float = option(3.0, "truncation of the forward-backward reprojection error (px)")
+    # --- multi-scale (§2.11)
+    detail_restorer: bool = option(True, "keep the upsampled hypothesis unless the new cost is much lower")
+    detail_restorer_delta: float = option(0.1, "detail restorer: required cost improvement")
+    jbu_sigma_spatial: float = option(0.5, "JBU spatial sigma (low-res pixels)")
+    jbu_sigma_range: float = option(25.5, "JBU range sigma (0-255 grey levels)")
+    jbu_radius: int = option(2, "JBU window radius (low-res pixels)")
+    # --- run
+    seed: int = option(0, "random seed; same seed gives the same maps whatever the thread count")
+    num_threads: int = option(0, "numba threads (0 = all available)")
+
+    def validate(self) -> PatchMatchOptions:
+        super().validate()
+        check(self.iterations is None or (isinstance(self.iterations, int) and self.iterations >= 1),
+              "iterations", self.iterations, "must be None or an integer >= 1")
+        check(1 <= self.levels <= 8, "levels", self.levels, "must be in 1..8")
+        check(self.min_level_size >= 8, "min_level_size", self.min_level_size, "must be >= 8")
+        check(0 <= self.geom_passes <= 4, "geom_passes", self.geom_passes, "must be in 0..4")
+        check(self.window >= 3 and self.window % 2 == 1, "window", self.window, "must be odd and >= 3")
+        check(1 <= self.window_step <= self.window // 2, "window_step", self.window_step,
+              "must be in 1..window//2")
+        for name in ("sigma_spatial", "sigma_color", "acmm_sigma_color", "beta", "beta_fallback",
+                     "alpha", "jbu_sigma_spatial", "jbu_sigma_range"):
+            check(getattr(self, name) > 0, name, getattr(self, name), "must be > 0")
+        check(self.min_var >= 0, "min_var", self.min_var, "must be >= 0")
+        check(1 <= self.init_top_k <= 32, "init_top_k", self.init_top_k, "must be in 1..32")
+        check(1 <= self.k_viewsel <= 32, "k_viewsel", self.k_viewsel, "must be in 1..32")
+        check(self.k_viewsel <= self.k_update <= 32, "k_update", self.k_update, "must be in k_viewsel..32")
+        check(0 <= self.normal_perturb_retries <= 10, "normal_perturb_retries", self.normal_perturb_retries,
+              "must be in 0..10")
+        check(1 <= self.mc_samples <= 1000, "mc_samples", self.mc_samples, "must be in 1..1000")
+        check(0 < self.tau0 <= 2, "tau0", self.tau0, "must be in (0, 2]")
+        check(0 < self.tau_bad <= 2, "tau_bad", self.tau_bad, "must be in (0, 2]")
+        check(self.n_good_gt >= 0 and self.n_bad_lt >= 1, "n_good_gt/n_bad_lt",
+              (self.n_good_gt, self.n_bad_lt), "must be >= 0 and >= 1")
+        check(0 <= self.prior_out <= self.prior_in, "prior_in/prior_out", (self.prior_in, self.prior_out),
+              "need 0 <= prior_out <= prior_in")
+        check(self.geom_lambda >= 0, "geom_lambda", self.geom_lambda, "must be >= 0")
+        check(self.geom_max > 0, "geom_max", self.geom_max, "must be > 0")
+        check(self.detail_restorer_delta >= 0, "detail_restorer_delta", self.detail_restorer_delta, "must be >= 0")
+        check(1 <= self.jbu_radius <= 8, "jbu_radius", self.jbu_radius, "must be in 1..8")
+        check(0 <= self.seed < 2**63, "seed", self.seed, "must be in 0..2^63-1")
+        check(self.num_threads >= 0, "num_threads", self.num_threads, "must be >= 0 (0 = all)")
+        return self
+
+    def pass_iterations(self, pass_index: int) -> int:
+        """Red-black iterations of pass ``pass_index`` (0 = photometric, >= 1 geometric)."""
+        if self.iterations is not None:
+            return int(self.iterations)
+        if self.schedule == "acmm":
+            return 3 if pass_index == 0 else 2
+        return 8
+
+    def window_offsets(self) -> list[int]:
+        """1-D sample offsets of the matching window, e.g. [-5, -3, -1, 1, 3, 5]."""
+        r = self.window // 2
+        return list(range(-r, r + 1, self.window_step))

@@ -1,0 +1,257 @@
+"""Every numba kernel of engine.patchmatch against its plain-Python reference, on small random inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from engine.camera import Camera
+from engine.patchmatch import PatchMatchOptions
+from engine.patchmatch import kernels as K
+from engine.patchmatch import reference as ref
+from engine.patchmatch.context import build_context
+from engine.patchmatch.engine import _params, _State, half_step, init_cost
+from engine.patchmatch.geometry import perturb_normal, propagate_depth, random_normal, ray, relative_geometry
+from engine.patchmatch.ncc import bilateral_moments, ncc_cost, pad_sources, window_offsets_2d
+from engine.patchmatch.propagation import sampling_pattern
+from engine.patchmatch.pyramid import area_resize, jbu_upsample
+from engine.patchmatch.rng import combine, stream_key, uniform
+from engine.patchmatch.view_selection import view_weights
+
+
+def _smooth_noise(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    img = rng.random((h + 2, w + 2))
+    img = (img[:-2, :-2] + img[1:-1, 1:-1] + img[2:, 2:] + img[1:-1, :-2] + img[:-2, 1:-1]) / 5
+    return img.astype(np.float32)
+
+
+def _cameras(w: int = 24, h: int = 20) -> tuple[Camera, Camera]:
+    a = Camera.from_params(w, h, 22.0, 23.0, w / 2, h / 2)
+    yaw = 0.08
+    R = np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1, 0], [math.sin(yaw), 0, math.cos(yaw)]])
+    b = Camera.from_params(w, h, 21.0, 21.5, w / 2 + 0.7, h / 2 - 0.4, R, np.array([-0.4, 0.05, 0.02]))
+    return a, b
+
+
+@pytest.mark.parametrize("weighting,sigma_c", [("colmap", 0.2), ("acmm", 3.0)])
+def test_bilateral_moments_match_reference(weighting: str, sigma_c: float) -> None:
+    rng = np.random.default_rng(0)
+    img = _smooth_noise(rng, 13, 17)
+    offs = window_offsets_2d([-5, -3, -1, 1, 3, 5])
+    wgt, wa, mu, var = bilateral_moments(img, offs, weighting, 5.0, sigma_c)
+    for y, x in [(0, 0), (6, 8), (12, 16), (3, 15)]:
+        w_ref, a_ref = ref.bilateral_weights_ref(img, x, y, offs, weighting, 5.0, sigma_c)
+        np.testing.assert_allclose(wgt[y, x], w_ref, rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(wa[y, x], w_ref * a_ref, rtol=1e-5, atol=1e-7)
+        assert mu[y, x] == pytest.approx((w_ref * a_ref).sum(), abs=1e-6)
+        assert var[y, x] == pytest.approx((w_ref * a_ref**2).sum() - (w_ref * a_ref).sum() ** 2, abs=1e-6)
+
+
+@pytest.mark.parametrize("step", [1, 2])
+def test_ncc_cost_matches_reference(step: int) -> None:
+    rng = np.random.default_rng(1)
+    ref_img, src_img = _smooth_noise(rng, 20, 24), _smooth_noise(rng, 18, 26)
+    offs1 = list(range(-5, 6, step))
+    offs = window_offsets_2d(offs1)
+    wgt, wa, mu, var = bilateral_moments(ref_img, offs, "colmap", 5.0, 0.2)
+    stack, sizes = pad_sources([src_img])
+    ox, oy = offs[:, 0].astype(np.float32), offs[:, 1].astype(np.float32)
+    n_two = 0
+    for _ in range(150):
+        H = np.eye(3) + rng.normal(0, [[0.05, 0.05, 2], [0.05, 0.05, 2], [1e-3, 1e-3, 0.05]])
+        H32 = H.astype(np.float32)
+        x, y = int(rng.integers(0, 24)), int(rng.integers(0, 20))
+        got = ncc_cost(stack.ravel(), 0, stack.shape[2], 26, 18, wgt[y, x], wa[y, x], mu[y, x], var[y, x], ox, oy,
+                       x, y, *H32.ravel(), np.float32(1e-5))
+        want = ref.ncc_cost_ref(ref_img, src_img, H32.astype(np.float64), x, y, offs)
+        assert got == pytest.approx(want, abs=2e-4)
+        n_two += want == 2.0
+    assert n_two < 150  # most windows were really compared
+
+
+def test_homography_and_photometric_cost_match_reference() -> None:
+    rng = np.random.default_rng(2)
+    a, b = _cameras()
+    img_a, img_b = _smooth_noise(rng, 20, 24), _smooth_noise(rng, 20, 24)
+    opts = PatchMatchOptions()
+    ctx = build_context(img_a, a, [img_b], [b], opts)
+    for _ in range(40):
+        x, y = int(rng.integers(0, 24)), int(rng.integers(0, 20))
+        z = float(rng.uniform(2, 6))
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        rp = np.array(ray(ctx.kinv, x, y))
+        if n @ rp > 0:
+            n = -n
+        H = ref.homography_ref(a.K_idx, a.R, a.t, b.K_idx, b.R, b.t, x, y, z, n)
+        want = ref.ncc_cost_ref(img_a, img_b, H.astype(np.float32).astype(np.float64), x, y, ctx.offs)
+        from engine.patchmatch.geometry import plane_vector
+
+        m0, m1, m2, ok = plane_vector(ctx.kinv, tuple(rp), z, *n)
+        assert ok
+        got = K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, 0, ctx.wgt[y, x],
+                                 ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], ctx.ox, ctx.oy, x, y, m0, m1, m2,
+                                 1e-5)
+        assert got == pytest.approx(want, abs=5e-4)
+
+
+def test_reprojection_error_matches_reference() -> None:
+    rng = np.random.default_rng(3)
+    a, b = _cameras()
+    depth_b = rng.uniform(3, 5, size=(20, 24)).astype(np.float32)
+    depth_b[rng.random((20, 24)) < 0.2] = 0
+    geo = relative_geometry(a, [b])
+    from engine.patchmatch.geometry import reprojection_error
+
+    for _ in range(100):
+        x, y, z = int(rng.integers(0, 24)), int(rng.integers(0, 20)), float(rng.uniform(2.5, 6))
+        got = reprojection_error(geo["A"], geo["b"], geo["B"], geo["c"], 0, depth_b[None], 24, 20, x, y, z)
+        want = ref.reprojection_error_ref(a.K_idx, a.R, a.t, b.K_idx, b.R, b.t, depth_b, x, y, z)
+        assert got == pytest.approx(want, abs=1e-6)
+
+
+def test_plane_propagation_matches_reference_and_is_exact_on_a_plane() -> None:
+    a, _ = _cameras()
+    Ki = np.linalg.inv(a.K_idx)
+    n = np.array([0.2, -0.1, -1.0])
+    n /= np.linalg.norm(n)
+    d = 4.0  # plane n·X + d = 0
+    for q, p in [((3, 4), (3, 9)), ((10, 10), (17, 10)), ((5, 12), (5, 1))]:
+        rq, rp = Ki @ [*q, 1.0], Ki @ [*p, 1.0]
+        zq, zp = -d / (n @ rq), -d / (n @ rp)
+        got = propagate_depth(zq, *n, tuple(rq), tuple(rp), True)
+        assert got == pytest.approx(zp, rel=1e-9)
+        assert got == pytest.approx(ref.propagate_depth_ref(a.K_idx, q, zq, n, p), rel=1e-12)
+        assert propagate_depth(zq, *n, tuple(rq), tuple(rp), False) == zq
+
+
+def test_random_normals_face_camera_and_match_reference() -> None:
+    a, _ = _cameras()
+    Ki = np.linalg.inv(a.K_idx)
+    for i in range(50):
+        key = np.uint64(combine(np.uint64(stream_key(7, 1, 0, 0, 0, 0)), i))
+        rp = Ki @ [i % 24, i % 20, 1.0]
+        nx, ny, nz, _ = random_normal(key, 3, tuple(rp))
+        n = np.array([nx, ny, nz])
+        assert np.linalg.norm(n) == pytest.approx(1.0, abs=1e-9)
+        assert n @ rp < 0
+        np.testing.assert_allclose(n, ref.random_normal_ref(int(key), 3, rp)[0], atol=1e-12)
+        for eps in (1.0, 0.25, 0.01):
+            px, py, pz, _ = perturb_normal(key, 50, tuple(rp), nx, ny, nz, eps, 3)
+            m = np.array([px, py, pz])
+            assert m @ rp < 0
+            np.testing.assert_allclose(m, ref.perturb_normal_ref(int(key), 50, rp, n, eps, 3), atol=1e-9)
+            if eps == 0.01:
+                assert math.degrees(math.acos(min(1.0, float(m @ n)))) < 2.0
+
+
+def test_rng_is_uniform_and_counter_based() -> None:
+    key = stream_key(0, 0, 0, 0, 0, 0)
+    u = np.array([uniform(key, i) for i in range(20000)])
+    assert 0 <= u.min() and u.max() < 1
+    assert abs(u.mean() - 0.5) < 0.01
+    assert stream_key(0, 0, 0, 0, 0, 0) == key and stream_key(1, 0, 0, 0, 0, 0) != key
+
+
+@pytest.mark.parametrize("name,count,regions", [("deepc", 24, 24), ("deepc_far", 24, 24), ("acmm", 72, 8)])
+def test_sampling_patterns(name: str, count: int, regions: int) -> None:
+    offs, region = sampling_pattern(name)
+    assert offs.shape == (count, 2) and region.max() + 1 == regions
+    assert np.all(np.abs(offs).sum(axis=1) % 2 == 1)  # always the other colour
+    assert len({tuple(o) for o in offs}) == count
+
+
+@pytest.mark.parametrize("deterministic", [True, False])
+def test_view_weights_match_reference(deterministic: bool) -> None:
+    rng = np.random.default_rng(4)
+    for trial in range(60):
+        n_views = int(rng.integers(1, 7))
+        M = rng.uniform(0, 2, size=(8, n_views))
+        n_rows = int(rng.integers(0, 9))
+        Sel = rng.integers(0, 2**n_views, size=(3, 3)).astype(np.uint32)
+        tau_g = 0.8 * math.exp(-(trial % 8) ** 2 / 90)
+        omega, v = np.zeros(n_views), np.zeros(n_views)
+        key = np.uint64(stream_key(trial, 0, 0, 0, 0, 0))
+        total = view_weights(M, n_rows, n_views, Sel, 1, 1, tau_g, 1.2, 0.3, 0.4, 2, 3, 0.9, 0.1, deterministic, 15,
+                             key, 0, omega, v)
+        masks = [int(Sel[0, 1]), int(Sel[2, 1]), int(Sel[1, 0]), int(Sel[1, 2])]
+        want = ref.view_weights_ref(M, n_rows, masks, tau_g, deterministic=deterministic, key=int(key))
+        np.testing.assert_allclose(v, want, rtol=1e-12, atol=1e-12)
+        assert total == pytest.approx(want.sum())
+
+
+def test_jbu_matches_reference() -> None:
+    rng = np.random.default_rng(5)
+    depth_lo = rng.uniform(2, 4, size=(6, 7)).astype(np.float32)
+    depth_lo[2, 3] = 0
+    normal_lo = rng.normal(size=(6, 7, 3)).astype(np.float32)
+    normal_lo[..., 2] = -np.abs(normal_lo[..., 2]) - 1
+    guide = _smooth_noise(rng, 12, 14)
+    got_d, got_n = jbu_upsample(depth_lo, normal_lo, guide, 2, 0.5, 0.1)
+    want_d, want_n = ref.jbu_ref(depth_lo, normal_lo, guide, 2, 0.5, 0.1)
+    np.testing.assert_allclose(got_d, want_d, rtol=1e-5)
+    np.testing.assert_allclose(got_n, want_n, atol=1e-5)
+    # constant input stays constant
+    d, _ = jbu_upsample(np.full((6, 7), 3.0, np.float32), normal_lo, guide, 2, 0.5, 0.1)
+    np.testing.assert_allclose(d, 3.0, rtol=1e-6)
+
+
+def test_area_resize() -> None:
+    rng = np.random.default_rng(6)
+    img = rng.random((8, 10)).astype(np.float32)
+    half = area_resize(img, 5, 4)
+    np.testing.assert_allclose(half, img.reshape(4, 2, 5, 2).mean(axis=(1, 3)), rtol=1e-6)
+    odd = area_resize(np.full((9, 11), 0.3, np.float32), 6, 5)
+    np.testing.assert_allclose(odd, 0.3, rtol=1e-6)
+    assert area_resize(img, 10, 8) is not None
+
+
+def _tiny_problem(seed: int, geometric: bool, options: PatchMatchOptions):
+    rng = np.random.default_rng(seed)
+    a, b = _cameras(16, 14)
+    c = Camera.from_params(16, 14, 20.0, 20.0, 8.3, 6.9, np.eye(3), np.array([0.35, -0.1, 0.0]))
+    imgs = [_smooth_noise(rng, 14, 16) for _ in range(3)]
+    depths = [rng.uniform(2.5, 4.5, size=(14, 16)).astype(np.float32) for _ in range(2)] if geometric else None
+    ctx = build_context(imgs[0], a, imgs[1:], [b, c], options, depths)
+    prob = ref.RefProblem(imgs[0], a, imgs[1:], [b, c], depths, options)
+    st = _State(np.zeros((14, 16), np.float32), np.zeros((14, 16, 3), np.float32), np.zeros((14, 16), np.float32),
+                np.zeros((14, 16), np.uint32))
+    kinv = np.linalg.inv(a.K_idx).ravel()
+    K.random_init_kernel(st.Z, st.N, kinv, 2.0, 5.0, np.uint64(stream_key(seed, 0, 0, 0, 99, 0)), False)
+    return ctx, prob, st
+
+
+@pytest.mark.parametrize("geometric", [False, True])
+def test_init_cost_matches_reference(geometric: bool) -> None:
+    opts = PatchMatchOptions(init_top_k=2)
+    ctx, prob, st = _tiny_problem(8, geometric, opts)
+    fp, ip = _params(opts, 2.0, 5.0, 0, geometric, False, 24)
+    init_cost(st, ctx, fp, ip)
+    C_ref, S_ref = ref.init_cost_ref(prob, st.Z, st.N, geometric)
+    np.testing.assert_allclose(st.C, C_ref, atol=2e-4)
+    assert (st.S == S_ref).mean() > 0.97  # masks may differ only on near-ties
+
+
+@pytest.mark.parametrize("geometric,pattern,view_sampling,combos", [
+    (False, "deepc", "monte_carlo", "acmm5"),
+    (True, "acmm", "deterministic", "all8"),
+    (False, "deepc_far", "deterministic", "acmm5"),
+])
+def test_half_step_matches_reference(geometric: bool, pattern: str, view_sampling: str, combos: str) -> None:
+    opts = PatchMatchOptions(pattern=pattern, view_sampling=view_sampling, combos=combos, k_update=10, k_viewsel=6)
+    ctx, prob, st = _tiny_problem(9, geometric, opts)
+    pat, region = sampling_pattern(pattern)
+    fp, ip = _params(opts, 2.0, 5.0, 1, geometric, False, int(region.max()) + 1)
+    init_cost(st, ctx, fp, ip)
+    Z, N, C, S = st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy()
+    Z0 = st.Z.copy()
+    key = np.uint64(stream_key(3, 0, 0, 0, 1, 0))
+    half_step(st, ctx, 0, st.C.copy(), pat, region, key, fp, ip)
+    ref.half_step_ref(prob, Z, N, C, S, C.copy(), 0, int(key), 1, 2.0, 5.0, geometric, False, (pat, region))
+    same = np.isclose(st.Z, Z, rtol=1e-5) & np.all(np.isclose(st.N, N, atol=1e-5), axis=-1)
+    assert same.mean() > 0.97, f"{(~same).sum()} of {same.size} pixels differ"
+    both = same & np.isclose(st.C, C, atol=1e-3)
+    assert both.mean() > 0.95
+    assert (st.Z != Z0).any()  # the step did change something
