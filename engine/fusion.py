@@ -113,6 +113,9 @@ class FusedCloud:
         num_views: (N,) int32 number of distinct views that contributed pixels (seed view included).
         mean_confidence: (N,) float32 mean confidence of the fused pixels; NaN without confidence maps.
         source_view: (N,) int32 index of the seed pixel's view.
+        num_pixels: (N,) int32 number of fused pixels (seed included): the quantity ``min_num_pixels``
+            thresholds, so masking a cloud fused with ``min_num_pixels=1`` by ``num_pixels >= m`` gives
+            exactly the cloud fused with ``min_num_pixels=m``.
     """
 
     xyz: np.ndarray
@@ -121,6 +124,7 @@ class FusedCloud:
     num_views: np.ndarray
     mean_confidence: np.ndarray
     source_view: np.ndarray
+    num_pixels: np.ndarray
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -132,7 +136,7 @@ class FusedCloud:
     @classmethod
     def empty(cls) -> FusedCloud:
         return cls(np.zeros((0, 3)), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8),
-                   np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.int32))
+                   np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.int32))
 
 
 # --------------------------------------------------------------------------------------------
@@ -264,6 +268,7 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
     out_nrm = np.empty((cap, 3), np.float32)
     out_rgb = np.empty((cap, 3), np.uint8)
     out_nv = np.empty(cap, np.int32)
+    out_np = np.empty(cap, np.int32)
     out_conf = np.empty(cap, np.float32)
     out_src = np.empty(cap, np.int32)
     n_out = 0
@@ -421,6 +426,7 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
             out_rgb[n_out, 1] = min(255, _round_half_away(_median(bg, n, scratch)))
             out_rgb[n_out, 2] = min(255, _round_half_away(_median(bb, n, scratch)))
             out_nv[n_out] = n_vis
+            out_np[n_out] = n
             out_conf[n_out] = conf_sum / conf_n if conf_n > 0 else np.nan
             out_src[n_out] = img
             n_out += 1
@@ -438,7 +444,7 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
                     break
         img = nxt
     return (out_xyz[:n_out].copy(), out_nrm[:n_out].copy(), out_rgb[:n_out].copy(), out_nv[:n_out].copy(),
-            out_conf[:n_out].copy(), out_src[:n_out].copy())
+            out_conf[:n_out].copy(), out_src[:n_out].copy(), out_np[:n_out].copy())
 
 
 def _reproj_sq_limit(options: FusionOptions) -> float:
@@ -461,11 +467,11 @@ def fuse(views: list[FusionView], options: FusionOptions | None = None) -> Fused
     if not views:
         return FusedCloud.empty()
     packed = _pack(list(views), options)
-    xyz, nrm, rgb, nv, conf, src = _fuse_kernel(
+    xyz, nrm, rgb, nv, conf, src, npx = _fuse_kernel(
         *packed, _reproj_sq_limit(options), options.max_depth_error,
         math.cos(math.radians(options.max_normal_error)), int(options.min_num_pixels),
         int(options.max_num_pixels), int(options.max_traversal_depth))
-    return FusedCloud(xyz, nrm, rgb, nv, conf, src)
+    return FusedCloud(xyz, nrm, rgb, nv, conf, src, npx)
 
 
 # --------------------------------------------------------------------------------------------
@@ -493,7 +499,7 @@ def fuse_reference(views: list[FusionView], options: FusionOptions | None = None
     consumed = [np.zeros(d.shape, bool) for d in depth]
     fused = [False] * n_views
     min_cos = math.cos(math.radians(options.max_normal_error))
-    out: dict[str, list] = {k: [] for k in ("xyz", "nrm", "rgb", "nv", "conf", "src")}
+    out: dict[str, list] = {k: [] for k in ("xyz", "nrm", "rgb", "nv", "conf", "src", "npx")}
 
     def backproject(k, row, col, d):
         cam = views[k].camera
@@ -562,6 +568,7 @@ def fuse_reference(views: list[FusionView], options: FusionOptions | None = None
                 out["nv"].append(len(vis))
                 out["conf"].append(np.mean(confs) if confs else np.nan)
                 out["src"].append(img)
+                out["npx"].append(len(pts))
         fused[img] = True
         nxt = next((j for j in overlap[img] if not fused[j]), -1)
         if nxt < 0:
@@ -571,13 +578,13 @@ def fuse_reference(views: list[FusionView], options: FusionOptions | None = None
         return FusedCloud.empty()
     return FusedCloud(np.array(out["xyz"]), np.array(out["nrm"], np.float32), np.array(out["rgb"], np.uint8),
                       np.array(out["nv"], np.int32), np.array(out["conf"], np.float32),
-                      np.array(out["src"], np.int32))
+                      np.array(out["src"], np.int32), np.array(out["npx"], np.int32))
 
 
 # --------------------------------------------------------------------------------------------
 # PLY I/O and helpers.
 
-_EXTRA = ("num_views", "confidence", "source_view")
+_EXTRA = ("num_views", "confidence", "source_view", "num_pixels")
 
 
 def write_fused_ply(path: str | Path, cloud: FusedCloud) -> None:
@@ -587,7 +594,8 @@ def write_fused_ply(path: str | Path, cloud: FusedCloud) -> None:
               rgb=np.asarray(cloud.rgb, np.uint8),
               extra={"num_views": np.asarray(cloud.num_views, np.int32),
                      "confidence": np.asarray(cloud.mean_confidence, np.float32),
-                     "source_view": np.asarray(cloud.source_view, np.int32)})
+                     "source_view": np.asarray(cloud.source_view, np.int32),
+                     "num_pixels": np.asarray(cloud.num_pixels, np.int32)})
 
 
 def read_fused_ply(path: str | Path) -> FusedCloud:
@@ -607,7 +615,7 @@ def read_fused_ply(path: str | Path) -> FusedCloud:
 
     return FusedCloud(xyz, stack(("nx", "ny", "nz"), np.float32, 0), stack(("red", "green", "blue"), np.uint8, 0),
                       column("num_views", np.int32, 0), column("confidence", np.float32, np.nan),
-                      column("source_view", np.int32, -1))
+                      column("source_view", np.int32, -1), column("num_pixels", np.int32, 0))
 
 
 def depth_normals(camera: Camera, depth: np.ndarray, max_relative_jump: float = 0.02) -> np.ndarray:

@@ -38,7 +38,7 @@ def fountain_copy(tmp_path: Path) -> Path:
     return dst
 
 
-def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True) -> Path:
+def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True, scene_options=None) -> Path:
     """An output folder as `deepc run` writes it, made from GT depth instead of PatchMatch, so that
     viewer tests are fast. Confidence ramps from 0 (top row) to 1 (bottom row) and the counter from
     0 to 5, so every move of a filter threshold visibly removes or restores points."""
@@ -48,7 +48,7 @@ def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True) 
     from engine.io.outputs import write_map, write_metrics
     from engine.scene import load_scene
 
-    scene = load_scene(scene_dir)
+    scene = load_scene(scene_dir, scene_options)
     for v in scene.views:
         depth = scene.gt_depth(v.index).copy()
         h, w = depth.shape

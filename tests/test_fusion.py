@@ -70,6 +70,7 @@ def _assert_same(a: FusedCloud, b: FusedCloud):
     np.testing.assert_allclose(a.normal, b.normal, atol=1e-6)
     np.testing.assert_array_equal(a.rgb, b.rgb)
     np.testing.assert_array_equal(a.num_views, b.num_views)
+    np.testing.assert_array_equal(a.num_pixels, b.num_pixels)
     np.testing.assert_array_equal(a.source_view, b.source_view)
     np.testing.assert_allclose(a.mean_confidence, b.mean_confidence, atol=1e-6)
 

@@ -42,6 +42,17 @@ def test_a_fusion_change_reuses_the_filtered_maps(session):
     assert len(session.cloud(stricter)) < len(session.cloud(params))
 
 
+def test_min_views_preview_is_exact(session):
+    params = ViewParams(pipeline="vanilla")
+    base = session.base_cloud(params)
+    for m in (2, 3, 5):
+        strict = dataclasses.replace(params, fusion=params.fusion.replace(min_num_pixels=m))
+        exact = session.cloud(strict)
+        preview = base.subset(ViewerSession.preview_mask(base, strict))
+        assert len(preview) == len(exact)
+        np.testing.assert_array_equal(preview.xyz, exact.xyz)
+
+
 def test_preview_approximates_the_exact_cloud(session):
     params = ViewParams(pipeline="fast", conf_tau=0.5)
     base = session.base_cloud(params)

@@ -82,6 +82,7 @@ class ViewerSession:
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
         self._clouds = _LRU(8)
+        self._base_clouds = _LRU(2)  # kept apart so exact clouds never evict what previews need
         self._evals = _LRU(16)
         self._gt_points: np.ndarray | None = None
         self._gt_views: list | None = None
@@ -166,7 +167,7 @@ class ViewerSession:
             out.append((depth, normal))
         return out
 
-    def cloud(self, params: ViewParams) -> FusedCloud:
+    def cloud(self, params: ViewParams, _cache: _LRU | None = None) -> FusedCloud:
         """The exactly fused cloud for ``params`` (cached by filter and fusion options)."""
         def compute() -> FusedCloud:
             maps = self.filtered_maps(params)
@@ -174,24 +175,31 @@ class ViewerSession:
             views = views_from_scene(self.scene, [m[0] for m in maps], [m[1] for m in maps], confidence,
                                      params.fusion.check_num_images)
             return fuse(views, params.fusion)
-        return self._cached(self._clouds, params.fusion_key(), compute)
+        return self._cached(self._clouds if _cache is None else _cache, params.fusion_key(), compute)
 
     def cached_cloud(self, params: ViewParams) -> FusedCloud | None:
         """The cloud for ``params`` if it is already computed, else None (never computes)."""
         with self._cache_lock:
-            return self._clouds.get(params.fusion_key())
+            key = params.fusion_key()
+            return self._clouds.get(key, self._base_clouds.get(key))
 
     def base_cloud(self, params: ViewParams) -> FusedCloud:
         """The cloud of ``params`` with no confidence or counter filter and at least 1 view: the
         superset that previews mask."""
-        loose = dataclasses.replace(params, conf_tau=0.0, mask_k=0,
-                                    fusion=params.fusion.replace(min_num_pixels=1))
-        return self.cloud(loose)
+        return self.cloud(self.base_params(params), self._base_clouds)
+
+    @staticmethod
+    def base_params(params: ViewParams) -> ViewParams:
+        """``params`` without the filters that previews emulate."""
+        return dataclasses.replace(params, conf_tau=0.0, mask_k=0, fusion=params.fusion.replace(min_num_pixels=1))
 
     @staticmethod
     def preview_mask(base: FusedCloud, params: ViewParams) -> np.ndarray:
-        """Approximate the exact cloud by masking the base cloud by per-point attributes (fast)."""
-        keep = base.num_views >= max(1, params.fusion.min_num_pixels)
+        """Approximate the exact cloud by masking the base cloud by per-point attributes (fast).
+
+        Exact for the fusion's minimum pixel count (the traversal does not depend on it); approximate
+        for the confidence threshold and mask-k, which act on pixels before fusion."""
+        keep = base.num_pixels >= max(1, params.fusion.min_num_pixels)
         if params.pipeline != "vanilla" and params.conf_tau > 0 and np.isfinite(base.mean_confidence).any():
             with np.errstate(invalid="ignore"):
                 keep &= base.mean_confidence >= params.conf_tau

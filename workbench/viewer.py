@@ -186,9 +186,7 @@ class ViewerApp:
         """Show a preview now (when the base cloud is ready) and queue the exact recomputation."""
         if not self.session.has_maps:
             return
-        base_params = dataclasses.replace(params, conf_tau=0.0, mask_k=0,
-                                          fusion=params.fusion.replace(min_num_pixels=1))
-        base = self.session.cached_cloud(base_params)
+        base = self.session.cached_cloud(ViewerSession.base_params(params))
         if base is not None and self.session.cached_cloud(params) is None:
             mask = ViewerSession.preview_mask(base, params)
             self._show(base.subset(mask), params, preview=True)
