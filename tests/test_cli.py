@@ -75,6 +75,14 @@ def test_stages_that_do_not_exist_yet_say_so(args, tmp_path):
     _one_line_error(deepc(*args), "does not exist yet")
 
 
+def test_set_refuses_unknown_stages_and_options(tmp_path):
+    base = ["run", SAMPLES / "tiny", "--out", tmp_path / "o", "--headless"]
+    _one_line_error(deepc(*base, "--set", "nonsense.x=1"), "unknown stage")
+    _one_line_error(deepc(*base, "--set", "patchmatch.tua0=1"), "tua0")
+    _one_line_error(deepc(*base, "--set", "stream.every=0"), "every")
+    assert not (tmp_path / "o").exists()
+
+
 def test_view_and_replay_refuse_bad_paths(tmp_path):
     _one_line_error(deepc("view", tmp_path), "neither")
     _one_line_error(deepc("replay", tmp_path / "missing.rrd"), "not found")

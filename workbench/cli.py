@@ -57,18 +57,27 @@ RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_prop
                         "view_sampling", "levels", "geom_passes", "num_threads"]
 
 
+SET_SECTIONS = ("patchmatch", "fusion", "stream")
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from engine.fusion import FUSION_PRESETS, FusionOptions
     from engine.patchmatch import PatchMatchOptions
     from engine.pipeline import PipelineOptions, run_pipeline
     from workbench.progress import PassProgress
 
+    for item in args.set:
+        section = item.partition("=")[0].partition(".")[0]
+        if section not in SET_SECTIONS:
+            raise DeepCError(f"--set {item!r}: unknown stage {section!r} (one of {', '.join(SET_SECTIONS)})")
     scene_options = options_from_args(SceneOptions, args)
     patchmatch = options_from_args(PatchMatchOptions, args,
                                    **section_overrides(args.set, "patchmatch", PatchMatchOptions))
     fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[args.fusion_preset],
                                **section_overrides(args.set, "fusion", FusionOptions))
     options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, fusion=fusion).validate()
+    from workbench.stream import StreamOptions
+    stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
     if options.pipeline != "vanilla":
         raise NotYetImplemented(f"deepc run --pipeline {options.pipeline}: the confidence network does not "
                                 "exist yet in this version (use --pipeline vanilla)")
@@ -83,7 +92,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             live = live_viewer(args.host)
             print(f"live PatchMatch stream: {live.url}", file=sys.stderr)
         if record or live:
-            recording = _open_recording(record, scene, options, live.grpc_url if live else None)
+            recording = _open_recording(record, scene, options, stream_options, live.grpc_url if live else None)
         try:
             result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
                                   progress=progress)
@@ -107,16 +116,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _open_recording(path: str | None, scene, options, live_url: str | None = None):
+def _open_recording(path: str | None, scene, options, stream_options, live_url: str | None = None):
     from layouts import DEFAULT, LAYOUTS
     from workbench.recording import Recording
-    from workbench.stream import RerunStream, StreamOptions, entity_name
+    from workbench.stream import RerunStream, entity_name
 
     blueprint = LAYOUTS[DEFAULT]([entity_name(v.index, v.name) for v in scene.views])
     recording = Recording(path, blueprint, live_url)
     views = [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views]
     gt = [scene.gt_depth(v.index) for v in scene.views]
-    recording.stream = RerunStream(recording.rec, views, gt, StreamOptions(),
+    recording.stream = RerunStream(recording.rec, views, gt, stream_options,
                                    pass_iterations=options.patchmatch.pass_iterations)
     recording.stream.set_depth_ranges([v.depth_range for v in scene.views])
     return recording
@@ -164,7 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
                                                          "min_num_pixels"])
     run.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                     help="any other stage option, e.g. --set patchmatch.tau0=0.7 (repeatable)")
+                     help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set fusion.check_num_images=20, "
+                          "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
     run.add_argument("--record", metavar="FILE.rrd", nargs="?", const="", default=None,
                      help="write a rerun recording (default path: OUT/recording.rrd)")
     run.add_argument("--headless", action="store_true",

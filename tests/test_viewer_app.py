@@ -1,0 +1,57 @@
+"""The viewer app without a browser: GUI callbacks, exports, bind address, shutdown."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.io.ply import read_ply
+from workbench.session import ViewerSession
+from workbench.viewer import ViewerApp
+
+
+@pytest.fixture(scope="module")
+def app(fake_run):
+    viewer = ViewerApp(ViewerSession.open(fake_run), port=0)
+    try:
+        assert viewer.wait_idle(120)
+        yield viewer
+    finally:
+        viewer.stop()
+
+
+def test_binds_loopback_by_default(app):
+    assert app.host == "127.0.0.1" and app.port > 0
+
+
+def test_gui_changes_recompute_and_update_the_metrics(app):
+    app.pipeline.value = "fast"  # runs the callbacks on this thread, as viser does for Python-side changes
+    assert app.wait_idle(60)
+    app.conf_tau.value = 0.6
+    assert app.wait_idle(60)
+    strict = len(app.cloud)
+    app.conf_tau.value = 0.1
+    assert app.wait_idle(60)
+    assert len(app.cloud) > strict
+    assert f"{len(app.cloud):,} points" in app.metrics.content and "F1" in app.metrics.content
+    app.color_mode.value = "confidence"
+    assert app.cloud_handle.colors.shape == (len(app.cloud), 3)
+
+
+def test_exports_stay_inside_the_output_folder(app, fake_run):
+    path = app.export_ply("../../escape attempt")
+    assert path.parent == fake_run / "exports" and path.name == "escape_attempt.ply"
+    columns = read_ply(path)
+    assert len(columns["x"]) == len(app.cloud) and "num_views" in columns
+    rrd = app.save_rrd("state")
+    assert rrd == fake_run / "exports" / "state.rrd" and rrd.stat().st_size > 1000
+    from rerun.chunk import RrdReader
+    summary = str(RrdReader(str(rrd)).stream().collect().summary())
+    assert "/world/fused/" in summary and "/world/cameras/" in summary
+
+
+def test_selecting_a_view_updates_its_images(app):
+    app.select_view(2)
+    assert "view 2:" in app.view_title.content
+    assert app.view_images["depth"].image.ndim == 3
+    assert np.asarray(app.view_images["confidence"].image).dtype == np.uint8
