@@ -234,22 +234,28 @@ def test_init_cost_matches_reference(geometric: bool) -> None:
     assert (st.S == S_ref).mean() > 0.97  # masks may differ only on near-ties
 
 
-@pytest.mark.parametrize("geometric,pattern,view_sampling,combos", [
-    (False, "deepc", "monte_carlo", "acmm5"),
-    (True, "acmm", "deterministic", "all8"),
-    (False, "deepc_far", "deterministic", "acmm5"),
+@pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps", [
+    (False, "deepc", "monte_carlo", "acmm5", False, None),
+    (True, "acmm", "deterministic", "all8", False, None),
+    (False, "deepc_far", "deterministic", "acmm5", False, 2.0**-6),
+    (False, "deepc", "monte_carlo", "acmm5", True, 2.0**-7),
 ])
-def test_half_step_matches_reference(geometric: bool, pattern: str, view_sampling: str, combos: str) -> None:
+def test_half_step_matches_reference(geometric: bool, pattern: str, view_sampling: str, combos: str, detail: bool,
+                                     eps: float | None) -> None:
     opts = PatchMatchOptions(pattern=pattern, view_sampling=view_sampling, combos=combos, k_update=10, k_viewsel=6)
     ctx, prob, st = _tiny_problem(9, geometric, opts)
     pat, region = sampling_pattern(pattern)
-    fp, ip = _params(opts, 2.0, 5.0, 1, geometric, False, int(region.max()) + 1)
+    fp, ip = _params(opts, 2.0, 5.0, 1, geometric, detail, int(region.max()) + 1, eps)
     init_cost(st, ctx, fp, ip)
     Z, N, C, S = st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy()
     Z0 = st.Z.copy()
+    # detail restorer: a reference cost that lets about half of the pixels through
+    cpre = st.C + np.float32(0.1) + (np.arange(st.C.size).reshape(st.C.shape) % 2) * np.float32(0.5) if detail \
+        else st.C.copy()
     key = np.uint64(stream_key(3, 0, 0, 0, 1, 0))
-    half_step(st, ctx, 0, st.C.copy(), pat, region, key, fp, ip)
-    ref.half_step_ref(prob, Z, N, C, S, C.copy(), 0, int(key), 1, 2.0, 5.0, geometric, False, (pat, region))
+    half_step(st, ctx, 0, cpre.astype(np.float32), pat, region, key, fp, ip)
+    ref.half_step_ref(prob, Z, N, C, S, cpre.astype(np.float32), 0, int(key), 1, 2.0, 5.0, geometric, detail,
+                      (pat, region), eps)
     same = np.isclose(st.Z, Z, rtol=1e-5) & np.all(np.isclose(st.N, N, atol=1e-5), axis=-1)
     assert same.mean() > 0.97, f"{(~same).sum()} of {same.size} pixels differ"
     both = same & np.isclose(st.C, C, atol=1e-3)

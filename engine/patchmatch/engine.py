@@ -30,6 +30,7 @@ from engine.patchmatch.rng import stream_key
 
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
+RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
 
 ProgressFn = Callable[[str, int, int], Any]
 
@@ -133,13 +134,22 @@ def effective_levels(views: list[PatchMatchView], options: PatchMatchOptions) ->
     return levels
 
 
+def perturbation_scale(options: PatchMatchOptions, iteration: int, done_before: int) -> float:
+    """ε of iteration ``iteration`` of a pass preceded by ``done_before`` iterations of earlier passes
+    (all levels): 2^-t per pass ('pass'), or 2^-(done_before + t) floored at eps_min ('global')."""
+    if options.eps_schedule == "pass":
+        return 2.0 ** (-iteration)
+    return max(2.0 ** (-(done_before + iteration)), options.eps_min)
+
+
 def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int, geometric: bool,
-            detail: bool, n_regions: int) -> tuple[np.ndarray, np.ndarray]:
+            detail: bool, n_regions: int, eps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Kernel parameter vectors; ``eps`` defaults to 2^-iteration."""
     fp = np.zeros(K.N_FP, np.float64)
     ip = np.zeros(K.N_IP, np.int64)
     fp[K.F_ZMIN] = zmin
     fp[K.F_ZMAX] = zmax
-    fp[K.F_EPS] = 2.0 ** (-iteration)
+    fp[K.F_EPS] = 2.0 ** (-iteration) if eps is None else eps
     fp[K.F_TAU_G] = options.tau0 * math.exp(-(iteration**2) / options.alpha)
     fp[K.F_TAU_BAD] = options.tau_bad
     fp[K.F_BETA] = options.beta
@@ -178,6 +188,22 @@ def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pa
     K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, cpre, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
                        ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
                        ctx.oy, pat, region, key, fp, ip)
+
+
+def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,
+                       view: int, level: int, zmin: float, zmax: float) -> np.ndarray | None:
+    """Cpre for detail_restorer_reference='random': top-k photometric cost (§2.4 rule) of the upsampled
+    depth with a random normal facing the camera (None for 'upsampled': computed by the caller)."""
+    if options.detail_restorer_reference != "random":
+        return None
+    h, w = st.Z.shape
+    tmp = _State(np.empty((h, w), np.float32), np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
+                 np.empty((h, w), np.uint32))
+    key = np.uint64(stream_key(options.seed, view, level, 0, RESTORER_ITERATION, 0))
+    K.random_init_kernel(tmp.Z, tmp.N, ctx.kinv, zmin, zmax, key, False)
+    tmp.Z[:] = st.Z
+    init_cost(tmp, ctx, fp, ip)
+    return tmp.C
 
 
 def _fix_normals(state: _State, cam: Camera) -> None:
@@ -241,6 +267,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
         cameras.append(cams)
     states: list[_State | None] = [None] * n_views
     step = 0
+    done = 0  # iterations of all earlier passes (perturbation schedule 'global')
     for level in range(n_levels - 1, -1, -1):
         coarsest = level == n_levels - 1
         new_states: list[_State | None] = []
@@ -272,9 +299,10 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 st = states[i]
                 if active[i]:
                     step = _run_view_pass(i, v, st, images, cameras, snapshot, level, pass_index, kind, detail,
-                                          n_iter, options, pat, region, n_regions, on_iter, step)
+                                          n_iter, options, pat, region, n_regions, on_iter, step, done)
                 if progress is not None:
                     progress(f"level {level} {kind}", i + 1, n_views)
+            done += n_iter
     out = []
     for i, st in enumerate(states):
         if not active[i]:
@@ -292,18 +320,25 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
 
 def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, kind: str, detail: bool, n_iter: int, options: PatchMatchOptions,
-                   pat: np.ndarray, region: np.ndarray, n_regions: int, on_iter: Callable | None, step: int) -> int:
+                   pat: np.ndarray, region: np.ndarray, n_regions: int, on_iter: Callable | None, step: int,
+                   done_before: int = 0) -> int:
     src_idx = list(v.source_views)
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
                         [cameras[j][level] for j in src_idx], options,
                         [snapshot[j] for j in src_idx] if snapshot is not None else None)
     zmin, zmax = float(v.depth_min), float(v.depth_max)
     fp, ip = _params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
+    if detail:
+        cpre = restorer_reference(st, ctx, options, fp, ip, i, level, zmin, zmax)
     init_cost(st, ctx, fp, ip)
-    cpre = st.C.copy() if detail else st.C
+    if not detail:
+        cpre = st.C
+    elif options.detail_restorer_reference == "upsampled":
+        cpre = st.C.copy()
     for t in range(n_iter):
         t0 = time.perf_counter()
-        fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions)
+        fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
+                         perturbation_scale(options, t, done_before))
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, i, level, pass_index, t, colour))
             half_step(st, ctx, colour, cpre, pat, region, key, fp, ip)

@@ -11,6 +11,8 @@ PATTERNS = ("deepc", "deepc_far", "acmm")
 WEIGHTINGS = ("colmap", "acmm")
 VIEW_SAMPLING = ("monte_carlo", "deterministic")
 COMBOS = ("acmm5", "all8")
+EPS_SCHEDULES = ("pass", "global")
+RESTORER_REFERENCES = ("upsampled", "random")
 
 
 @dataclasses.dataclass
@@ -43,6 +45,13 @@ class PatchMatchOptions(Options):
     k_update: int = option(16, "best samples evaluated as update candidates (>= k_viewsel)")
     combos: str = option("acmm5", "combination hypotheses: ACMM's five or all eight {cur,prt,rnd}^2",
                          choices=COMBOS)
+    eps_schedule: str = option("global", "perturbation scale eps = 2^-t: 'pass' = t is the iteration index, "
+                               "reset at the start of every pass (SPEC §2.5 [rec]); 'global' = t counts the "
+                               "iterations of all earlier passes and levels too, floored at eps_min (short "
+                               "ACMM-schedule passes and finer levels otherwise never perturb finely)",
+                               choices=EPS_SCHEDULES)
+    eps_min: float = option(2.0**-7, "smallest perturbation scale with eps_schedule='global' (2^-7 = the "
+                            "paper's last iteration)")
     normal_perturb_retries: int = option(3, "retries with halved angle when a perturbed normal faces away")
     # --- view selection (§2.8)
     view_sampling: str = option("monte_carlo", "view weights: Monte-Carlo counts or deterministic weights",
@@ -63,6 +72,13 @@ class PatchMatchOptions(Options):
     # --- multi-scale (§2.11)
     detail_restorer: bool = option(True, "keep the upsampled hypothesis unless the new cost is much lower")
     detail_restorer_delta: float = option(0.1, "detail restorer: required cost improvement")
+    detail_restorer_reference: str = option(
+        "random", "detail restorer reference cost Cpre: 'upsampled' = top-k photometric cost of the upsampled "
+        "hypothesis (SPEC §2.7 step 7 / §11.15; blocks almost all fine-level refinement, since refining an "
+        "already good plane rarely gains 0.1); 'random' = top-k cost of the upsampled depth with a random "
+        "normal, i.e. how well an arbitrary plane matches there (what ACMM's code effectively compares with, "
+        "its Cpre plane has an uninitialised normal): textured pixels refine freely, weakly textured ones "
+        "keep the upsampled hypothesis unless the new one is clearly better", choices=RESTORER_REFERENCES)
     jbu_sigma_spatial: float = option(0.5, "JBU spatial sigma (low-res pixels)")
     jbu_sigma_range: float = option(25.5, "JBU range sigma (0-255 grey levels)")
     jbu_radius: int = option(2, "JBU window radius (low-res pixels)")
@@ -98,6 +114,7 @@ class PatchMatchOptions(Options):
               "need 0 <= prior_out <= prior_in")
         check(self.geom_lambda >= 0, "geom_lambda", self.geom_lambda, "must be >= 0")
         check(self.geom_max > 0, "geom_max", self.geom_max, "must be > 0")
+        check(0 < self.eps_min <= 1, "eps_min", self.eps_min, "must be in (0, 1]")
         check(self.detail_restorer_delta >= 0, "detail_restorer_delta", self.detail_restorer_delta, "must be >= 0")
         check(1 <= self.jbu_radius <= 8, "jbu_radius", self.jbu_radius, "must be in 1..8")
         check(0 <= self.seed < 2**63, "seed", self.seed, "must be in 0..2^63-1")

@@ -300,13 +300,17 @@ def init_cost_ref(prob: RefProblem, Z: np.ndarray, N: np.ndarray, geometric: boo
 
 
 def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, iteration: int, zmin: float,
-                  zmax: float, geometric: bool, detail: bool, pattern: tuple[np.ndarray, np.ndarray]) -> None:
-    """Plain-Python red-black half-step, in place (same semantics and random draws as the kernel)."""
+                  zmax: float, geometric: bool, detail: bool, pattern: tuple[np.ndarray, np.ndarray],
+                  eps: float | None = None) -> None:
+    """Plain-Python red-black half-step, in place (same semantics and random draws as the kernel).
+
+    ``eps`` is the perturbation scale (default 2^-iteration, the 'pass' schedule)."""
     o = prob.o
     h, w = Z.shape
     pat, region = pattern
     n_views = len(prob.src_imgs)
-    eps = 2.0**-iteration
+    if eps is None:
+        eps = 2.0**-iteration
     tau_g = o.tau0 * math.exp(-(iteration**2) / o.alpha)
     Z0, N0, C0, S0 = Z.copy(), N.copy(), C.copy(), S.copy()  # other colour's state, read-only
     for y in range(h):
