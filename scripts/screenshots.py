@@ -43,7 +43,7 @@ def rerun_shot(recording: Path, out: Path) -> None:
         page = context.new_page()
         page.goto(viewer.url + "&renderer=webgl")
         page.wait_for_selector("canvas", state="attached")
-        page.wait_for_timeout(15_000)
+        page.wait_for_timeout(60_000)  # the recording plays from the start: let it reach the finest level
         if rerun_crashed(page):
             raise RuntimeError("the rerun web viewer crashed")
         page.screenshot(path=str(out), timeout=90_000)

@@ -89,7 +89,7 @@ class ViewerApp:
         depths = [np.mean(v.depth_range) for v in scene.views]
         centers = np.stack([v.camera.center for v in scene.views])
         spread = float(np.median(np.linalg.norm(centers - centers.mean(axis=0), axis=1))) or 1.0
-        self.frustum_scale = 0.15 * spread
+        self.frustum_scale = 0.07 * spread
         # about one pixel footprint at a typical depth
         self.default_point_size = float(np.median(depths) * 0.5 / np.median([v.camera.fx for v in scene.views]))
         self.server.scene.set_up_direction("-y")

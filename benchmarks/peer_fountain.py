@@ -1,0 +1,60 @@
+"""Score a fountain_p11 run under the rule the OpenMVS peer numbers were measured with.
+
+    .venv/bin/python benchmarks/peer_fountain.py RUN_DIR [--out benchmarks/results/peer_fountain.json]
+
+Rule (issue 4): every valid GT depth pixel of every view (at the run's resolution) is a GT point, and
+reconstructed points that no GT view observes are ignored (the unobserved-space rule with the GT depth
+maps). Also reports the score against the scene's points.ply as `deepc run` / `deepc eval` compute it.
+Peer: OpenMVS 2.3 CPU DensifyPointCloud at 768x512 - F1 55.9 / 90.8, accuracy 76.4 / 96.5,
+completeness 44.1 / 85.7 at 2 / 5 cm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from engine.evaluation import EvaluationOptions, evaluate_points
+from engine.fusion import read_fused_ply
+from engine.io.outputs import read_metrics
+from engine.pipeline import evaluate_cloud
+from engine.scene import SceneOptions, load_scene
+
+PEER = {"f1": (55.9, 90.8), "accuracy": (76.4, 96.5), "completeness": (44.1, 85.7)}
+REPO = Path(__file__).resolve().parent.parent
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "peer_fountain.json")
+    args = parser.parse_args()
+    metrics = read_metrics(args.run)
+    scene = load_scene(metrics["scene_path"], SceneOptions.from_dict(metrics["options"]["scene"]))
+    cloud = read_fused_ply(args.run / "fused.ply")
+    gt_views = [(v.camera, scene.gt_depth(v.index)) for v in scene.views]
+    gt_points = np.concatenate([cam.backproject(depth)[depth > 0] for cam, depth in gt_views])
+    options = EvaluationOptions(tolerances=(0.02, 0.05))
+    peer_rule = evaluate_points(np.asarray(cloud.xyz, np.float64), gt_points, options, gt_views)
+    points_ply = evaluate_cloud(scene, cloud, options)
+    rows = {"peer rule (GT depth pixels)": peer_rule, "points.ply + unobserved rule": points_ply}
+    print(f"{scene.name} {scene.views[0].camera.width}x{scene.views[0].camera.height}, {len(cloud):,} points, "
+          f"{len(gt_points):,} GT depth points")
+    print(f"{'':<30} {'F1 2cm':>7} {'F1 5cm':>7} {'acc 2':>6} {'acc 5':>6} {'comp 2':>7} {'comp 5':>7}")
+    out = {"scene": scene.name, "run": str(args.run), "points": len(cloud), "peer_openmvs": PEER}
+    for name, r in rows.items():
+        print(f"{name:<30} {r.f1[0]:>7.1f} {r.f1[1]:>7.1f} {r.accuracy[0]:>6.1f} {r.accuracy[1]:>6.1f} "
+              f"{r.completeness[0]:>7.1f} {r.completeness[1]:>7.1f}")
+        out[name] = r.to_dict()
+    p = PEER
+    print(f"{'OpenMVS (peer)':<30} {p['f1'][0]:>7.1f} {p['f1'][1]:>7.1f} {p['accuracy'][0]:>6.1f} "
+          f"{p['accuracy'][1]:>6.1f} {p['completeness'][0]:>7.1f} {p['completeness'][1]:>7.1f}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(out, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
