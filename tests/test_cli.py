@@ -143,3 +143,47 @@ def test_run_writes_the_contract_outputs_and_a_recording(tmp_path):
     table = store.reader(index="iteration", contents="/maps/003_view_003.png/depth").to_arrow_table()
     assert table.num_rows == 2 * 2 * 2
     assert not list(out.rglob(".*.tmp"))
+
+
+def _rerun_servers() -> set[int]:
+    out = subprocess.run(["pgrep", "-f", "rerun_cli/rerun --serve-web"], capture_output=True, text=True).stdout
+    return {int(p) for p in out.split()}
+
+
+@pytest.mark.timeout(300)
+def test_interactive_run_streams_live_serves_the_viewer_and_stops_cleanly(tmp_path):
+    """Without --headless: live rerun web viewer during the run, viser viewer after it; SIGTERM stops both."""
+    import signal
+    import time
+    import urllib.request
+
+    before = _rerun_servers()
+    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", "run", str(SAMPLES / "tiny"), "--out",
+                             str(tmp_path / "out"), "--iterations", "1", "--levels", "1", "--geom-passes", "0",
+                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    try:
+        deadline = time.monotonic() + 240
+        viewer_url = None
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("viewer: http://127.0.0.1:"):
+                viewer_url = line.split()[1]
+                break
+            assert time.monotonic() < deadline, "".join(lines[-20:])
+        assert viewer_url, "".join(lines[-20:])
+        assert any("live PatchMatch stream: http://127.0.0.1:" in line for line in lines)
+        assert len(_rerun_servers() - before) == 1  # the live web viewer is up while the viewer serves
+        with urllib.request.urlopen(viewer_url, timeout=20) as response:
+            assert response.status == 200
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+    deadline = time.monotonic() + 20
+    while _rerun_servers() - before and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _rerun_servers() - before, "the rerun web viewer outlived the run"
+    assert (tmp_path / "out" / "fused.ply").is_file()

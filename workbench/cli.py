@@ -7,6 +7,7 @@ Every user-facing problem ends in one line on stderr and exit status 2; success 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -230,10 +231,16 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):  #
     print(f"deepc: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
+def _terminate(signum, frame):  # noqa: ARG001
+    raise KeyboardInterrupt  # SIGTERM cleans up like Ctrl+C: no orphaned viewer, no partial file
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.showwarning = _warning_line
+    import pycolmap  # noqa: F401  (its glog installs a SIGTERM handler that aborts: ours must come after)
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args.handler(args) or 0)
     except DeepCError as exc:
