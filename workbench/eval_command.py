@@ -13,9 +13,8 @@ import sys
 from pathlib import Path
 
 from engine.errors import DeepCError
-from engine.evaluation import EvaluationOptions, EvaluationResult, evaluate_eth3d, evaluate_points, parse_tolerances
+from engine.evaluation import EvaluationOptions, EvaluationResult, evaluate_file, parse_tolerances
 from engine.io.atomic import atomic_write_text
-from engine.io.ply import read_points
 
 
 def _gt_views_for(gt_path: Path):
@@ -41,12 +40,9 @@ def _gt_views_for(gt_path: Path):
 
 
 def run_eval(recon: str | Path, gt: str | Path, options: EvaluationOptions) -> EvaluationResult:
-    recon_xyz = read_points(recon)
     gt = Path(gt)
-    if gt.suffix.lower() == ".mlp":
-        return evaluate_eth3d(recon_xyz, gt, options)
-    gt_xyz = read_points(gt)
-    return evaluate_points(recon_xyz, gt_xyz, options, _gt_views_for(gt))
+    gt_views = None if gt.suffix.lower() == ".mlp" else _gt_views_for(gt)
+    return evaluate_file(recon, gt, options, gt_views)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
