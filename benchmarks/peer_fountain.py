@@ -12,14 +12,13 @@ completeness 44.1 / 85.7 at 2 / 5 cm.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.fusion import read_fused_ply
-from engine.io.outputs import read_metrics
+from engine.io.outputs import read_metrics, write_json
 from engine.pipeline import evaluate_cloud
 from engine.scene import SceneOptions, load_scene
 
@@ -35,7 +34,7 @@ def main() -> None:
     metrics = read_metrics(args.run)
     scene = load_scene(metrics["scene_path"], SceneOptions.from_dict(metrics["options"]["scene"]))
     cloud = read_fused_ply(args.run / "fused.ply")
-    gt_views = [(v.camera, scene.gt_depth(v.index)) for v in scene.views]
+    gt_views = scene.gt_views()
     gt_points = np.concatenate([cam.backproject(depth)[depth > 0] for cam, depth in gt_views])
     options = EvaluationOptions(tolerances=(0.02, 0.05))
     peer_rule = evaluate_points(np.asarray(cloud.xyz, np.float64), gt_points, options, gt_views)
@@ -52,8 +51,7 @@ def main() -> None:
     p = PEER
     print(f"{'OpenMVS (peer)':<30} {p['f1'][0]:>7.1f} {p['f1'][1]:>7.1f} {p['accuracy'][0]:>6.1f} "
           f"{p['accuracy'][1]:>6.1f} {p['completeness'][0]:>7.1f} {p['completeness'][1]:>7.1f}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=2) + "\n")
+    write_json(args.out, out)
 
 
 if __name__ == "__main__":

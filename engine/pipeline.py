@@ -118,9 +118,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     """ETH3D-style scores of a fused cloud against the scene's GT points; GT depth maps, when present,
     enable the unobserved-space rule (SPEC.md §9.1)."""
-    gt_views = [(v.camera, scene.gt_depth(v.index)) for v in scene.views if scene.gt_depth_paths[v.index]]
     return evaluate_points(np.asarray(cloud.xyz, np.float64), read_points(scene.gt_points_path), options,
-                           gt_views or None)
+                           scene.gt_views() or None)
 
 
 def _depth_block(scene: Scene, maps: list[ViewMaps]) -> tuple[dict[str, float], list[dict[str, Any]]]:

@@ -153,6 +153,11 @@ class Scene:
             return None
         return resample_depth(read_depth_map(path), self.views[i].camera.size)
 
+    def gt_views(self) -> list[tuple[Camera, np.ndarray]]:
+        """(camera, GT depth) at the working resolution for every view with GT depth (for the
+        unobserved-space rule of the evaluation, SPEC.md §9.1)."""
+        return [(v.camera, self.gt_depth(v.index)) for v in self.views if self.gt_depth_paths[v.index] is not None]
+
     def overlapping_views(self, i: int, max_views: int = 50) -> list[int]:
         """Views sharing most sparse points with view ``i`` (no angle gate; fusion's ``check_num_images``)."""
         shared = self.shared_points[i].copy()
@@ -243,10 +248,6 @@ def _check_gt_depth(path: Path, view: View) -> None:
     read_depth_map(path)  # checks finiteness now rather than after a long run
 
 
-def _camera_depths(camera: Camera, points: np.ndarray) -> np.ndarray:
-    return camera.world_to_camera(points)[:, 2]
-
-
 def _depth_ranges(model: SparseModel, cameras: list[Camera], options: SceneOptions,
                   model_dir: Path) -> tuple[list[tuple[float, float]], list[int]]:
     n = len(cameras)
@@ -261,7 +262,7 @@ def _depth_ranges(model: SparseModel, cameras: list[Camera], options: SceneOptio
     (s_lo, s_hi), (r_lo, r_hi) = options.depth_stretch, options.depth_relax
     ranges = []
     for i, cam in enumerate(cameras):
-        z = _camera_depths(cam, model.points[model.track_point[model.track_image == i]])
+        z = cam.world_to_camera(model.points[model.track_point[model.track_image == i]])[:, 2]
         z = z[z > 0]
         if len(z) < _MIN_POINTS_FOR_RANGE:
             # Too few observations: use every sparse point in front of the camera and inside the image.

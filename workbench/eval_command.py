@@ -31,12 +31,7 @@ def _gt_views_for(gt_path: Path):
     except DeepCError as exc:
         print(f"deepc: warning: ground-truth depth maps not used ({exc})", file=sys.stderr)
         return None
-    views = []
-    for i, v in enumerate(scene.views):
-        depth = scene.gt_depth(i)
-        if depth is not None:
-            views.append((v.camera, depth))
-    return views or None
+    return scene.gt_views() or None
 
 
 def run_eval(recon: str | Path, gt: str | Path, options: EvaluationOptions) -> EvaluationResult:

@@ -222,12 +222,7 @@ class ViewerSession:
     def _ground_truth(self) -> tuple[np.ndarray, list | None]:
         if self._gt_points is None:
             self._gt_points = read_points(self.scene.gt_points_path)
-            views = []
-            for v in self.scene.views:
-                gt = self.scene.gt_depth(v.index)
-                if gt is not None:
-                    views.append((v.camera, gt))
-            self._gt_views = views or None
+            self._gt_views = self.scene.gt_views() or None
         return self._gt_points, self._gt_views
 
     # ---- colours and per-view images ----------------------------------------------------------------
