@@ -93,12 +93,13 @@ def _popcount(mask: np.ndarray) -> np.ndarray:
     return count
 
 
-def _shrink(array: np.ndarray, max_size: int) -> np.ndarray:
-    """Nearest-neighbour subsampling by an integer step (keeps depth values real, never blended)."""
+def subsample(array: np.ndarray, max_size: int) -> np.ndarray:
+    """Nearest-neighbour subsampling by an integer step so the longer side is at most ``max_size``
+    (0 = unchanged); keeps depth values real, never blended."""
     if max_size <= 0:
         return array
     step = int(np.ceil(max(array.shape[:2]) / max_size))
-    return array[::step, ::step] if step > 1 else array
+    return np.ascontiguousarray(array[::step, ::step]) if step > 1 else array
 
 
 class RerunStream(NullObserver):
@@ -173,13 +174,13 @@ class RerunStream(NullObserver):
         dmin, dmax = self._depth_range[view]
         # Scalar maps are logged compactly as colormapped depth images (float16 or uint8 with a
         # ``meter`` scale, so hovering shows the real value); ~0.6 MB per view and iteration at 320x240.
-        rec.log(f"maps/{base}/depth", rr.DepthImage(_shrink(depth, small).astype(np.float16), meter=1.0,
+        rec.log(f"maps/{base}/depth", rr.DepthImage(subsample(depth, small).astype(np.float16), meter=1.0,
                                                     colormap="turbo", depth_range=[dmin, dmax]))
-        rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(_shrink(event.normal, small))))
-        cost = _shrink(event.cost, small)
+        rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(subsample(event.normal, small))))
+        cost = subsample(event.cost, small)
         rec.log(f"maps/{base}/cost", rr.DepthImage(_to_u8(cost, COST_METER), meter=COST_METER, colormap="magma",
                                                    depth_range=[0, 255]))
-        mask = _shrink(event.selected_views, small)
+        mask = subsample(event.selected_views, small)
         count = _popcount(mask)
         rec.log(f"maps/{base}/selected_count", rr.DepthImage(count, meter=1.0, colormap="viridis",
                                                              depth_range=[0, max(1, len(sources))]))
@@ -199,7 +200,7 @@ class RerunStream(NullObserver):
             both = has_gt & valid
             within = 100.0 * float((rel[both] < 0.01).sum()) / max(1, int(has_gt.sum()))
             rec.log(f"{stats}/within_1pct", rr.Scalars(within))
-            rec.log(f"maps/{base}/error", rr.DepthImage(_to_u8(np.nan_to_num(_shrink(rel, small) * 100), ERROR_METER),
+            rec.log(f"maps/{base}/error", rr.DepthImage(_to_u8(np.nan_to_num(subsample(rel, small) * 100), ERROR_METER),
                                                         meter=ERROR_METER, colormap="inferno", depth_range=[0, 50]))
         self.logged_steps += 1
 

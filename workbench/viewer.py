@@ -19,42 +19,19 @@ from typing import Any
 
 import numpy as np
 import viser
+from viser.transforms import SO3
 
 from engine.io.ply import write_ply
 from workbench.session import COLOR_MODES, ViewerSession, ViewParams, describe
+from workbench.stream import subsample
 
 THUMBNAIL = 160  # longest side of the images sent with the frustums
-
-
-def rotation_to_wxyz(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) of a rotation matrix."""
-    m = np.asarray(R, np.float64)
-    t = np.trace(m)
-    if t > 0:
-        s = np.sqrt(t + 1.0) * 2
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
-    return q / np.linalg.norm(q)
 
 
 def safe_file_name(text: str, suffix: str) -> str:
     """A file name made only of [A-Za-z0-9._-], never a path: names from the GUI cannot escape the folder."""
     stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(text).name).strip("._") or "export"
     return stem[:80] + suffix
-
-
-def _thumbnail(image: np.ndarray, size: int = THUMBNAIL) -> np.ndarray:
-    step = max(1, int(np.ceil(max(image.shape[:2]) / size)))
-    return np.ascontiguousarray(image[::step, ::step])
 
 
 class ViewerApp:
@@ -73,8 +50,6 @@ class ViewerApp:
         self._state_lock = threading.Lock()
         self.cloud = None
         self.cloud_params: ViewParams | None = None
-        self.last_update = 0.0
-        self.updates = 0
         self._selected_view = 0
         self._build_scene()
         self._build_gui()
@@ -110,8 +85,8 @@ class ViewerApp:
             image = (np.asarray(scene.image(v.index)) * 255 + 0.5).astype(np.uint8)
             frustum = self.server.scene.add_camera_frustum(
                 f"/cameras/{v.index:03d}", fov=float(fov), aspect=cam.width / cam.height, scale=self.frustum_scale,
-                image=_thumbnail(image), format="jpeg", wxyz=rotation_to_wxyz(cam.R.T), position=cam.center,
-                color=(60, 60, 200))
+                image=subsample(image, THUMBNAIL), format="jpeg", wxyz=SO3.from_matrix(cam.R.T).wxyz,
+                position=cam.center, color=(60, 60, 200))
             frustum.on_click(lambda event, i=v.index: self.select_view(i))
             self.frustums.append(frustum)
         if not self.session.has_maps and len(scene.model.points):
@@ -163,7 +138,7 @@ class ViewerApp:
             self.view_title = gui.add_markdown("")
             self.view_images: dict[str, Any] = {}
             for kind, image in s.view_images(0).items():
-                self.view_images[kind] = gui.add_image(_thumbnail(image, 320), label=kind, format="jpeg")
+                self.view_images[kind] = gui.add_image(subsample(image, 320), label=kind, format="jpeg")
         self.select_view(0)
 
         for handle in (self.pipeline, self.conf_tau, self.mask_k, self.reproj, self.depth_err, self.normal_err,
@@ -239,8 +214,6 @@ class ViewerApp:
                 elif self.session.has_gt:
                     self.metrics.content = f"**{len(cloud):,} points**  \nscoring…"
             self.cloud, self.cloud_params = cloud, params
-            self.last_update = time.perf_counter()
-            self.updates += 1
 
     def _recolor(self) -> None:
         if self.cloud is not None:
@@ -259,7 +232,7 @@ class ViewerApp:
         self.view_title.content = f"**view {index}: {view.name}**  \nsources: {view.source_views}"
         for kind, image in self.session.view_images(index).items():
             if kind in self.view_images:
-                self.view_images[kind].image = _thumbnail(image, 320)
+                self.view_images[kind].image = subsample(image, 320)
         for i, frustum in enumerate(self.frustums):
             frustum.color = (230, 60, 40) if i == index else (60, 60, 200)
 
