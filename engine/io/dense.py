@@ -42,10 +42,9 @@ def write_dense_map(path: str | Path, array: np.ndarray) -> None:
         handle.write(data)
 
 
-def decode_dense_map(data: bytes, path: str | Path = "<bytes>", channels: int | None = None) -> np.ndarray:
-    """Parse COLMAP dense-map bytes; raises :class:`DeepCError` naming ``path`` on any defect."""
-    head = data[:_MAX_HEADER]
-    parts = head.split(b"&", 3)
+def _parse_header(head: bytes, path: str | Path) -> tuple[int, int, int, int]:
+    """(width, height, channels, data offset) from the first bytes of a COLMAP dense map."""
+    parts = head[:_MAX_HEADER].split(b"&", 3)
     if len(parts) < 4:
         raise DeepCError("not a COLMAP dense map: header 'width&height&channels&' not found", path)
     dims = []
@@ -57,12 +56,11 @@ def decode_dense_map(data: bytes, path: str | Path = "<bytes>", channels: int | 
         if not 0 < value <= _MAX_DIM:
             raise DeepCError(f"malformed COLMAP dense-map header: {label} = {value}", path)
         dims.append(value)
-    width, height, nchan = dims
-    if channels is not None and nchan != channels:
-        raise DeepCError(f"expected a {channels}-channel map, the file has {nchan} channels", path)
-    offset = len(parts[0]) + len(parts[1]) + len(parts[2]) + 3
+    return dims[0], dims[1], dims[2], len(parts[0]) + len(parts[1]) + len(parts[2]) + 3
+
+
+def _check_size(width: int, height: int, nchan: int, available: int, path: str | Path) -> None:
     expected = width * height * nchan * 4
-    available = len(data) - offset
     if available < expected:
         raise DeepCError(
             f"truncated COLMAP dense map: header says {width}x{height}x{nchan} "
@@ -71,6 +69,14 @@ def decode_dense_map(data: bytes, path: str | Path = "<bytes>", channels: int | 
         raise DeepCError(
             f"malformed COLMAP dense map: {available - expected} bytes after the "
             f"{width}x{height}x{nchan} data", path)
+
+
+def decode_dense_map(data: bytes, path: str | Path = "<bytes>", channels: int | None = None) -> np.ndarray:
+    """Parse COLMAP dense-map bytes; raises :class:`DeepCError` naming ``path`` on any defect."""
+    width, height, nchan, offset = _parse_header(data, path)
+    if channels is not None and nchan != channels:
+        raise DeepCError(f"expected a {channels}-channel map, the file has {nchan} channels", path)
+    _check_size(width, height, nchan, len(data) - offset, path)
     planar = np.frombuffer(data, dtype="<f4", count=width * height * nchan, offset=offset)
     array = planar.reshape(nchan, height, width).transpose(1, 2, 0).astype(np.float32)
     return array[:, :, 0].copy() if nchan == 1 else np.ascontiguousarray(array)
@@ -122,15 +128,6 @@ def read_dense_map_header(path: str | Path) -> tuple[int, int, int]:
         raise DeepCError("file not found", path) from None
     except OSError as exc:
         raise DeepCError(f"cannot read: {exc.strerror or exc}", path) from exc
-    parts = head.split(b"&", 3)
-    if len(parts) < 4 or not all(p.strip().isdigit() for p in parts[:3]):
-        raise DeepCError("not a COLMAP dense map: header 'width&height&channels&' not found", path)
-    width, height, channels = (int(p) for p in parts[:3])
-    if not all(0 < v <= _MAX_DIM for v in (width, height, channels)):
-        raise DeepCError(f"malformed COLMAP dense-map header {width}&{height}&{channels}&", path)
-    data_bytes = size - (len(parts[0]) + len(parts[1]) + len(parts[2]) + 3)
-    if data_bytes != width * height * channels * 4:
-        kind = "truncated" if data_bytes < width * height * channels * 4 else "malformed"
-        raise DeepCError(f"{kind} COLMAP dense map: header says {width}x{height}x{channels}, "
-                         f"the file holds {data_bytes} bytes of data", path)
+    width, height, channels, offset = _parse_header(head, path)
+    _check_size(width, height, channels, size - offset, path)
     return width, height, channels
