@@ -12,7 +12,6 @@ views: abs_rel, within_1pct, within_5pct, valid_fraction (percentages 0-100), be
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+from engine.io.outputs import write_json  # noqa: E402
 from engine.metrics import depth_metrics  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch  # noqa: E402
 
@@ -90,8 +90,7 @@ def main() -> None:
               f"{r['valid_fraction']:7.2f} {r['within_1pct_debiased']:7.2f} {r['seconds']:7.1f}")
     out = {"scene": args.scene or "synthetic(tests/pm_synthetic.py, 160x120)", "schedule": args.schedule,
            "max_image_size": args.max_image_size, "variants": rows}
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(out, indent=2))
+    write_json(args.json, out)
     print(f"wrote {args.json}")
 
 

@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import subprocess
@@ -36,7 +35,7 @@ from engine.evaluation import (  # noqa: E402
     make_synthetic_eth3d,
     sample_synthetic_reconstruction,
 )
-from engine.io.atomic import atomic_write_text  # noqa: E402
+from engine.io.outputs import write_json
 from engine.io.ply import read_points, write_ply  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
@@ -142,8 +141,7 @@ def main(argv=None) -> int:
                 result["eth3d"] = eth3d_comparison(args.eth3d_binary, Path(tmp))
     else:
         print("\n(no --eth3d-binary: skipping the comparison with the official ETH3D program)")
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")
+    write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
 

@@ -16,7 +16,6 @@ counts, and the median nearest-neighbour distance between the two clouds in pixe
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -36,7 +35,7 @@ from engine.fusion import (  # noqa: E402
     views_from_scene,
     write_colmap_workspace,
 )
-from engine.io.atomic import atomic_write_text  # noqa: E402
+from engine.io.outputs import write_json
 from engine.scene import SceneOptions, load_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
@@ -130,8 +129,7 @@ def main(argv=None) -> int:
           f"COLMAP->ours {result['median_nn_colmap_to_ours_footprints']:.4f} pixel footprints "
           f"(median footprint {result['median_footprint'] * 1000:.2f} mm)")
     print(f"first call (JIT/cache) {warmup:.2f} s; load average {result['load_average']:.2f}")
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")
+    write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import resource
 import subprocess
@@ -38,6 +37,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from pm_synthetic import make_scene  # noqa: E402
 
+from engine.io.outputs import write_json  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, run_patchmatch  # noqa: E402
 from engine.patchmatch.context import build_context  # noqa: E402
 from engine.patchmatch.engine import _params, _State, init_cost  # noqa: E402
@@ -147,8 +147,7 @@ def main() -> None:
               f"cached {result['compile_seconds']['cached']:.1f} s")
     result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak RSS: {result['peak_rss_mb']:.0f} MB")
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(result, indent=2))
+    write_json(args.json, result)
     print(f"wrote {args.json}")
 
 

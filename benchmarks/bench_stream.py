@@ -12,11 +12,11 @@ bytes per logged view-iteration (target: under 200 MB for the demo scene).
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
 
+from engine.io.outputs import write_json
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.pipeline import patchmatch_views
 from engine.scene import load_scene
@@ -82,8 +82,7 @@ def main() -> None:
     print(f"overhead {overhead:.1f} % (target <= 10 %); recording {size / 1e6:.1f} MB for {logged} logged "
           f"view-iterations; full default schedule ({iters_default} iterations per view): "
           f"{full_size / 1e6:.0f} MB (target < 200 MB)")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(args.out, result)
     print(f"wrote {args.out}")
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import statistics
 import struct
 import sys
@@ -33,6 +32,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from conftest import make_fake_run  # noqa: E402
 
+from engine.io.outputs import write_json  # noqa: E402
 from engine.scene import SceneOptions  # noqa: E402
 from workbench.session import ViewerSession  # noqa: E402
 from workbench.viewer import ViewerApp  # noqa: E402
@@ -142,8 +142,7 @@ def main() -> None:
     print(f"\npreview: median {summary['preview_ms_median']:.0f} ms, max {summary['preview_ms_max']:.0f} ms "
           f"(target 100 ms); exact: median {summary['exact_s_median']:.2f} s, max {summary['exact_s_max']:.2f} s "
           "(target 2 s)")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(args.out, summary)
     print(f"wrote {args.out}")
 
 

@@ -12,7 +12,6 @@ F1, completeness and accuracy in percent at 2 cm and 5 cm.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ import numpy as np
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
+from engine.io.outputs import write_json
 from engine.pipeline import evaluate_cloud
 from workbench.session import ViewerSession
 
@@ -84,8 +84,7 @@ def main() -> None:
     tables = [score_run(run) for run in args.runs]
     for table in tables:
         print_table(table)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(tables, indent=2, default=float) + "\n")
+    write_json(args.out, tables)
     print(f"\nwrote {args.out}")
 
 

@@ -64,11 +64,16 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
-def write_metrics(out_dir: str | Path, metrics: dict[str, Any]) -> Path:
-    """Write metrics.json atomically (NaN becomes null: JSON has no NaN)."""
-    path = Path(out_dir) / "metrics.json"
-    atomic_write_text(path, json.dumps(_json_safe(metrics), indent=2) + "\n")
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as JSON atomically; numpy scalars become numbers and NaN/inf null (JSON has neither)."""
+    path = Path(path)
+    atomic_write_text(path, json.dumps(_json_safe(data), indent=2) + "\n")
     return path
+
+
+def write_metrics(out_dir: str | Path, metrics: dict[str, Any]) -> Path:
+    """Write OUT/metrics.json atomically."""
+    return write_json(Path(out_dir) / "metrics.json", metrics)
 
 
 def read_metrics(out_dir: str | Path) -> dict[str, Any]:
