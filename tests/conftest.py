@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 
@@ -81,6 +82,20 @@ def browser_context():
         pytest.skip("needs /usr/bin/chromium (scripts/setup.sh --test installs it)")
     with chromium() as context:
         yield context
+
+
+@contextlib.contextmanager
+def running_viewer(run_dir: Path):
+    """A ViewerApp on a free port for ``run_dir``, idle (first exact cloud shown); always stopped."""
+    from workbench.session import ViewerSession
+    from workbench.viewer import ViewerApp
+
+    viewer = ViewerApp(ViewerSession.open(run_dir), port=0)
+    try:
+        assert viewer.wait_idle(120)
+        yield viewer
+    finally:
+        viewer.stop()
 
 
 def wait_for(predicate, timeout: float = 30.0, interval: float = 0.05):

@@ -4,20 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import running_viewer
 
 from engine.io.ply import read_ply
-from workbench.session import ViewerSession
-from workbench.viewer import ViewerApp
 
 
 @pytest.fixture(scope="module")
 def app(fake_run):
-    viewer = ViewerApp(ViewerSession.open(fake_run), port=0)
-    try:
-        assert viewer.wait_idle(120)
+    with running_viewer(fake_run) as viewer:
         yield viewer
-    finally:
-        viewer.stop()
 
 
 def test_binds_loopback_by_default(app):

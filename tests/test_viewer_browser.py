@@ -9,23 +9,16 @@ import io
 
 import numpy as np
 import pytest
-from conftest import wait_for
+from conftest import running_viewer, wait_for
 from PIL import Image
-
-from workbench.session import ViewerSession
-from workbench.viewer import ViewerApp
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
 
 
 @pytest.fixture
 def app(fake_run):
-    viewer = ViewerApp(ViewerSession.open(fake_run), port=0)
-    try:
-        assert viewer.wait_idle(120)
+    with running_viewer(fake_run) as viewer:
         yield viewer
-    finally:
-        viewer.stop()
 
 
 def _open(context, app):
