@@ -31,3 +31,26 @@ def depth_metrics(depth: np.ndarray, gt_depth: np.ndarray) -> dict[str, float]:
     else:
         out.update(abs_rel=float("nan"), within_1pct=float("nan"), within_5pct=float("nan"))
     return out
+
+
+def roc_curve(scores: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """ROC curve of ``scores`` (e.g. confidence) separating inliers (label 1) from outliers (label 0).
+
+    Other labels (e.g. -1 = unlabelled) and non-finite scores are ignored. Returns (fpr, tpr, auc):
+    false/true positive rates at every distinct threshold, from (0, 0) to (1, 1), and the area under the
+    curve, which equals P(s+ > s-) + ½ P(s+ = s-) (tied scores form one diagonal segment). Rates and
+    area are fractions; the area is NaN when a class is empty.
+    """
+    scores = np.asarray(scores, np.float64).ravel()
+    labels = np.asarray(labels).ravel()
+    keep = ((labels == 0) | (labels == 1)) & np.isfinite(scores)
+    scores, positive = scores[keep], labels[keep] == 1
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return np.array([0.0, 1.0]), np.array([0.0, 1.0]), float("nan")
+    order = np.argsort(-scores, kind="stable")
+    scores, positive = scores[order], positive[order]
+    group_ends = np.append(np.flatnonzero(np.diff(scores)), scores.size - 1)  # last index of each tie group
+    tpr = np.concatenate([[0.0], np.cumsum(positive)[group_ends] / n_pos])
+    fpr = np.concatenate([[0.0], np.cumsum(~positive)[group_ends] / n_neg])
+    return fpr, tpr, float(np.trapezoid(tpr, fpr))

@@ -42,6 +42,11 @@ def _view(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _regress(args: argparse.Namespace) -> int:
+    from workbench.regress import cmd_regress
+    return cmd_regress(args)
+
+
 def _replay(args: argparse.Namespace) -> int:
     from workbench.replay import replay
     return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port)
@@ -61,11 +66,13 @@ RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_prop
 SET_SECTIONS = ("patchmatch", "fusion", "stream")
 
 
-def cmd_run(args: argparse.Namespace) -> int:
+def run_options_from_args(args: argparse.Namespace):
+    """(SceneOptions, PipelineOptions, StreamOptions) from the flags of :func:`add_run_option_flags`;
+    shared by ``deepc run`` and the entries of a regression suite."""
     from engine.fusion import FUSION_PRESETS, FusionOptions
     from engine.patchmatch import PatchMatchOptions
-    from engine.pipeline import PipelineOptions, run_pipeline
-    from workbench.progress import PassProgress
+    from engine.pipeline import PipelineOptions
+    from workbench.stream import StreamOptions
 
     for item in args.set:
         section = item.partition("=")[0].partition(".")[0]
@@ -77,11 +84,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[args.fusion_preset],
                                **section_overrides(args.set, "fusion", FusionOptions))
     options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, fusion=fusion).validate()
-    from workbench.stream import StreamOptions
     stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
     if options.pipeline != "vanilla":
         raise NotYetImplemented(f"deepc run --pipeline {options.pipeline}: the confidence network does not "
                                 "exist yet in this version (use --pipeline vanilla)")
+    return scene_options, options, stream_options
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from engine.pipeline import run_pipeline
+    from workbench.progress import PassProgress
+
+    scene_options, options, stream_options = run_options_from_args(args)
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
@@ -150,6 +164,26 @@ def _print_run_summary(metrics: dict, out: str) -> None:
     print(f"outputs in {out}")
 
 
+def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
+    """The flags that choose what ``deepc run`` computes (pipeline and stage options); a regression
+    suite's entries use the same names."""
+    parser.add_argument("--pipeline", choices=("vanilla", "fast", "full"), default="vanilla",
+                        help="vanilla: PatchMatch + fusion; fast: + confidence filtering; full: + refinement")
+    add_options_flags(parser.add_argument_group("scene"), SceneOptions)
+    from engine.patchmatch import PatchMatchOptions
+    add_options_flags(parser.add_argument_group("patchmatch"), PatchMatchOptions, only=RUN_PATCHMATCH_FLAGS)
+    from engine.fusion import FUSION_PRESETS, FusionOptions
+    fusion_group = parser.add_argument_group("fusion")
+    fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default="deepc",
+                              help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels); "
+                                   "the flags below override single values")
+    add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
+                                                         "min_num_pixels"])
+    parser.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
+                        help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set fusion.check_num_images=20,"
+                             " or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="deepc", description="DeepC Workbench: PatchMatch MVS with deep confidence, made visible.")
@@ -160,22 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Reconstruct a COLMAP workspace (SCENE/images, SCENE/sparse) into OUT.")
     run.add_argument("scene", help="COLMAP workspace folder")
     run.add_argument("--out", required=True, help="output folder (stereo maps, fused.ply, metrics.json)")
-    run.add_argument("--pipeline", choices=("vanilla", "fast", "full"), default="vanilla",
-                     help="vanilla: PatchMatch + fusion; fast: + confidence filtering; full: + refinement")
-    scene_group = run.add_argument_group("scene")
-    add_options_flags(scene_group, SceneOptions)
-    from engine.patchmatch import PatchMatchOptions
-    add_options_flags(run.add_argument_group("patchmatch"), PatchMatchOptions, only=RUN_PATCHMATCH_FLAGS)
-    from engine.fusion import FUSION_PRESETS, FusionOptions
-    fusion_group = run.add_argument_group("fusion")
-    fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default="deepc",
-                              help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels); "
-                                   "the flags below override single values")
-    add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
-                                                         "min_num_pixels"])
-    run.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                     help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set fusion.check_num_images=20, "
-                          "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
+    add_run_option_flags(run)
     run.add_argument("--record", metavar="FILE.rrd", nargs="?", const="", default=None,
                      help="write a rerun recording (default path: OUT/recording.rrd)")
     run.add_argument("--headless", action="store_true",
@@ -213,13 +232,20 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--port", type=int, default=9090, help="port of the web viewer")
     replay.set_defaults(handler=_replay)
 
-    regress = sub.add_parser("regress", help="headless regression runs against committed baselines")
-    regress.add_argument("--suite", help="suite file (TOML)")
-    regress.add_argument("--baseline", help="baseline folder")
-    regress.add_argument("--update-baseline", action="store_true")
-    regress.add_argument("--report", help="folder for the HTML report")
-    regress.add_argument("--record", action="store_true", help="also record .rrd files")
-    regress.set_defaults(handler=_not_yet("regress", "the regression mode"))
+    regress = sub.add_parser("regress", help="headless regression runs against committed baselines",
+                             description="Run every scene x pipeline of a suite headless, compare the metrics with "
+                                         "the baselines, print the deltas and write an HTML report. Exit 0 when "
+                                         "nothing regressed, 1 when something did (named), 2 on bad input.")
+    regress.add_argument("--suite", metavar="FILE.toml", help="suite file (default: sample_scenes/suite.toml)")
+    regress.add_argument("--baseline", metavar="DIR", help="baseline folder (default: the suite's 'baseline' key, "
+                         "tests/baselines for the default suite)")
+    regress.add_argument("--update-baseline", action="store_true",
+                         help="rewrite the baselines with this run's metrics and print what changed")
+    regress.add_argument("--report", metavar="DIR", help="folder for report.html, summary.json and the runs' "
+                         "outputs (default: runs/regress)")
+    regress.add_argument("--record", action="store_true",
+                         help="also write a rerun recording of every run, linked from the report")
+    regress.set_defaults(handler=_regress)
 
     train = sub.add_parser("train", help="train the confidence network")
     train.add_argument("scenes", nargs="*", help="scenes with ground truth")
