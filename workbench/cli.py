@@ -235,7 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
     regress = sub.add_parser("regress", help="headless regression runs against committed baselines",
                              description="Run every scene x pipeline of a suite headless, compare the metrics with "
                                          "the baselines, print the deltas and write an HTML report. Exit 0 when "
-                                         "nothing regressed, 1 when something did (named), 2 on bad input.")
+                                         "nothing regressed, 1 when something did (named), 2 on bad input. A suite "
+                                         "file lists [[scene]] and [[pipeline]] tables whose keys are deepc run "
+                                         "flags; see sample_scenes/suite.toml.")
     regress.add_argument("--suite", metavar="FILE.toml", help="suite file (default: sample_scenes/suite.toml)")
     regress.add_argument("--baseline", metavar="DIR", help="baseline folder (default: the suite's 'baseline' key, "
                          "tests/baselines for the default suite)")

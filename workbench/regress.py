@@ -68,7 +68,7 @@ SUITE_KEYS = ("name", "baseline", "thumbnail_views", "defaults", "tolerances", "
 SCENE_KEYS = ("path", "name", "tolerances")
 PIPELINE_KEYS = ("name", "scenes", "tolerances")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-_WARM_UP_SIZE = 128  # px: small enough to be quick, large enough for 3 pyramid levels
+_WARM_UP_SIZE = 64  # px: quick, and still two pyramid levels, so every kernel (upsampling too) is compiled
 
 
 # ---- metrics -------------------------------------------------------------------------------------
@@ -651,6 +651,9 @@ def cmd_regress(args: argparse.Namespace) -> int:
         print(f"baselines rewritten in {baseline_dir}:")
         for result in results:
             print(f"  {_changes(result)}")
+        current = {baseline_path(baseline_dir, r.spec) for r in results}
+        for stale in sorted(set(baseline_dir.glob("*/*.json")) - current):
+            print(f"  {stale.parent.name}/{stale.stem}: not in this suite, left as it was ({stale})")
 
     from workbench.report import write_report
     summary = write_json(report_dir / "summary.json", {
