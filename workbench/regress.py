@@ -53,6 +53,7 @@ import sys
 import tempfile
 import time
 import tomllib
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -520,7 +521,9 @@ def warm_up(runs: list[RunSpec]) -> float:
             scene = load_scene(spec.scene_path, spec.scene_options.replace(
                 max_image_size=min(size, _WARM_UP_SIZE) if size else _WARM_UP_SIZE))
             options = spec.options.replace(patchmatch=spec.options.patchmatch.replace(iterations=1))
-            run_pipeline(scene, Path(tmp) / spec.pipeline, options)
+            with warnings.catch_warnings():  # e.g. "too small for 3 levels": true, and beside the point here
+                warnings.simplefilter("ignore")
+                run_pipeline(scene, Path(tmp) / spec.pipeline, options)
     return time.perf_counter() - start
 
 
@@ -613,29 +616,16 @@ def cmd_regress(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite or DEFAULT_SUITE)
     baseline_dir = Path(args.baseline).resolve() if args.baseline else suite.baseline_dir
     report_dir = Path(args.report) if args.report else DEFAULT_REPORT
-    for spec in suite.runs:
+    for spec in suite.runs:  # refuse what would fail before spending minutes on the runs
         _prepare_out_dir(report_dir / spec.scene / spec.pipeline)
-    for spec in suite.runs:  # a broken baseline should stop us before the runs, not after
         read_baseline(baseline_path(baseline_dir, spec))
     env = environment()
     print(f"suite {suite.name} ({suite.path}): {len(suite.runs)} runs, baselines in {baseline_dir}", file=sys.stderr)
     print(f"warm-up (numba compilation, not timed): {warm_up(suite.runs):.1f} s", file=sys.stderr)
-
-    results: list[RunResult] = []
-    for i, spec in enumerate(suite.runs, 1):
-        print(f"[{i}/{len(suite.runs)}] {spec.key} ...", file=sys.stderr, flush=True)
-        load_before, cpu_before = os.getloadavg()[0], time.process_time()
-        out_dir = report_dir / spec.scene / spec.pipeline
-        metrics, recording = execute(spec, out_dir, args.record)
-        metrics["seconds_cpu"] = time.process_time() - cpu_before
-        write_metrics(out_dir, metrics)
-        baseline = read_baseline(baseline_path(baseline_dir, spec))
-        result = RunResult(spec, out_dir, metrics, baseline, compare(spec.key, metrics, baseline, spec.tolerances),
-                           (round(load_before, 2), round(os.getloadavg()[0], 2)), recording)
-        results.append(result)
-        print(f"[{i}/{len(suite.runs)}] {spec.key}: {metrics['seconds']['total']:.1f} s "
-              f"({metrics['seconds_cpu']:.1f} s CPU), "
-              f"{len(result.failures)} regressed", file=sys.stderr, flush=True)
+    if args.record:
+        print("--record: times are reported but not compared (recording slows the runs down)", file=sys.stderr)
+    results = [_run_and_compare(i, suite, spec, baseline_dir, report_dir, args.record)
+               for i, spec in enumerate(suite.runs, 1)]
 
     deltas = [d for r in results for d in r.deltas]
     print(format_table(deltas))
@@ -643,17 +633,8 @@ def cmd_regress(args: argparse.Namespace) -> int:
         changed = option_changes(result.metrics, result.baseline)
         if changed:
             print(f"note: {result.spec.key} ran with options that differ from its baseline's: {'; '.join(changed)}")
-
     if args.update_baseline:
-        for result in results:
-            write_baseline(baseline_path(baseline_dir, result.spec), result.spec, result.metrics, env,
-                           result.load_average)
-        print(f"baselines rewritten in {baseline_dir}:")
-        for result in results:
-            print(f"  {_changes(result)}")
-        current = {baseline_path(baseline_dir, r.spec) for r in results}
-        for stale in sorted(set(baseline_dir.glob("*/*.json")) - current):
-            print(f"  {stale.parent.name}/{stale.stem}: not in this suite, left as it was ({stale})")
+        _update_baselines(results, baseline_dir, env)
 
     from workbench.report import write_report
     summary = write_json(report_dir / "summary.json", {
@@ -663,9 +644,42 @@ def cmd_regress(args: argparse.Namespace) -> int:
                                       "deltas": [dataclasses.asdict(d) for d in r.deltas]} for r in results]})
     report = write_report(report_dir / "report.html", suite, results, env, baseline_dir, args.update_baseline)
     print(f"report: {report} (summary: {summary})")
+    return 0 if args.update_baseline else _verdict(results)
 
-    if args.update_baseline:
-        return 0
+
+def _run_and_compare(i: int, suite: Suite, spec: RunSpec, baseline_dir: Path, report_dir: Path,
+                     record: bool) -> RunResult:
+    print(f"[{i}/{len(suite.runs)}] {spec.key} ...", file=sys.stderr, flush=True)
+    load_before, cpu_before = os.getloadavg()[0], time.process_time()
+    out_dir = report_dir / spec.scene / spec.pipeline
+    metrics, recording = execute(spec, out_dir, record)
+    metrics["seconds_cpu"] = time.process_time() - cpu_before
+    write_metrics(out_dir, metrics)
+    baseline = read_baseline(baseline_path(baseline_dir, spec))
+    tolerances = spec.tolerances
+    if record:  # logging every iteration costs time that the baseline's run did not spend
+        tolerances = {k: None if METRIC_BY_NAME[k].relative else v for k, v in tolerances.items()}
+    result = RunResult(spec, out_dir, metrics, baseline, compare(spec.key, metrics, baseline, tolerances),
+                       (round(load_before, 2), round(os.getloadavg()[0], 2)), recording)
+    print(f"[{i}/{len(suite.runs)}] {spec.key}: {metrics['seconds']['total']:.1f} s "
+          f"({metrics['seconds_cpu']:.1f} s CPU), {len(result.failures)} regressed", file=sys.stderr, flush=True)
+    return result
+
+
+def _update_baselines(results: list[RunResult], baseline_dir: Path, env: dict[str, Any]) -> None:
+    for result in results:
+        write_baseline(baseline_path(baseline_dir, result.spec), result.spec, result.metrics, env,
+                       result.load_average)
+    print(f"baselines rewritten in {baseline_dir}:")
+    for result in results:
+        print(f"  {_changes(result)}")
+    current = {baseline_path(baseline_dir, r.spec) for r in results}
+    for stale in sorted(set(baseline_dir.glob("*/*.json")) - current):
+        print(f"  {stale.parent.name}/{stale.stem}: not in this suite, left as it was ({stale})")
+
+
+def _verdict(results: list[RunResult]) -> int:
+    """Print what regressed (and which runs have no baseline); the exit status."""
     missing = [r.spec.key for r in results if r.baseline is None]
     failures = [d for r in results for d in r.failures]
     if missing or failures:
@@ -676,7 +690,6 @@ def cmd_regress(args: argparse.Namespace) -> int:
         print(f"REGRESSION: {len(failures)} metric(s) regressed"
               + (f", {len(missing)} run(s) without a baseline" if missing else ""))
         return 1
-    compared = sum(d.status != INFO for d in deltas)
+    compared = sum(d.status != INFO for r in results for d in r.deltas)
     print(f"nothing regressed ({len(results)} runs, {compared} metrics compared)")
     return 0
-
