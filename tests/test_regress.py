@@ -10,12 +10,26 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SAMPLES, make_fake_run
+from conftest import REPO, SAMPLES, make_fake_run
 from PIL import Image
 
 from engine.metrics import roc_curve
 from workbench.cli import main
-from workbench.regress import IMPROVED, INFO, MISSING, NEW, OK, REGRESSED, RunResult, RunSpec, Suite, compare
+from workbench.regress import (
+    DEFAULT_SUITE,
+    IMPROVED,
+    INFO,
+    MISSING,
+    NEW,
+    OK,
+    REGRESSED,
+    RunResult,
+    RunSpec,
+    Suite,
+    baseline_path,
+    compare,
+    load_suite,
+)
 
 # Quick but real: ACMM's 3/2/2 schedule on the tiny scene at 96x72, two pyramid levels (about 7 s of CPU;
 # one iteration per pass instead costs F1 at 5 cm and depth within 1 % about 2 points each). Times vary with
@@ -147,6 +161,55 @@ def test_missing_suite_bad_baseline_and_foreign_report_folders_are_refused(tmp_p
     precious.write_text("mine")
     _one_line_error(deepc("regress", "--suite", suite, "--report", tmp_path / "r"), "not the output of an earlier run")
     assert precious.read_text() == "mine"
+
+
+def test_suite_entries_merge_flags_and_tolerances(tmp_path):
+    text = f"""
+name = "mine"
+[defaults]
+schedule = "acmm"
+seed = 1
+[tolerances]
+f1 = 1.0
+[[scene]]
+path = "{SAMPLES / 'tiny'}"
+max-image-size = 96
+tolerances = {{ within_1pct = 2.0 }}
+[[scene]]
+path = "{SAMPLES / 'small'}"
+name = "small2"
+[[pipeline]]
+name = "a"
+seed = 7
+plane-propagation = false
+set = ["patchmatch.tau0=0.7", "fusion.min_num_pixels=2"]
+[[pipeline]]
+name = "b"
+scenes = ["tiny"]
+tolerances = {{ f1 = false }}
+"""
+    suite = load_suite(write_suite(tmp_path, text=text))
+    assert [r.key for r in suite.runs] == ["tiny/a", "small2/a", "tiny/b"]
+    a = suite.runs[0]
+    assert (a.options.patchmatch.seed, a.options.patchmatch.schedule, a.options.patchmatch.tau0) == (7, "acmm", 0.7)
+    assert a.options.patchmatch.plane_propagation is False and a.options.fusion.min_num_pixels == 2
+    assert a.scene_options.max_image_size == 96 and suite.runs[1].scene_options.max_image_size == 0
+    assert (a.tolerances["f1"], a.tolerances["within_1pct"], a.tolerances["time"]) == (1.0, 2.0, 0.5)
+    assert suite.runs[1].tolerances["within_1pct"] == 0.5
+    assert suite.runs[2].tolerances["f1"] is None and suite.runs[2].options.patchmatch.seed == 1
+    assert suite.baseline_dir == (tmp_path / "baselines").resolve() and suite.name == "mine"
+
+
+def test_the_default_suite_has_a_current_baseline_for_every_run():
+    """Editing sample_scenes/suite.toml without remaking tests/baselines would make CI compare apples and pears."""
+    suite = load_suite(DEFAULT_SUITE)
+    assert [r.key for r in suite.runs] == ["tiny/vanilla", "small/vanilla", "fountain_p11/vanilla"]
+    assert suite.baseline_dir == REPO / "tests" / "baselines"
+    for spec in suite.runs:
+        stored = json.loads(baseline_path(suite.baseline_dir, spec).read_text())
+        assert stored["flags"] == spec.flags, spec.key
+        assert stored["metrics"]["options"]["patchmatch"] == spec.options.patchmatch.to_dict(), spec.key
+        assert stored["metrics"]["eval"]["f1"] and stored["metrics"]["depth"]["within_1pct"] > 50
 
 
 # ---- real runs on the tiny scene --------------------------------------------------------------------------
