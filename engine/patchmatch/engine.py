@@ -77,12 +77,14 @@ class ViewMaps:
 
 @dataclasses.dataclass
 class _State:
-    """Mutable per-view maps at the current level."""
+    """Mutable per-view maps at the current level; ``P`` (H, W, N) f64 caches the photometric cost of
+    each pixel's stored hypothesis per source view during a pass (NaN = unknown; set by :func:`init_cost`)."""
 
     Z: np.ndarray
     N: np.ndarray
     C: np.ndarray
     S: np.ndarray
+    P: np.ndarray | None = None
 
 
 def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
@@ -176,16 +178,28 @@ def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int
     return fp, ip
 
 
-def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray) -> None:
-    """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule)."""
-    K.init_cost_kernel(state.Z, state.N, state.C, state.S, ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b,
-                       ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, fp, ip)
+def _cost_cache(state: _State, ctx: ViewContext) -> np.ndarray:
+    """The state's per-view cost cache, (re)allocated for this context's size and source count."""
+    shape = state.Z.shape + (ctx.num_sources,)
+    if state.P is None or state.P.shape != shape:
+        state.P = np.full(shape, np.nan)
+    return state.P
+
+
+def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, cache: bool = True) -> None:
+    """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule); with ``cache``
+    also (re)fill the per-view cost cache the half-steps of this pass read."""
+    P = _cost_cache(state, ctx) if cache else np.empty((1, 1, 1))
+    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
+                       ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
+                       ctx.oy, fp, ip)
 
 
 def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
               region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> None:
-    """One red or black half-step on one view (in place)."""
-    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, cpre, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
+    """One red or black half-step on one view (in place). Call :func:`init_cost` first in every pass
+    (and after changing the state's maps from outside): it fills the cost cache the half-steps trust."""
+    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, _cost_cache(state, ctx), cpre, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
                        ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
                        ctx.oy, pat, region, key, fp, ip)
 
@@ -202,7 +216,7 @@ def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions,
     key = np.uint64(stream_key(options.seed, view, level, 0, RESTORER_ITERATION, 0))
     K.random_init_kernel(tmp.Z, tmp.N, ctx.kinv, zmin, zmax, key, False)
     tmp.Z[:] = st.Z
-    init_cost(tmp, ctx, fp, ip)
+    init_cost(tmp, ctx, fp, ip, cache=False)
     return tmp.C
 
 
@@ -348,4 +362,5 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
                                    cost=readonly(st.C), selected_views=readonly(st.S),
                                    seconds=time.perf_counter() - t0))
         step += 1
+    st.P = None  # the cache is only valid within this pass (ctx); do not keep it for every view
     return step
