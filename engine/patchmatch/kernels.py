@@ -38,7 +38,7 @@ N_IP = 13
 BIG = 1e30
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, _nrt=False)
 def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2, min_var):
     """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y)."""
     h00 = np.float32(A[j, 0] - b[j, 0] * m0)
@@ -54,7 +54,7 @@ def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, o
                     h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax):
     """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (§2.9)."""
     e = reprojection_error(A, b, B, c, j, sdepth, sizes[j, 0], sizes[j, 1], x, y, z)
@@ -69,7 +69,7 @@ def geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax):
 EXIT_MARGIN = 1e-12
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def view_order(v, order):
     """Indices of the views with v_j > 0, largest weight first (ties: lower index first), into
     ``order`` (N,); returns their count."""
@@ -87,7 +87,7 @@ def view_order(v, order):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
                     z, nx, ny, nz, v, vsum, order, n_sel, terms, geom, lam, gmax, min_var, threshold):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y); BIG once it is proven >= ``threshold``.
@@ -122,7 +122,7 @@ def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, 
     return acc / vsum
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
                  z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, known):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j of the stored hypothesis (z, n) at (x, y), BIG if it has no plane.
