@@ -151,6 +151,33 @@ def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_
     return acc / vsum
 
 
+@njit(cache=True, _nrt=False)
+def find_row(keys, n_rows, z, nx, ny, nz):
+    """Index of the cached cost row whose hypothesis is exactly (z, n) among the first ``n_rows`` of
+    ``keys`` (K, 4) f64, or -1."""
+    for r in range(n_rows):
+        if keys[r, 0] == z and keys[r, 1] == nx and keys[r, 2] == ny and keys[r, 3] == nz:
+            return r
+    return -1
+
+
+@njit(cache=True, _nrt=False)
+def row_cost(row, A, b, B, c, sizes, sdepth, x, y, z, v, vsum, geom, lam, gmax, threshold):
+    """:func:`aggregated_cost` of a hypothesis whose photometric costs ``row`` (N,) over all views are
+    known (its plane exists): the same terms summed in the same order, BIG when >= ``threshold``."""
+    limit = threshold * vsum
+    acc = 0.0
+    for j in range(v.shape[0]):
+        if v[j] > 0.0:
+            cost = row[j]
+            if geom:
+                cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+            acc += v[j] * cost
+    if acc >= limit:
+        return BIG
+    return acc / vsum
+
+
 @njit(cache=True, parallel=True)
 def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
     """Random hypotheses (§2.4): z ~ U[zmin, zmax], Marsaglia normal facing the camera.
@@ -237,13 +264,16 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, P, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa,
+def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa,
                      mu_a, var_a, ox, oy, pat, region, key, fp, ip):
     """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7).
 
     P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
     ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
-    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it."""
+    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it.
+    With ``rows``, RK (H, W, K_vs, 4) f64 keys (z, n), RC (H, W, K_vs, N) f64 cost rows and RN (H, W)
+    i32 counts cache the view-selection rows of each pixel's previous update (RN = 0 at the start of
+    a pass): a candidate proposed again by an unchanged neighbour is bit-identical, so are its costs."""
     h, w = Z.shape
     n_views = A.shape[0]
     zmin = fp[F_ZMIN]
@@ -286,8 +316,15 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, Cpre, src, stride, plane, sizes,
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
                                        reg_cost, reg_idx, cand_z, cand_n, cand_c)
             n_vs = min(n_cand, k_vs)
+            n_old = RN[y, x] if rows else 0
+            keys = RK[y, x] if rows else RK[0, 0]
             # photometric cost matrix of the best candidates over all views (drives view selection)
             for k in range(n_vs):
+                r = find_row(keys, n_old, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
+                if r >= 0:
+                    for j in range(n_views):
+                        M[k, j] = RC[y, x, r, j]
+                    continue
                 m0, m1, m2, ok = plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
                 for j in range(n_views):
                     if ok:
@@ -356,9 +393,14 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, Cpre, src, stride, plane, sizes,
                     won = True
             # remaining candidates: only the selected views, early exit
             for k in range(n_vs, n_cand):
-                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox,
-                                       oy, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v, vsum, order,
-                                       n_sel, terms, geom, lam, gmax, min_var, best)
+                r = find_row(keys, n_old, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
+                if r >= 0 and plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])[3]:
+                    cost = row_cost(RC[y, x, r], A, b, B, c, sizes, sdepth, x, y, cand_z[k], v, vsum, geom, lam, gmax,
+                                    best)
+                else:
+                    cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var,
+                                           ox, oy, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
+                                           vsum, order, n_sel, terms, geom, lam, gmax, min_var, best)
                 if cost < best:
                     best = cost
                     zb = cand_z[k]
@@ -366,6 +408,15 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, Cpre, src, stride, plane, sizes,
                     nby = cand_n[k, 1]
                     nbz = cand_n[k, 2]
                     won = True
+            if rows:
+                for k in range(n_vs):
+                    RK[y, x, k, 0] = cand_z[k]
+                    RK[y, x, k, 1] = cand_n[k, 0]
+                    RK[y, x, k, 2] = cand_n[k, 1]
+                    RK[y, x, k, 3] = cand_n[k, 2]
+                    for j in range(n_views):
+                        RC[y, x, k, j] = M[k, j]
+                RN[y, x] = n_vs
             # local refinement: combinations of current, perturbed and random depth / normal
             z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
             z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
