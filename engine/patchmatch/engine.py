@@ -224,9 +224,8 @@ def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pa
     (and after changing the state's maps from outside): it fills the cost cache the half-steps trust."""
     rows = _caches(state, ctx, int(ip[K.I_K_VS]), False)
     K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.RK, state.RC, state.RN, rows, cpre,
-                       ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
-                       ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
-                       ctx.oy, pat, region, key, fp, ip)
+                       ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv,
+                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, pat, region, key, fp, ip)
 
 
 def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,

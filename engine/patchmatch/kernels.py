@@ -264,8 +264,8 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa,
-                     mu_a, var_a, ox, oy, pat, region, key, fp, ip):
+def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth,
+                     kinv, wgt, wa, mu_a, var_a, ox, oy, pat, region, key, fp, ip):
     """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7).
 
     P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
