@@ -261,3 +261,99 @@ def test_half_step_matches_reference(geometric: bool, pattern: str, view_samplin
     both = same & np.isclose(st.C, C, atol=1e-3)
     assert both.mean() > 0.95
     assert (st.Z != Z0).any()  # the step did change something
+
+
+def test_view_order_is_heaviest_first_over_positive_weights() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        v = rng.integers(0, 4, size=int(rng.integers(1, 12))).astype(np.float64)
+        order = np.empty(v.size, np.int64)
+        n = K.view_order(v, order)
+        want = [int(j) for j in np.argsort(-v, kind="stable") if v[j] > 0]
+        assert order[:n].tolist() == want
+
+
+@pytest.mark.parametrize("geometric", [False, True])
+def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bool) -> None:
+    """Heaviest-view-first evaluation with early exit and the cached-row path give exactly the value of
+    Σ_j v_j (m_j + λ g_j) summed in view order (BIG when that reaches the threshold), which is what
+    every earlier engine computed: regression baselines depend on it."""
+    opts = PatchMatchOptions()
+    ctx, prob, st = _tiny_problem(10, geometric, opts)
+    rng = np.random.default_rng(11)
+    n_src = ctx.num_sources
+    lam, gmax, min_var = opts.geom_lambda, opts.geom_max, opts.min_var
+    order, terms = np.empty(n_src, np.int64), np.empty(n_src, np.float64)
+    exits = 0
+    for _ in range(150):
+        x, y = int(rng.integers(0, 16)), int(rng.integers(0, 14))
+        rp = ray(ctx.kinv, x, y)
+        z = float(rng.uniform(2.0, 5.0))
+        n = np.asarray(random_normal(np.uint64(rng.integers(1 << 62)), 0, rp)[:3])
+        v = rng.integers(0, 6, size=n_src).astype(np.float64)
+        if v.sum() == 0:
+            v[0] = 1.0
+        vsum = float(v.sum())
+        from engine.patchmatch.geometry import plane_vector
+
+        m0, m1, m2, ok = plane_vector(ctx.kinv, rp, z, *n)
+        row = np.array([K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, j,
+                                           ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], ctx.ox,
+                                           ctx.oy, x, y, m0, m1, m2, min_var) for j in range(n_src)])
+        acc = 0.0
+        for j in range(n_src):
+            if v[j] > 0:
+                cost = row[j]
+                if geometric:
+                    cost += lam * K.geometric_cost(ctx.A, ctx.b, ctx.B, ctx.c, ctx.sizes, ctx.sdepth, j, x, y, z, gmax)
+                acc += v[j] * cost
+        threshold = float(rng.uniform(0.2, 1.5)) if rng.random() < 0.8 else acc / vsum  # also the exact tie
+        want = K.BIG if acc >= threshold * vsum else acc / vsum
+        exits += want == K.BIG
+        n_sel = K.view_order(v, order)
+        got = K.aggregated_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth,
+                                ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], ctx.ox, ctx.oy,
+                                x, y, rp, z, n[0], n[1], n[2], v, vsum, order, n_sel, terms, geometric, lam, gmax,
+                                min_var, threshold)
+        assert got == want
+        assert K.row_cost(row, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sizes, ctx.sdepth, x, y, z, v, vsum, geometric, lam,
+                          gmax, threshold) == want
+        known = np.full(n_src, np.nan)
+        known[: n_src // 2] = row[: n_src // 2]
+        assert K.current_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth,
+                              ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], ctx.ox, ctx.oy,
+                              x, y, rp, z, n[0], n[1], n[2], v, vsum, geometric, lam, gmax, min_var, known) \
+            == acc / vsum
+        assert np.array_equal(known[v > 0], row[v > 0])  # evaluated views were added to the cache
+    assert 10 < exits < 140
+
+
+@pytest.mark.parametrize("geometric,combos", [(False, "acmm5"), (True, "all8")])
+def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> None:
+    """Half-steps with the per-pass cost caches live give bit-identical maps to half-steps that start
+    every update from empty caches (i.e. evaluate every cost afresh)."""
+    opts = PatchMatchOptions(combos=combos)
+    ctx, _, st = _tiny_problem(12, geometric, opts)
+    pat, region = sampling_pattern(opts.pattern)
+    fp, ip = _params(opts, 2.0, 5.0, 0, geometric, False, int(region.max()) + 1)
+    init_cost(st, ctx, fp, ip)
+    fresh = _State(st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy())
+    hits = 0
+    for t in range(4):
+        fp, ip = _params(opts, 2.0, 5.0, t, geometric, False, int(region.max()) + 1)
+        for colour in (0, 1):
+            key = np.uint64(stream_key(4, 0, 0, 0, t, colour))
+            if t > 0:
+                hits += int(np.sum(st.RN > 0))
+            half_step(st, ctx, colour, st.C.copy(), pat, region, key, fp, ip)
+            fresh.drop_caches()
+            half_step(fresh, ctx, colour, fresh.C.copy(), pat, region, key, fp, ip)
+            for a, b in ((st.Z, fresh.Z), (st.N, fresh.N), (st.C, fresh.C), (st.S, fresh.S)):
+                assert a.tobytes() == b.tobytes()
+    assert hits > 0
+    # the cached per-view costs of the stored hypotheses are their true costs
+    known = ~np.isnan(st.P)
+    assert known.mean() > 0.1
+    check = _State(st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy())
+    init_cost(check, ctx, fp, ip)
+    assert np.array_equal(st.P[known], check.P[known])

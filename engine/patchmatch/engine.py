@@ -31,6 +31,9 @@ from engine.patchmatch.rng import stream_key
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
 RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
+# the view-selection row cache takes K_vs · (N + 4) · 8 bytes per pixel (226 MB at 768x512, 5 sources);
+# above this it is left out (results are the same either way, only slower)
+ROW_CACHE_MAX_BYTES = 2 << 30
 
 ProgressFn = Callable[[str, int, int], Any]
 
@@ -77,12 +80,22 @@ class ViewMaps:
 
 @dataclasses.dataclass
 class _State:
-    """Mutable per-view maps at the current level."""
+    """Mutable per-view maps at the current level, and the cost caches of the running pass (set by
+    :func:`init_cost`, see ``kernels.half_step_kernel``): ``P`` (H, W, N) f64 per-view photometric cost
+    of each pixel's stored hypothesis (NaN = unknown); ``RK`` (H, W, K_vs, 4) f64, ``RC`` (H, W, K_vs, N)
+    f64, ``RN`` (H, W) i32: hypotheses and cost rows of each pixel's last view-selection matrix."""
 
     Z: np.ndarray
     N: np.ndarray
     C: np.ndarray
     S: np.ndarray
+    P: np.ndarray | None = None
+    RK: np.ndarray | None = None
+    RC: np.ndarray | None = None
+    RN: np.ndarray | None = None
+
+    def drop_caches(self) -> None:
+        self.P = self.RK = self.RC = self.RN = None
 
 
 def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
@@ -176,18 +189,43 @@ def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int
     return fp, ip
 
 
-def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray) -> None:
-    """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule)."""
-    K.init_cost_kernel(state.Z, state.N, state.C, state.S, ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b,
-                       ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, fp, ip)
+def _caches(state: _State, ctx: ViewContext, k_vs: int, reset: bool) -> bool:
+    """(Re)allocate the state's cost caches for this context; ``reset`` empties them (new pass).
+    Returns whether the row cache is used (it is left out above ROW_CACHE_MAX_BYTES)."""
+    h, w = state.Z.shape
+    n = ctx.num_sources
+    if state.P is None or state.P.shape != (h, w, n):
+        state.P = np.full((h, w, n), np.nan)
+        reset = True
+    rows = h * w * k_vs * (n + 4) * 8 <= ROW_CACHE_MAX_BYTES
+    if not rows:
+        state.RK, state.RC, state.RN = np.empty((1, 1, k_vs, 4)), np.empty((1, 1, k_vs, n)), np.zeros((1, 1), np.int32)
+    elif state.RN is None or state.RC.shape != (h, w, k_vs, n):
+        state.RK, state.RC, state.RN = np.empty((h, w, k_vs, 4)), np.empty((h, w, k_vs, n)), np.zeros((h, w), np.int32)
+    elif reset:
+        state.RN[:] = 0
+    return rows
+
+
+def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, cache: bool = True) -> None:
+    """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule); with ``cache``
+    also (re)start the cost caches the half-steps of this pass read."""
+    if cache:
+        _caches(state, ctx, int(ip[K.I_K_VS]), True)
+    P = state.P if cache else np.empty((1, 1, 1))
+    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
+                       ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
+                       ctx.oy, fp, ip)
 
 
 def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
               region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> None:
-    """One red or black half-step on one view (in place)."""
-    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, cpre, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
-                       ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
-                       ctx.oy, pat, region, key, fp, ip)
+    """One red or black half-step on one view (in place). Call :func:`init_cost` first in every pass
+    (and after changing the state's maps from outside): it fills the cost cache the half-steps trust."""
+    rows = _caches(state, ctx, int(ip[K.I_K_VS]), False)
+    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.RK, state.RC, state.RN, rows, cpre,
+                       ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv,
+                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, pat, region, key, fp, ip)
 
 
 def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,
@@ -202,7 +240,7 @@ def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions,
     key = np.uint64(stream_key(options.seed, view, level, 0, RESTORER_ITERATION, 0))
     K.random_init_kernel(tmp.Z, tmp.N, ctx.kinv, zmin, zmax, key, False)
     tmp.Z[:] = st.Z
-    init_cost(tmp, ctx, fp, ip)
+    init_cost(tmp, ctx, fp, ip, cache=False)
     return tmp.C
 
 
@@ -348,4 +386,5 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
                                    cost=readonly(st.C), selected_views=readonly(st.S),
                                    seconds=time.perf_counter() - t0))
         step += 1
+    st.drop_caches()  # only valid within this pass (ctx); do not keep them for every view
     return step

@@ -15,6 +15,8 @@ Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -36,7 +38,7 @@ N_IP = 13
 BIG = 1e30
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, _nrt=False)
 def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2, min_var):
     """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y)."""
     h00 = np.float32(A[j, 0] - b[j, 0] * m0)
@@ -52,7 +54,7 @@ def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, o
                     h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax):
     """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (§2.9)."""
     e = reprojection_error(A, b, B, c, j, sdepth, sizes[j, 0], sizes[j, 1], x, y, z)
@@ -61,29 +63,118 @@ def geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax):
     return e
 
 
-@njit(cache=True)
-def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
-                    z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, threshold):
-    """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y).
+# An early exit needs partial * (1 - EXIT_MARGIN) >= limit: the partial sum is taken in another order
+# than the full sum it stands for, and n <= 32 non-negative float64 terms summed in two orders differ
+# by far less than 1e-12 relatively.
+EXIT_MARGIN = 1e-12
 
-    Stops early and returns BIG once the partial sum proves the result >= ``threshold`` (all terms
-    are >= 0, so this never changes which hypothesis wins a strict '<' comparison)."""
+
+@njit(cache=True, _nrt=False)
+def view_order(v, order):
+    """Indices of the views with v_j > 0, largest weight first (ties: lower index first), into
+    ``order`` (N,); returns their count."""
+    n = 0
+    for j in range(v.shape[0]):
+        vj = v[j]
+        if vj <= 0.0:
+            continue
+        pos = n
+        while pos > 0 and v[order[pos - 1]] < vj:
+            order[pos] = order[pos - 1]
+            pos -= 1
+        order[pos] = j
+        n += 1
+    return n
+
+
+@njit(cache=True, _nrt=False)
+def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
+                    z, nx, ny, nz, v, vsum, order, n_sel, terms, geom, lam, gmax, min_var, threshold):
+    """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y); BIG once it is proven >= ``threshold``.
+
+    The result equals summing the terms in view order and returning BIG when that sum reaches
+    ``threshold · vsum`` (all terms are >= 0, so a partial sum only grows): views are evaluated in
+    ``order`` (the n_sel views with v_j > 0, heaviest first, see :func:`view_order`) so that a losing
+    hypothesis is usually rejected after one or two views; the terms of a hypothesis that survives are
+    summed again in view order, so its cost is bit-identical to the plain sum. ``terms`` is scratch (N,)."""
     m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
     if not ok:
         return BIG
     limit = threshold * vsum
+    partial = 0.0
+    for i in range(n_sel):
+        j = order[i]
+        cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2,
+                                min_var)
+        if geom:
+            cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+        t = v[j] * cost
+        terms[j] = t
+        partial += t
+        if partial * (1.0 - EXIT_MARGIN) >= limit:
+            return BIG
+    acc = 0.0
+    for j in range(v.shape[0]):
+        if v[j] > 0.0:
+            acc += terms[j]
+    if acc >= limit:
+        return BIG
+    return acc / vsum
+
+
+@njit(cache=True, _nrt=False)
+def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
+                 z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, known):
+    """Σ_j v_j (m_j + λ g_j) / Σ_j v_j of the stored hypothesis (z, n) at (x, y), BIG if it has no plane.
+
+    ``known`` (N,) caches m_j of this hypothesis (NaN = not evaluated yet): cached views are not
+    evaluated again, new ones are added to the cache. Same sum, same order as :func:`aggregated_cost`."""
+    m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
+    if not ok:
+        return BIG
+    limit = BIG * vsum
     acc = 0.0
     for j in range(v.shape[0]):
         vj = v[j]
         if vj <= 0.0:
             continue
-        cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2,
-                                min_var)
+        cost = known[j]
+        if math.isnan(cost):
+            cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1,
+                                    m2, min_var)
+            known[j] = cost
         if geom:
             cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
         acc += vj * cost
         if acc >= limit:
             return BIG
+    return acc / vsum
+
+
+@njit(cache=True, _nrt=False)
+def find_row(keys, n_rows, z, nx, ny, nz):
+    """Index of the cached cost row whose hypothesis is exactly (z, n) among the first ``n_rows`` of
+    ``keys`` (K, 4) f64, or -1."""
+    for r in range(n_rows):
+        if keys[r, 0] == z and keys[r, 1] == nx and keys[r, 2] == ny and keys[r, 3] == nz:
+            return r
+    return -1
+
+
+@njit(cache=True, _nrt=False)
+def row_cost(row, A, b, B, c, sizes, sdepth, x, y, z, v, vsum, geom, lam, gmax, threshold):
+    """:func:`aggregated_cost` of a hypothesis whose photometric costs ``row`` (N,) over all views are
+    known (its plane exists): the same terms summed in the same order, BIG when >= ``threshold``."""
+    limit = threshold * vsum
+    acc = 0.0
+    for j in range(v.shape[0]):
+        if v[j] > 0.0:
+            cost = row[j]
+            if geom:
+                cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+            acc += v[j] * cost
+    if acc >= limit:
+        return BIG
     return acc / vsum
 
 
@@ -107,12 +198,14 @@ def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
 
 
 @njit(cache=True, parallel=True)
-def init_cost_kernel(Z, Nrm, C, Sel, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy,
-                     fp, ip):
+def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa, mu_a,
+                     var_a, ox, oy, fp, ip):
     """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
 
     k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
-    views in geometric passes); Sel = {j : m_j <= k-th smallest}; k = 0 gives C = 2 (+ λ·δ), Sel = 0."""
+    views in geometric passes); Sel = {j : m_j <= k-th smallest}; k = 0 gives C = 2 (+ λ·δ), Sel = 0.
+    With ``store`` the m_j go to the cache P (H, W, N) f64 of the half-steps (NaN where the
+    hypothesis has no plane)."""
     h, w = Z.shape
     n_views = A.shape[0]
     top_k = ip[I_TOP_K]
@@ -135,8 +228,12 @@ def init_cost_kernel(Z, Nrm, C, Sel, src, stride, plane, sizes, A, b, B, c, sdep
                 if ok and z > 0.0:
                     costs[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x],
                                                 mu_a[y, x], var_a[y, x], ox, oy, x, y, m0, m1, m2, min_var)
+                    if store:
+                        P[y, x, j] = costs[j]
                 else:
                     costs[j] = 2.0
+                    if store:
+                        P[y, x, j] = np.nan
                 order[j] = costs[j]
                 if costs[j] < 2.0:
                     n_ok += 1
@@ -167,9 +264,16 @@ def init_cost_kernel(Z, Nrm, C, Sel, src, stride, plane, sizes, A, b, B, c, sdep
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa,
-                     mu_a, var_a, ox, oy, pat, region, key, fp, ip):
-    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7)."""
+def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth,
+                     kinv, wgt, wa, mu_a, var_a, ox, oy, pat, region, key, fp, ip):
+    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7).
+
+    P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
+    ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
+    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it.
+    With ``rows``, RK (H, W, K_vs, 4) f64 keys (z, n), RC (H, W, K_vs, N) f64 cost rows and RN (H, W)
+    i32 counts cache the view-selection rows of each pixel's previous update (RN = 0 at the start of
+    a pass): a candidate proposed again by an unchanged neighbour is bit-identical, so are its costs."""
     h, w = Z.shape
     n_views = A.shape[0]
     zmin = fp[F_ZMIN]
@@ -198,6 +302,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
         omega = np.empty(n_views, np.float64)
         v = np.empty(n_views, np.float64)
         tmp = np.empty(n_views, np.float64)
+        terms = np.empty(n_views, np.float64)
+        order = np.empty(n_views, np.int64)
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
         for x in range((y + colour) % 2, w, 2):
@@ -210,8 +316,15 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
                                        reg_cost, reg_idx, cand_z, cand_n, cand_c)
             n_vs = min(n_cand, k_vs)
+            n_old = RN[y, x] if rows else 0
+            keys = RK[y, x] if rows else RK[0, 0]
             # photometric cost matrix of the best candidates over all views (drives view selection)
             for k in range(n_vs):
+                r = find_row(keys, n_old, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
+                if r >= 0:
+                    for j in range(n_views):
+                        M[k, j] = RC[y, x, r, j]
+                    continue
                 m0, m1, m2, ok = plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
                 for j in range(n_views):
                     if ok:
@@ -226,13 +339,16 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
             n0x = np.float64(Nrm[y, x, 0])
             n0y = np.float64(Nrm[y, x, 1])
             n0z = np.float64(Nrm[y, x, 2])
+            known = P[y, x]
             if vsum <= 0.0:
                 # degenerate weights: the top_k views with the lowest cost of the current hypothesis
                 m0, m1, m2, ok = plane_vector(kinv, rp, z0, n0x, n0y, n0z)
                 for j in range(n_views):
                     if ok:
-                        tmp[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy,
-                                                  x, y, m0, m1, m2, min_var)
+                        if math.isnan(known[j]):
+                            known[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var,
+                                                        ox, oy, x, y, m0, m1, m2, min_var)
+                        tmp[j] = known[j]
                     else:
                         tmp[j] = 2.0
                     omega[j] = tmp[j]
@@ -246,8 +362,9 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
                     else:
                         v[j] = 0.0
             # current hypothesis, full cost (the baseline all others must beat)
-            c_cur = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy,
-                                    x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, BIG)
+            c_cur = current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy,
+                                 x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, known)
+            n_sel = view_order(v, order)
             if c_cur >= BIG:
                 c_cur = 2.0 + (lam * gmax if geom else 0.0)
             c_old = c_cur
@@ -276,9 +393,14 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
                     won = True
             # remaining candidates: only the selected views, early exit
             for k in range(n_vs, n_cand):
-                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox,
-                                       oy, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v, vsum, geom,
-                                       lam, gmax, min_var, best)
+                r = find_row(keys, n_old, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
+                if r >= 0 and plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])[3]:
+                    cost = row_cost(RC[y, x, r], A, b, B, c, sizes, sdepth, x, y, cand_z[k], v, vsum, geom, lam, gmax,
+                                    best)
+                else:
+                    cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var,
+                                           ox, oy, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
+                                           vsum, order, n_sel, terms, geom, lam, gmax, min_var, best)
                 if cost < best:
                     best = cost
                     zb = cand_z[k]
@@ -286,6 +408,15 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
                     nby = cand_n[k, 1]
                     nbz = cand_n[k, 2]
                     won = True
+            if rows:
+                for k in range(n_vs):
+                    RK[y, x, k, 0] = cand_z[k]
+                    RK[y, x, k, 1] = cand_n[k, 0]
+                    RK[y, x, k, 2] = cand_n[k, 1]
+                    RK[y, x, k, 3] = cand_n[k, 2]
+                    for j in range(n_views):
+                        RC[y, x, k, j] = M[k, j]
+                RN[y, x] = n_vs
             # local refinement: combinations of current, perturbed and random depth / normal
             z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
             z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
@@ -340,8 +471,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
                 if not (zi >= zmin and zi <= zmax):
                     continue
                 cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox,
-                                       oy, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, geom, lam, gmax,
-                                       min_var, best)
+                                       oy, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, order, n_sel, terms,
+                                       geom, lam, gmax, min_var, best)
                 if cost < best:
                     best = cost
                     zb = zi
@@ -356,6 +487,9 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, Cpre, src, stride, plane, sizes, A,
             Nrm[y, x, 1] = nby
             Nrm[y, x, 2] = nbz
             C[y, x] = best
+            if not (zb == z0 and nbx == n0x and nby == n0y and nbz == n0z):
+                for j in range(n_views):
+                    known[j] = np.nan
             if won:
                 mask = np.uint32(0)
                 for j in range(n_views):

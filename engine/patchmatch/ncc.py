@@ -106,7 +106,7 @@ def pad_sources(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return out, sizes
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, _nrt=False)
 def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, wgt: np.ndarray, wa: np.ndarray,
              mu_a: float, var_a: float, ox: np.ndarray, oy: np.ndarray, x: int, y: int,
              h00: float, h01: float, h02: float, h10: float, h11: float, h12: float,

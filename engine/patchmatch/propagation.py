@@ -57,7 +57,7 @@ def sampling_pattern(name: str) -> tuple[np.ndarray, np.ndarray]:
     return offs, np.array(regions, np.int32)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndarray, pat: np.ndarray,
                       region: np.ndarray, n_regions: int, kinv: np.ndarray, zmin: float, zmax: float,
                       plane: bool, k_max: int, reg_cost: np.ndarray, reg_idx: np.ndarray,

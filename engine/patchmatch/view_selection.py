@@ -18,7 +18,7 @@ from engine.patchmatch.rng import uniform
 FLT_EPSILON = 1.1920929e-07
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def view_weights(M: np.ndarray, n_rows: int, n_views: int, Sel: np.ndarray, x: int, y: int,
                  tau_g: float, tau_bad: float, beta: float, beta_fb: float, n_good_gt: int, n_bad_lt: int,
                  prior_in: float, prior_out: float, deterministic: bool, mc_samples: int,
