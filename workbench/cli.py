@@ -84,6 +84,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                                 "exist yet in this version (use --pipeline vanilla)")
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
+    checkpoint = _prepare_output(args)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = None
     progress = PassProgress()
@@ -96,7 +97,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             recording = _open_recording(record, scene, options, stream_options, live.grpc_url if live else None)
         try:
             result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                  progress=progress)
+                                  progress=progress, checkpoint=checkpoint)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -115,6 +116,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         if live:
             live.stop()
     return EXIT_OK
+
+
+def _prepare_output(args: argparse.Namespace):
+    """Clean what a killed run left (temporary files) and open the PatchMatch checkpoint of OUT."""
+    from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
+    from engine.io.atomic import remove_stale_temp_files
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DeepCError("--out exists and is not a folder", out)
+    try:
+        removed = remove_stale_temp_files(out) if out.is_dir() else []
+    except OSError as exc:
+        raise DeepCError(f"cannot clean the output folder: {exc.strerror or exc}", out) from None
+    if removed:
+        print(f"removed {len(removed)} temporary file(s) left by an interrupted run", file=sys.stderr)
+    return PatchMatchCheckpoint(out / CHECKPOINT_DIR, resume=args.resume)
 
 
 def _open_recording(path: str | None, scene, options, stream_options, live_url: str | None = None):
@@ -181,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--headless", action="store_true",
                      help="no viewer, no window: print progress and exit (otherwise the run streams live to rerun "
                           "and the result opens in the browser viewer)")
+    run.add_argument("--resume", action="store_true",
+                     help="continue an interrupted run in OUT: reuse its verified per-view PatchMatch states "
+                          "(same scene, options and seed give the same outputs as an uninterrupted run)")
     run.add_argument("--host", default="127.0.0.1", help="address the viewers bind (default: 127.0.0.1)")
     run.add_argument("--port", type=int, default=8080, help="port of the browser viewer (default: 8080)")
     run.set_defaults(handler=cmd_run)
