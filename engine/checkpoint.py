@@ -113,7 +113,7 @@ class PatchMatchCheckpoint:
     def _write_manifest(self) -> None:
         atomic_write_text(self.manifest_path, json.dumps(
             {"format": _FORMAT, "key": self.key, "completed": [list(p) for p in self.completed],
-             "files": self.entries}, indent=1, sort_keys=True))
+             "files": self.entries, "saved_by_this_run": self.stats.saved}, indent=1, sort_keys=True))
 
     # ---- per view and pass --------------------------------------------------------------------------
     @staticmethod
@@ -165,8 +165,8 @@ class PatchMatchCheckpoint:
         name = self._name(level, pass_index, view)
         atomic_write_bytes(self.folder / name, data)
         self.entries[name] = hashlib.sha256(data).hexdigest()
-        self._write_manifest()
         self.stats.saved += 1
+        self._write_manifest()
 
     def pass_complete(self, level: int, pass_index: int) -> None:
         """Every view finished this pass: record it and drop the states of older passes."""
