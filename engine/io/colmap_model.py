@@ -103,6 +103,10 @@ def read_sparse_model(model_dir: str | Path) -> SparseModel:
     import pycolmap
 
     model_dir = Path(model_dir)
+    for name in _BINARY_CHECKS:  # pycolmap would report an unreadable file as a malformed model
+        for path in (model_dir / f"{name}.bin", model_dir / f"{name}.txt"):
+            if path.is_file() and not os.access(path, os.R_OK):
+                raise DeepCError("cannot read: permission denied", path)
     check_binary_model(model_dir)
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
