@@ -84,6 +84,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                                 "exist yet in this version (use --pipeline vanilla)")
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
+    _check_memory(args, scene, options)
     checkpoint = _prepare_output(args)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = None
@@ -116,6 +117,24 @@ def cmd_run(args: argparse.Namespace) -> int:
         if live:
             live.stop()
     return EXIT_OK
+
+
+def _check_memory(args: argparse.Namespace, scene, options) -> None:
+    """Refuse a run whose estimated peak memory does not fit (engine/memory.py), naming a size that does."""
+    from engine.memory import estimate_run_memory, largest_fitting_size
+
+    estimate = estimate_run_memory(scene, options)
+    if args.max_memory is not None:
+        limit = int(args.max_memory * (1 << 20))
+        estimate.available = limit if estimate.available is None else min(estimate.available, limit)
+    print(estimate.summary(), file=sys.stderr)
+    if estimate.fits or args.ignore_memory_check:
+        return
+    size = largest_fitting_size(scene, options, estimate)
+    hint = f"try --max-image-size {size}" if size else "no image size fits"
+    raise DeepCError(f"not enough memory: the run needs about {estimate.peak / (1 << 20):,.0f} MiB, "
+                     f"{estimate.available / (1 << 20):,.0f} MiB are available; {hint}, "
+                     "or --ignore-memory-check to run anyway", args.scene)
 
 
 def _prepare_output(args: argparse.Namespace):
@@ -202,6 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted run in OUT: reuse its verified per-view PatchMatch states "
                           "(same scene, options and seed give the same outputs as an uninterrupted run)")
+    run.add_argument("--max-memory", type=float, metavar="MB",
+                     help="refuse the run if its estimated peak memory exceeds this (default: what is available)")
+    run.add_argument("--ignore-memory-check", action="store_true",
+                     help="run even when the estimated peak memory exceeds the available memory")
     run.add_argument("--host", default="127.0.0.1", help="address the viewers bind (default: 127.0.0.1)")
     run.add_argument("--port", type=int, default=8080, help="port of the browser viewer (default: 8080)")
     run.set_defaults(handler=cmd_run)
