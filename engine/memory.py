@@ -13,6 +13,10 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
   cloud of up to one point per pixel at 31 B) and evaluation (GT points as float64 and float32 plus a
   KD-tree, ~64 B per point, and the fused points).
 
+The compiled kernels (numba, and the LLVM runtime it links them with) take tens of MiB the first time
+one runs; :func:`load_kernels` runs a 2-view 24×24 PatchMatch first so that this is part of the measured
+baseline rather than a guess.
+
 ``deepc run`` refuses a run whose estimate exceeds the memory available (``/proc/meminfo``
 MemAvailable plus what the process already holds) and names a ``--max-image-size`` that fits; it does not
 downsize on its own, because that would silently change the results. ``--ignore-memory-check``
@@ -146,3 +150,19 @@ def largest_fitting_size(scene: Any, options: Any, estimate: MemoryEstimate) -> 
             return size
         size = int(size * 0.9) // 32 * 32
     return None
+
+
+def load_kernels() -> None:
+    """Run PatchMatch once on two synthetic 24x24 views, so the kernels and the JIT runtime are resident."""
+    import numpy as np
+
+    from engine.camera import Camera
+    from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
+
+    rng = np.random.default_rng(0)
+    views = []
+    for i in range(2):
+        camera = Camera.from_params(24, 24, 20.0, 20.0, 12.0, 12.0, np.eye(3), np.array([0.1 * i, 0.0, 0.0]))
+        views.append(PatchMatchView(f"warm-up-{i}", rng.random((24, 24), dtype=np.float32), camera, 1.0, 3.0,
+                                    [1 - i]))
+    run_patchmatch(views, PatchMatchOptions(levels=1, geom_passes=1, iterations=1))

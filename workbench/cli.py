@@ -109,6 +109,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             recording.finish()
             if record:
                 print(f"recording: {record} ({recording.stream.logged_steps} logged iterations)", file=sys.stderr)
+        if checkpoint.stats.reused or checkpoint.stats.rejected:
+            print(f"resumed: {checkpoint.stats.reused} saved PatchMatch view states reused, "
+                  f"{checkpoint.stats.rejected} rejected and recomputed", file=sys.stderr)
         _print_run_summary(result.metrics, args.out)
         if not args.headless:
             from workbench.viewer import serve
@@ -121,8 +124,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _check_memory(args: argparse.Namespace, scene, options) -> None:
     """Refuse a run whose estimated peak memory does not fit (engine/memory.py), naming a size that does."""
-    from engine.memory import estimate_run_memory, largest_fitting_size
+    from engine.memory import estimate_run_memory, largest_fitting_size, load_kernels
 
+    load_kernels()  # the JIT runtime's memory becomes part of the measured baseline
     estimate = estimate_run_memory(scene, options)
     if args.max_memory is not None:
         limit = int(args.max_memory * (1 << 20))
