@@ -148,7 +148,7 @@ def largest_fitting_size(scene: Any, options: Any, estimate: MemoryEstimate) -> 
         trial = estimate_run_memory(scene, options, size, estimate.baseline, None)
         if estimate.available is None or trial.peak <= estimate.available:
             return size
-        size = int(size * 0.9) // 32 * 32
+        size -= 32
     return None
 
 
