@@ -97,6 +97,10 @@ class PatchMatchCheckpoint:
             warnings.warn(self.note, stacklevel=2)
         elif self.resume:
             self.note = f"nothing to resume in {self.folder.parent}; starting from the beginning"
+        elif self.manifest_path.is_file():
+            self.note = (f"{self.folder}: discarding the saved states of an interrupted run "
+                         "(deepc run --resume continues such a run)")
+            warnings.warn(self.note, stacklevel=2)
         self.clear()
         self.key = key
         self._write_manifest()
@@ -142,11 +146,8 @@ class PatchMatchCheckpoint:
                     raise ValueError(f"{k} is {a.dtype} {a.shape}, expected {np.dtype(dtype)} {shape}")
                 if a.dtype.kind == "f" and not np.isfinite(a).all():
                     raise ValueError(f"{k} has non-finite values")
-        except (OSError, ValueError, KeyError, EOFError) as exc:  # zipfile.BadZipFile is an OSError? no: ValueError
-            self._reject(name, str(exc))
-            return None
         except Exception as exc:  # noqa: BLE001  (np.load raises assorted types on a damaged archive)
-            self._reject(name, f"{type(exc).__name__}: {exc}")
+            self._reject(name, str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}")
             return None
         self.stats.reused += 1
         return state
