@@ -73,11 +73,12 @@ def main() -> None:
         diff = differences(reference, out) if resumed.returncode == 0 else ["resume failed"]
         row = {"signal": sig.name, "moment": moment, "exit": code, "interrupted": code == 130,
                "states_saved_before_kill": saved, "files_checked": files, "partial": partial,
-               "resume_exit": resumed.returncode, "states_reused": reused, "states_rejected": rejected, "differences": diff,
+               "resume_exit": resumed.returncode, "states_reused": reused,
+               "states_rejected": rejected, "differences": diff,
                "identical": not diff, "seconds": time.perf_counter() - start}
         rows.append(row)
-        print(f"{run:>3} {sig.name:<7} {moment!s:>8} {code:>4} {saved:>5} {reused:>6} {files:>8} {resumed.returncode:>8} "
-              f"{not diff!s:>9} {row['seconds']:>6.1f}")
+        print(f"{run:>3} {sig.name:<7} {moment!s:>8} {code:>4} {saved:>5} {reused:>6} {files:>8} "
+              f"{resumed.returncode:>8} {not diff!s:>9} {row['seconds']:>6.1f}")
     interrupted = sum(r["interrupted"] for r in rows)
     summary = {"runs": len(rows), "interrupted": interrupted,
                "resumed_identically": sum(r["identical"] for r in rows if r["interrupted"]),

@@ -142,10 +142,11 @@ async def load(app: ViewerApp, clients: int, rate: float, seconds: float, reconn
             t = time.monotonic()
             while not victim.updates and time.monotonic() - t < 5:
                 await asyncio.sleep(0.01)
-            current = app.metrics.content
+            # current = what the server shows now, or what the clients that stayed connected last received
+            current = {app.metrics.content} | {c.updates[-1][1] for c in pool if c is not victim and c.updates}
             got = victim.updates[-1][1] if victim.updates else None
             reconnects.append({"at_s": t - start, "state_received_s": (victim.updates[0][0] - t) if got else None,
-                               "current": got is not None})
+                               "current": got in current})
     last_sent = time.monotonic()
     settled = app.wait_idle(120)
     final = app.metrics.content

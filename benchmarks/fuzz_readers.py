@@ -105,7 +105,8 @@ def main() -> None:
         for failure in counts.failures[:5] + (cli["failures"][:5] if cli else []):
             print("   ", failure[:300])
     write_json(args.out, {"examples_per_reader": args.examples, "seed": args.seed, "readers": rows,
-                          "deferred": ["regress_suite (workbench/regress.py)", "confidence_weights (engine/confidence)"]})
+                          "deferred": ["regress_suite (workbench/regress.py)",
+                                       "confidence_weights (engine/confidence)"]})
     print(f"wrote {args.out}")
 
 

@@ -271,8 +271,8 @@ def eth3d_mlp_target(tmp: Path) -> FuzzTarget:
     (tmp / "scan_alignment.mlp").write_text(
         '<!DOCTYPE MeshLabDocument>\n<MeshLabProject>\n <MeshGroup>\n' + mesh.format("scan1.ply", pose)
         + mesh.format("scan2.ply", pose) + ' </MeshGroup>\n <RasterGroup/>\n</MeshLabProject>\n')
-    return FuzzTarget("eth3d_mlp", tmp, ["scan_alignment.mlp"], lambda root: load_eth3d_mlp(root / "scan_alignment.mlp"),
-                      text=True)
+    return FuzzTarget("eth3d_mlp", tmp, ["scan_alignment.mlp"],
+                      lambda root: load_eth3d_mlp(root / "scan_alignment.mlp"), text=True)
 
 
 def images_target(tmp: Path) -> FuzzTarget:

@@ -119,7 +119,8 @@ def read_sparse_model(model_dir: str | Path) -> SparseModel:
     cameras = {}
     for camera_id, cam in rec.cameras.items():
         params = np.array(cam.params, np.float64)
-        if not np.isfinite(params).all() or not (0 < cam.width <= _MAX_IMAGE_SIDE and 0 < cam.height <= _MAX_IMAGE_SIDE):
+        sized = 0 < cam.width <= _MAX_IMAGE_SIDE and 0 < cam.height <= _MAX_IMAGE_SIDE
+        if not (np.isfinite(params).all() and sized):
             raise DeepCError(f"camera {camera_id} has non-finite parameters or size {cam.width}x{cam.height}",
                              model_dir)
         cameras[camera_id] = SparseCamera(camera_id, cam.model.name, int(cam.width), int(cam.height), params)
