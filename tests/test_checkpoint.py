@@ -48,7 +48,7 @@ def _interrupted(views, folder, after: int) -> None:
         run_patchmatch(views, OPTIONS, progress=_Interrupt(after), checkpoint=PatchMatchCheckpoint(folder))
 
 
-@pytest.mark.parametrize("after", [3, 5, 13, 20])  # mid first pass, pass boundary, mid third pass, last view
+@pytest.mark.parametrize("after", [3, 13, 20])  # mid first pass, mid third pass, last view of the last pass
 def test_resume_after_interruption_gives_identical_maps(views, reference, tmp_path, after):
     folder = tmp_path / ".deepc-resume"
     _interrupted(views, folder, after)
