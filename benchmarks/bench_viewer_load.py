@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import random
 import statistics
 import sys
@@ -152,9 +153,9 @@ async def load(app: ViewerApp, clients: int, rate: float, seconds: float, reconn
     final = app.metrics.content
     await asyncio.sleep(0.5)
     settle = []
-    for c in pool:  # when did each client get the final exact result?
-        arrivals = [t for t, text in c.updates if text == final and t >= last_sent - 1]
-        settle.append((arrivals[0] - last_sent) if arrivals else None)
+    for c in pool:  # when did each client get the final exact result (None: it holds something else)?
+        last = c.updates[-1] if c.updates else None
+        settle.append(max(0.0, last[0] - last_sent) if last and last[1] == final else None)
     for c in pool:
         for sent_at in c.sent:
             after = [t for t, _ in c.updates if t >= sent_at]
@@ -211,7 +212,8 @@ def main() -> None:
     finally:
         app.stop()
     summary = summarise(result)
-    summary.update(scene=args.scene.name, clients=args.clients, rate=args.rate, seconds=args.seconds)
+    summary.update(scene=args.scene.name, clients=args.clients, rate=args.rate, seconds=args.seconds,
+                   load_average_1min=os.getloadavg()[0], cpus=os.cpu_count())
     for key, value in summary.items():
         print(f"{key:<34} {value}")
     write_json(args.out, summary)
