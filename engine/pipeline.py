@@ -65,8 +65,13 @@ def patchmatch_views(scene: Scene) -> list[PatchMatchView]:
 
 
 def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | None = None,
-                 observer: Any = None, progress: Callable[[str, int, int], None] | None = None) -> PipelineResult:
-    """Run ``options.pipeline`` on ``scene`` and write the outputs into ``out_dir``."""
+                 observer: Any = None, progress: Callable[[str, int, int], None] | None = None,
+                 checkpoint: Any = None) -> PipelineResult:
+    """Run ``options.pipeline`` on ``scene`` and write the outputs into ``out_dir``.
+
+    ``checkpoint`` (an :class:`engine.checkpoint.PatchMatchCheckpoint`) saves PatchMatch states as it
+    goes and reuses those of an interrupted run; it is cleared once metrics.json is written.
+    """
     options = (options or PipelineOptions()).validate()
     out_dir = Path(out_dir)
     seconds = dict.fromkeys(STAGES, 0.0)
@@ -75,7 +80,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 
     views = patchmatch_views(scene)
     t = time.perf_counter()
-    maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress)
+    maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress, checkpoint=checkpoint)
     counter = compute_counter_maps(views, maps, options.counter)
     seconds["patchmatch"] = time.perf_counter() - t
     for view, m, k in zip(scene.views, maps, counter, strict=True):
@@ -112,6 +117,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     metrics["options"] = {"scene": scene.options.to_dict(), **options.to_dict()}
     metrics["version"] = __version__
     write_metrics(out_dir, metrics)
+    if checkpoint is not None:
+        checkpoint.clear()
     return PipelineResult(maps, counter, cloud, metrics)
 
 

@@ -208,6 +208,9 @@ def load_scene(path: str | Path, options: SceneOptions | None = None) -> Scene:
 
     cameras = []
     for im in model.images:
+        if Path(im.name).is_absolute() or ".." in Path(im.name).parts:
+            # outputs are named after images: such a name would write outside the output folder
+            raise DeepCError(f"image name {im.name!r} leaves the images/ folder", model_dir)
         cam = model.cameras[im.camera_id]
         size = image_size(image_root / im.name)
         if size != (cam.width, cam.height):

@@ -171,7 +171,8 @@ def test_malformed_model(temple_copy):
 def test_truncated_binary_model(fountain_copy):
     path = fountain_copy / "sparse" / "images.bin"
     path.write_bytes(path.read_bytes()[:5000])
-    assert "malformed COLMAP model" in _error(fountain_copy)
+    text = _error(fountain_copy)
+    assert "images.bin" in text and "corrupt COLMAP binary model" in text  # names the file, not just the folder
 
 
 def test_empty_model_asks_for_points_or_a_depth_range(temple_copy):

@@ -98,6 +98,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     scene_options, options, stream_options = run_options_from_args(args)
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
+    _check_memory(args, scene, options)
+    checkpoint = _prepare_output(args)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = None
     progress = PassProgress()
@@ -110,7 +112,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             recording = _open_recording(record, scene, options, stream_options, live.grpc_url if live else None)
         try:
             result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                  progress=progress)
+                                  progress=progress, checkpoint=checkpoint)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -121,6 +123,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             recording.finish()
             if record:
                 print(f"recording: {record} ({recording.stream.logged_steps} logged iterations)", file=sys.stderr)
+        if checkpoint.stats.reused or checkpoint.stats.rejected:
+            print(f"resumed: {checkpoint.stats.reused} saved PatchMatch view states reused, "
+                  f"{checkpoint.stats.rejected} rejected and recomputed", file=sys.stderr)
         _print_run_summary(result.metrics, args.out)
         if not args.headless:
             from workbench.viewer import serve
@@ -129,6 +134,42 @@ def cmd_run(args: argparse.Namespace) -> int:
         if live:
             live.stop()
     return EXIT_OK
+
+
+def _check_memory(args: argparse.Namespace, scene, options) -> None:
+    """Refuse a run whose estimated peak memory does not fit (engine/memory.py), naming a size that does."""
+    from engine.memory import estimate_run_memory, largest_fitting_size, load_kernels
+
+    load_kernels()  # the JIT runtime's memory becomes part of the measured baseline
+    estimate = estimate_run_memory(scene, options)
+    if args.max_memory is not None:
+        limit = int(args.max_memory * (1 << 20))
+        estimate.available = limit if estimate.available is None else min(estimate.available, limit)
+    print(estimate.summary(), file=sys.stderr)
+    if estimate.fits or args.ignore_memory_check:
+        return
+    size = largest_fitting_size(scene, options, estimate)
+    hint = f"try --max-image-size {size}" if size else "no image size fits"
+    raise DeepCError(f"not enough memory: the run needs about {estimate.peak / (1 << 20):,.0f} MiB, "
+                     f"{estimate.available / (1 << 20):,.0f} MiB are available; {hint}, "
+                     "or --ignore-memory-check to run anyway", args.scene)
+
+
+def _prepare_output(args: argparse.Namespace):
+    """Clean what a killed run left (temporary files) and open the PatchMatch checkpoint of OUT."""
+    from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
+    from engine.io.atomic import remove_stale_temp_files
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DeepCError("--out exists and is not a folder", out)
+    try:
+        removed = remove_stale_temp_files(out) if out.is_dir() else []
+    except OSError as exc:
+        raise DeepCError(f"cannot clean the output folder: {exc.strerror or exc}", out) from None
+    if removed:
+        print(f"removed {len(removed)} temporary file(s) left by an interrupted run", file=sys.stderr)
+    return PatchMatchCheckpoint(out / CHECKPOINT_DIR, resume=args.resume)
 
 
 def _open_recording(path: str | None, scene, options, stream_options, live_url: str | None = None):
@@ -200,6 +241,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--headless", action="store_true",
                      help="no viewer, no window: print progress and exit (otherwise the run streams live to rerun "
                           "and the result opens in the browser viewer)")
+    run.add_argument("--resume", action="store_true",
+                     help="continue an interrupted run in OUT: reuse its verified per-view PatchMatch states "
+                          "(same scene, options and seed give the same outputs as an uninterrupted run)")
+    run.add_argument("--max-memory", type=float, metavar="MB",
+                     help="refuse the run if its estimated peak memory exceeds this (default: what is available)")
+    run.add_argument("--ignore-memory-check", action="store_true",
+                     help="run even when the estimated peak memory exceeds the available memory")
     run.add_argument("--host", default="127.0.0.1", help="address the viewers bind (default: 127.0.0.1)")
     run.add_argument("--port", type=int, default=8080, help="port of the browser viewer (default: 8080)")
     run.set_defaults(handler=cmd_run)

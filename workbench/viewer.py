@@ -34,6 +34,38 @@ def safe_file_name(text: str, suffix: str) -> str:
     return stem[:80] + suffix
 
 
+class _LatestOnly:
+    """Calls ``fn`` for the newest arguments only, one call at a time.
+
+    GUI events arrive faster than a preview can be pushed to every client (50 per second from five tabs):
+    running each on viser's thread pool queued them without bound, so latency and memory grew with the
+    load. Here a call that arrives while ``fn`` runs only replaces the arguments waiting for the next run.
+    """
+
+    def __init__(self, fn):
+        self._fn = fn
+        self._running = threading.Lock()
+        self._swap = threading.Lock()
+        self._next: tuple | None = None
+
+    def __call__(self, *args) -> None:
+        with self._swap:
+            self._next = args
+        while True:
+            if not self._running.acquire(blocking=False):
+                return  # the running call picks our arguments up when it finishes
+            try:
+                with self._swap:
+                    args, self._next = self._next, None
+                if args is not None:
+                    self._fn(*args)
+            finally:
+                self._running.release()
+            with self._swap:
+                if self._next is None:
+                    return
+
+
 class ViewerApp:
     """The viser server, its GUI and the worker that recomputes exact results."""
 
@@ -51,6 +83,8 @@ class ViewerApp:
         self.cloud = None
         self.cloud_params: ViewParams | None = None
         self._selected_view = 0
+        self._preview_latest = _LatestOnly(self._preview)
+        self._recolor_latest = _LatestOnly(self._recolor)
         self._build_scene()
         self._build_gui()
         self._worker = threading.Thread(target=self._work, name="deepc-viewer-worker", daemon=True)
@@ -144,7 +178,7 @@ class ViewerApp:
         for handle in (self.pipeline, self.conf_tau, self.mask_k, self.reproj, self.depth_err, self.normal_err,
                        self.min_views):
             handle.on_update(lambda _event: self.request(self.params()))
-        self.color_mode.on_update(lambda _event: self._recolor())
+        self.color_mode.on_update(lambda _event: self._recolor_latest())
         self.point_size.on_update(lambda _event: self._set_point_size())
         self.export_button.on_click(lambda _event: self.export_ply())
         self.rrd_button.on_click(lambda _event: self.save_rrd())
@@ -161,14 +195,22 @@ class ViewerApp:
         """Show a preview now (when the base cloud is ready) and queue the exact recomputation."""
         if not self.session.has_maps:
             return
+        with self._cond:
+            self._generation += 1
+            generation = self._generation
+        self._preview_latest(params, generation)
+        with self._cond:
+            if generation == self._generation:  # else a newer request is queued instead
+                self._pending = params
+                self._cond.notify()
+
+    def _preview(self, params: ViewParams, generation: int) -> None:
+        if generation != self._generation:
+            return  # a newer request came in: its own preview follows
         base = self.session.cached_cloud(ViewerSession.base_params(params))
         if base is not None and self.session.cached_cloud(params) is None:
             mask = ViewerSession.preview_mask(base, params)
             self._show(base.subset(mask), params, preview=True)
-        with self._cond:
-            self._generation += 1
-            self._pending = params
-            self._cond.notify()
 
     def _work(self) -> None:
         while True:

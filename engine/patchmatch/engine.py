@@ -252,7 +252,7 @@ def _fix_normals(state: _State, cam: Camera) -> None:
 
 
 def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | None = None,
-                   observer: Any = None, progress: ProgressFn | None = None) -> list[ViewMaps]:
+                   observer: Any = None, progress: ProgressFn | None = None, checkpoint: Any = None) -> list[ViewMaps]:
     """Multi-scale PatchMatch MVS over all views; returns one :class:`ViewMaps` per view.
 
     Args:
@@ -262,6 +262,8 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
             view, pass and level, ``on_stage(name, **info)`` at pass boundaries. Either may be absent.
         progress: optional ``progress(description, done, total)``, called after each view finishes a
             pass, e.g. ``("level 2 photometric", 3, 11)``.
+        checkpoint: optional :class:`engine.checkpoint.PatchMatchCheckpoint`: every view's state is saved
+            after each pass, and states saved by an interrupted run with the same inputs are reused.
 
     Views without source views or with a degenerate depth range are skipped with a warning and get
     empty (zero) maps; they still serve as source images for others. Invalid inputs (image/camera
@@ -281,13 +283,16 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
     if options.num_threads > 0:
         numba.set_num_threads(min(options.num_threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        return _run(views, options, active, n_levels, on_iter, on_stage, progress)
+        if checkpoint is not None:
+            checkpoint.bind(views, options, n_levels)
+        return _run(views, options, active, n_levels, on_iter, on_stage, progress, checkpoint)
     finally:
         numba.set_num_threads(old_threads)
 
 
 def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
-         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None) -> list[ViewMaps]:
+         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
+         checkpoint: Any = None) -> list[ViewMaps]:
     pat, region = sampling_pattern(options.pattern)
     n_regions = int(region.max()) + 1
     n_views = len(views)
@@ -306,10 +311,22 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     states: list[_State | None] = [None] * n_views
     step = 0
     done = 0  # iterations of all earlier passes (perturbation schedule 'global')
+    n_active = sum(active)
+    resume = _resume_states(checkpoint, images, n_levels)
     for level in range(n_levels - 1, -1, -1):
         coarsest = level == n_levels - 1
+        if resume is not None and level >= resume[0]:
+            # passes up to the resume point are done: only advance the counters
+            for pass_index in range(1 + options.geom_passes):
+                if level > resume[0] or pass_index <= resume[1]:
+                    step += options.pass_iterations(pass_index) * n_active
+                    done += options.pass_iterations(pass_index)
+            if level > resume[0]:
+                continue
         new_states: list[_State | None] = []
         for i, v in enumerate(views):
+            if resume is not None:
+                break  # this level's states are the resume point's
             h, w = images[i][level].shape
             st = _State(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32),
                         np.zeros((h, w), np.float32), np.zeros((h, w), np.uint32))
@@ -324,8 +341,10 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
                 K.random_init_kernel(st.Z, st.N, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
             new_states.append(st)
-        states = new_states
+        states = new_states if resume is None else resume[2]
         for pass_index in range(1 + options.geom_passes):
+            if resume is not None and level == resume[0] and pass_index <= resume[1]:
+                continue
             geometric = pass_index > 0
             kind = "geometric" if geometric else "photometric"
             detail = (not geometric) and (not coarsest) and options.detail_restorer
@@ -334,13 +353,21 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
             snapshot = [s.Z.copy() for s in states] if geometric else None
             for i, v in enumerate(views):
-                st = states[i]
-                if active[i]:
-                    step = _run_view_pass(i, v, st, images, cameras, snapshot, level, pass_index, kind, detail,
-                                          n_iter, options, pat, region, n_regions, on_iter, step, done)
+                saved = None if checkpoint is None else checkpoint.load(level, pass_index, i, states[i].Z.shape)
+                if saved is not None:
+                    states[i] = _State(**saved)
+                    step += n_iter if active[i] else 0
+                elif active[i]:
+                    step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, kind,
+                                          detail, n_iter, options, pat, region, n_regions, on_iter, step, done)
+                if checkpoint is not None and saved is None:
+                    checkpoint.save(level, pass_index, i, dataclasses.asdict(states[i]))
                 if progress is not None:
                     progress(f"level {level} {kind}", i + 1, n_views)
             done += n_iter
+            if checkpoint is not None:
+                checkpoint.pass_complete(level, pass_index)
+        resume = None
     out = []
     for i, st in enumerate(states):
         if not active[i]:
@@ -354,6 +381,22 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n_views)
     return out
+
+
+def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, int, list[_State]] | None:
+    """(level, pass, every view's state after that pass) from the checkpoint's latest complete pass, or
+    None to start from the beginning (no checkpoint, nothing saved, or a saved state failed its checks)."""
+    point = None if checkpoint is None else checkpoint.resume_point()
+    if point is None or not 0 <= point[0] < n_levels:
+        return None
+    level, pass_index = point
+    states = []
+    for i in range(len(images)):
+        saved = checkpoint.load(level, pass_index, i, images[i][level].shape)
+        if saved is None:
+            return None
+        states.append(_State(**saved))
+    return level, pass_index, states
 
 
 def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras: list, snapshot: list | None,

@@ -1,0 +1,60 @@
+"""`deepc run` killed with SIGINT/SIGTERM at several moments: no partial file, and --resume ends identical."""
+
+from __future__ import annotations
+
+import random
+import signal
+
+import pytest
+from conftest import SAMPLES
+from interruption import check_no_partial, differences, kill_when, saved_states, start_run
+
+from engine.checkpoint import CHECKPOINT_DIR
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reference")
+    proc = start_run(SAMPLES / "tiny", out)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert not (out / CHECKPOINT_DIR).exists()  # a finished run leaves no saved states
+    return out
+
+
+# (signal, moment): states saved by the checkpoint before the kill, or "writing" = first map written
+MOMENTS = [(signal.SIGTERM, 3), (signal.SIGINT, 14), (signal.SIGTERM, "writing")]
+
+
+@pytest.mark.parametrize(("sig", "moment"), MOMENTS, ids=[f"{s.name}-{m}" for s, m in MOMENTS])
+def test_interrupted_run_leaves_no_partial_file_and_resumes_identically(reference, tmp_path, sig, moment):
+    out = tmp_path / "out"
+    rng = random.Random(f"{sig}-{moment}")
+    if moment == "writing":
+        def condition():
+            return any((out / "stereo" / "depth_maps").glob("*.bin"))
+    else:
+        def condition():
+            return saved_states(out) >= moment
+    code, err = kill_when(start_run(SAMPLES / "tiny", out), condition, sig, delay=rng.uniform(0, 0.05))
+    if moment != "writing":  # PatchMatch takes seconds: the kill must land inside it
+        assert code == 130 and "deepc: interrupted" in err and "Traceback" not in err, err
+    assert code in (0, 130), err
+    check_no_partial(out)
+    if code == 130 and moment != "writing":
+        assert saved_states(out) >= moment  # the checkpoint still lists the states saved before the kill
+
+    stale = out / "stereo" / ".depth.bin.abcd1234.tmp"  # what a SIGKILL would leave: the resume removes it
+    stale.parent.mkdir(parents=True, exist_ok=True)
+    stale.write_bytes(b"half")
+    proc = start_run(SAMPLES / "tiny", out, "--resume")
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "removed 1 temporary file" in err and not stale.exists()
+    if code == 130 and moment != "writing":
+        assert "saved PatchMatch view states reused, 0 rejected" in err
+    assert differences(reference, out) == []
+    assert not (out / CHECKPOINT_DIR).exists()
+

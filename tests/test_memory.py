@@ -1,0 +1,58 @@
+"""Memory estimate of `deepc run`: grows with the work, names a size that fits, refuses before writing."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from conftest import REPO, SAMPLES
+
+from engine.memory import available_memory, current_rss, estimate_run_memory, largest_fitting_size
+from engine.patchmatch import PatchMatchOptions
+from engine.pipeline import PipelineOptions
+from engine.scene import SceneOptions, load_scene
+
+
+@pytest.fixture(scope="module")
+def fountain():
+    return load_scene(SAMPLES / "fountain_p11")
+
+
+def test_estimate_grows_with_image_size_and_source_views(fountain):
+    options = PipelineOptions()
+    sizes = [estimate_run_memory(fountain, options, size, baseline=0, available=None).peak for size in (128, 256, 384)]
+    assert sizes[0] < sizes[1] < sizes[2]
+    assert sizes[2] - sizes[1] > 1.4 * (sizes[1] - sizes[0])  # per-pixel terms grow with the area (5:3)
+    few = load_scene(SAMPLES / "fountain_p11", SceneOptions(num_source_views=2))
+    assert estimate_run_memory(few, options, baseline=0).patchmatch < estimate_run_memory(
+        fountain, options, baseline=0).patchmatch
+
+
+def test_largest_fitting_size_fits_and_the_next_does_not(fountain):
+    options = PipelineOptions(patchmatch=PatchMatchOptions(iterations=1))
+    full = estimate_run_memory(fountain, options, baseline=100 << 20, available=None)
+    full.available = (100 << 20) + (full.peak - (100 << 20)) * 2 // 3  # less than the full size needs
+    assert not full.fits
+    size = largest_fitting_size(fountain, options, full)
+    assert size is not None and 64 <= size < 384
+    assert estimate_run_memory(fountain, options, size, baseline=full.baseline).peak <= full.available
+    assert estimate_run_memory(fountain, options, size + 32, baseline=full.baseline).peak > full.available
+
+
+def test_system_readings_are_plausible():
+    assert 10 << 20 < current_rss() < 64 << 30
+    free = available_memory()
+    assert free is None or free > 0
+
+
+def test_run_refuses_before_writing_anything_when_memory_is_short(tmp_path):
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-m", "workbench.cli", "run", str(SAMPLES / "tiny"), "--out", str(out),
+                             "--headless", "--max-memory", "64"], capture_output=True, text=True, cwd=REPO,
+                            timeout=300)
+    errors = [line for line in result.stderr.splitlines() if line.startswith("deepc: error:")]
+    assert result.returncode == 2 and len(errors) == 1 and "Traceback" not in result.stderr
+    assert "not enough memory" in errors[0] and "--ignore-memory-check" in errors[0]
+    assert "memory: estimated peak" in result.stderr
+    assert not out.exists()
