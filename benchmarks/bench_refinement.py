@@ -86,7 +86,8 @@ def main() -> None:
         res, cpu = run_refine(inp, RefinementOptions())
         full = {"solver": "fast", "seconds": res.seconds, "cpu_seconds": cpu, "shapes": res.shapes,
                 "iterations_per_scale": res.iterations, "seconds_per_scale": res.seconds_per_scale,
-                "energy_per_scale": res.energy, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+                "energy_per_scale": res.energy,
+                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
         result["full"] = full
         print(f"full map, fast solver: {res.seconds:.1f} s wall, {cpu:.1f} s CPU; iterations per scale "
               f"{res.iterations}; seconds per scale {[round(s, 2) for s in res.seconds_per_scale]}; "

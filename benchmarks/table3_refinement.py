@@ -80,7 +80,8 @@ def score(scene, name: str, depths, normals, preset: str) -> dict:
            "pixels": int(sum(int((d > 0).sum()) for d in depths)), "seconds": time.perf_counter() - t}
     for tol in TOLERANCES:
         at = result.at(tol)
-        row.update({f"f1@{tol}": at["f1"], f"completeness@{tol}": at["completeness"], f"accuracy@{tol}": at["accuracy"]})
+        row.update({f"f1@{tol}": at["f1"], f"completeness@{tol}": at["completeness"],
+                    f"accuracy@{tol}": at["accuracy"]})
     return row
 
 
@@ -217,8 +218,9 @@ def print_table(t: dict) -> None:
           f"{n['refined']['mean_deg']:.2f}° median {n['refined']['median_deg']:.2f}°")
     if t["timing"]:
         tm = t["timing"]
-        print(f"refinement ({t['solver']}): {tm['seconds_per_map_mean']:.1f} s wall / {tm['cpu_seconds_per_map_mean']:.1f}"
-              f" s CPU per map, iterations per scale {tm['iterations_per_scale']}, s per scale "
+        print(f"refinement ({t['solver']}): {tm['seconds_per_map_mean']:.1f} s wall / "
+              f"{tm['cpu_seconds_per_map_mean']:.1f} s CPU per map, iterations per scale "
+              f"{tm['iterations_per_scale']}, s per scale "
               f"{[round(s, 1) for s in tm['seconds_per_scale_mean']]}, peak RSS {tm['peak_rss_mb']:.0f} MB")
 
 

@@ -286,3 +286,22 @@ def test_options_validate():
         RefinementOptions(window=8).validate()
     with pytest.raises(OptionsError, match="solver"):
         RefinementOptions(solver="lbfgs").validate()
+
+
+def test_refine_views_leaves_no_data_views_empty_with_a_warning():
+    from engine.refinement.views import refine_views
+    from engine.scene import SceneOptions, load_scene
+    from tests.conftest import SAMPLES
+
+    scene = load_scene(SAMPLES / "tiny", SceneOptions(max_image_size=64))
+    depths = [scene.gt_depth(v.index) for v in scene.views]
+    confs = [np.ones(d.shape) for d in depths]
+    confs[1][:] = 0.0
+    opts = RefinementOptions(scales=2, fast_iters=(150, 60), iters=(1, 1), lr=(1e-2, 1e-2), lr_slots=(1, 1))
+    with pytest.warns(UserWarning, match=f"view {scene.views[1].name}: .*zero confidence"):
+        out = refine_views(scene, depths, [None] * len(depths), confs, opts)
+    assert out[1] is None
+    for i in (0, 2, 3, 4):
+        gt = depths[i]
+        assert np.all(out[i].depth > 0)
+        assert np.median(np.abs(out[i].depth[gt > 0] - gt[gt > 0]) / gt[gt > 0]) < 0.01
