@@ -1,12 +1,13 @@
 """Refinement with the structure of the paper's Table 3 (ours; ours refined; ours refined + conf 0.05).
 
     .venv/bin/python benchmarks/table3_refinement.py RUN_DIR --out OUT_DIR [--proxy-confidence counter]
-        [--solver fast|adam] [--reuse] [--json benchmarks/results/table3_<scene>.json]
+        [--solver fast|adam] [--reuse] [--views 0,1,2] [--json benchmarks/results/table3_<scene>.json]
 
 RUN_DIR is the output folder of ``deepc run`` (CONTRACT.md §4). Every view is refined (SPEC.md §6) with
 the run's confidence maps; a vanilla run has none, and then ``--proxy-confidence counter`` stands in
 for the network: c = min(K, 3) / 3 from the counter maps K (said in the output). Refined maps are
-written to OUT_DIR/refined/{depth,normal}_maps (``--reuse`` reads them back instead of refining).
+written to OUT_DIR/refined/{depth,normal}_maps (``--reuse`` reads back those that exist instead of refining).
+``--views`` limits refinement, fusion and metrics to some views (all rows alike) when time is short.
 The confidence of the refined maps (the paper's second network) is, with the proxy, the same formula
 on counter maps recomputed on the refined maps (SPEC.md §11 item 31).
 
@@ -26,7 +27,6 @@ from __future__ import annotations
 import argparse
 import resource
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +36,13 @@ from engine.consistency import compute_counter_maps
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS, depth_normals, fuse, views_from_scene
+from engine.io.images import to_gray
 from engine.io.outputs import read_map, write_json, write_map
 from engine.metrics import depth_metrics
 from engine.patchmatch import ViewMaps
 from engine.pipeline import evaluate_cloud, patchmatch_views
-from engine.refinement import RefinementOptions
-from engine.refinement.views import refine_views, sky_filter_views
+from engine.refinement import NoDataError, RefinementOptions, refine_depth
+from engine.refinement.views import sky_filter_views
 from workbench.session import ViewerSession
 
 REPO = Path(__file__).resolve().parent.parent
@@ -85,9 +86,9 @@ def score(scene, name: str, depths, normals, preset: str) -> dict:
     return row
 
 
-def pooled_depth_metrics(scene, depths) -> dict:
+def pooled_depth_metrics(scene, depths, selected) -> dict:
     est, gt = [], []
-    for v in scene.views:
+    for v in (scene.views[i] for i in selected):
         g = scene.gt_depth(v.index)
         if g is not None:
             est.append(np.asarray(depths[v.index]).ravel())
@@ -96,7 +97,8 @@ def pooled_depth_metrics(scene, depths) -> dict:
     return {k: m[k] for k in ("abs_rel", "within_1pct", "within_5pct", "valid_fraction")}
 
 
-def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: bool) -> dict:
+def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: bool,
+        views: list[int] | None = None) -> dict:
     session = ViewerSession.open(run_dir)
     scene, data = session.scene, session.data
     if data is None:
@@ -111,55 +113,55 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
         raise SystemExit(f"{run_dir}: the run has no confidence maps; pass --proxy-confidence counter")
     print(f"{scene.name}: {len(scene.views)} views; confidence: {conf_source}")
     options = RefinementOptions(solver=solver)
+    selected = sorted(set(views)) if views else list(range(len(scene.views)))
+    if views:
+        print(f"only views {selected} are refined and fused (the others are left out of every row)")
     per_view = []
-    refined_d, refined_n = [], []
-    if reuse and all(read_map(out_dir, "refined_depth", v.name) is not None for v in scene.views):
-        refined_d = [read_map(out_dir, "refined_depth", v.name) for v in scene.views]
-        refined_n = [read_map(out_dir, "refined_normal", v.name) for v in scene.views]
-        print(f"reusing refined maps from {out_dir}")
-    else:
-        # process_time() deltas: CPU seconds of all threads, a cost measure that other load does not inflate.
-        last_cpu = [time.process_time()]
-
-        def progress(i, n, res):
-            cpu_seconds = time.process_time() - last_cpu[0]
-            v = scene.views[i]
-            if res is None:
-                depth = np.zeros(data[i].depth.shape, np.float32)
-                normal = np.zeros(depth.shape + (3,), np.float32)
-                per_view.append({"view": v.name, "empty": True})
-            else:
-                depth, normal = res.depth, res.normal
-                per_view.append({"view": v.name, "seconds": res.seconds, "cpu_seconds": cpu_seconds,
-                                 "iterations": res.iterations, "seconds_per_scale": res.seconds_per_scale,
-                                 "energy": res.energy, "shapes": res.shapes})
-                print(f"  [{i + 1}/{n}] {v.name}: {res.seconds:.1f} s wall, {per_view[-1]['cpu_seconds']:.1f} s CPU, "
-                      f"iterations {res.iterations}, s/scale {[round(s, 1) for s in res.seconds_per_scale]}",
-                      flush=True)
-            write_map(out_dir, "refined_depth", v.name, depth)
-            write_map(out_dir, "refined_normal", v.name, normal)
-            refined_d.append(depth)
-            refined_n.append(normal)
-            last_cpu[0] = time.process_time()
-
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            refine_views(scene, [d.depth for d in data], [d.normal for d in data], confidences, options, progress)
-        for w in caught:
-            print(f"  warning: {w.message}")
+    shape = [d.depth.shape for d in data]
+    refined_d = [np.zeros(s, np.float32) for s in shape]
+    refined_n = [np.zeros(s + (3,), np.float32) for s in shape]
+    for i in selected:
+        v = scene.views[i]
+        if reuse and read_map(out_dir, "refined_depth", v.name) is not None:
+            refined_d[i] = read_map(out_dir, "refined_depth", v.name)
+            refined_n[i] = read_map(out_dir, "refined_normal", v.name)
+            print(f"  {v.name}: reusing the refined maps in {out_dir}")
+            continue
+        cpu = time.process_time()
+        try:
+            res = refine_depth(to_gray(scene.image(i)), data[i].depth, confidences[i], v.camera.K_idx,
+                               v.depth_range, data[i].normal, options)
+        except NoDataError as exc:
+            print(f"  warning: view {v.name}: {exc}; its refined map is left empty")
+            per_view.append({"view": v.name, "empty": True})
+        else:
+            # process_time(): CPU seconds of all threads, a cost measure that other load does not inflate.
+            cpu = time.process_time() - cpu
+            refined_d[i], refined_n[i] = res.depth, res.normal
+            per_view.append({"view": v.name, "seconds": res.seconds, "cpu_seconds": cpu,
+                             "iterations": res.iterations, "seconds_per_scale": res.seconds_per_scale,
+                             "energy": res.energy, "shapes": res.shapes})
+            print(f"  {v.name}: {res.seconds:.1f} s wall, {cpu:.1f} s CPU, iterations {res.iterations}, "
+                  f"s/scale {[round(x, 1) for x in res.seconds_per_scale]}", flush=True)
+        write_map(out_dir, "refined_depth", v.name, refined_d[i])
+        write_map(out_dir, "refined_normal", v.name, refined_n[i])
 
     # Confidence of the refined maps: the run's second network when it exists, else the proxy on
     # counter maps recomputed on the refined maps.
     t = time.perf_counter()
     pm_views = patchmatch_views(scene)
-    empty = [np.zeros(d.shape, np.float32) for d in refined_d]
+    # Views left out keep their vanilla maps as the other side of the consistency checks.
+    src_d = [refined_d[i] if i in selected else d.depth for i, d in enumerate(data)]
+    src_n = [refined_n[i] if i in selected else d.normal for i, d in enumerate(data)]
+    empty = [np.zeros(d.shape, np.float32) for d in src_d]
     refined_counter = compute_counter_maps(
-        pm_views, [ViewMaps(d, n, e, e.astype(np.uint32)) for d, n, e in zip(refined_d, refined_n, empty, strict=True)])
+        pm_views, [ViewMaps(d, n, e, e.astype(np.uint32)) for d, n, e in zip(src_d, src_n, empty, strict=True)])
     refined_conf = [proxy_confidence(k) for k in refined_counter]
     counter_seconds = time.perf_counter() - t
 
-    vanilla_d = [d.depth for d in data]
-    vanilla_n = [d.normal for d in data]
+    keep = np.isin(np.arange(len(data)), selected)
+    vanilla_d = [d.depth if keep[i] else np.zeros_like(d.depth) for i, d in enumerate(data)]
+    vanilla_n = [d.normal if keep[i] else np.zeros_like(d.normal) for i, d in enumerate(data)]
     fast = [filter_by_confidence(d, n, c, 0.05) for d, n, c in zip(vanilla_d, vanilla_n, confidences, strict=True)]
     ref_conf = [filter_by_confidence(d, n, c, 0.05) for d, n, c in zip(refined_d, refined_n, refined_conf, strict=True)]
     full_d, full_n, sky = sky_filter_views(scene, [x[0] for x in ref_conf], [x[1] for x in ref_conf], vanilla_d,
@@ -170,10 +172,11 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
             score(scene, "ours refined + conf 0.05", [x[0] for x in ref_conf], [x[1] for x in ref_conf], "refined"),
             score(scene, "full (+ sky filter)", full_d, full_n, "refined")]
 
-    depth = {"vanilla": pooled_depth_metrics(scene, vanilla_d), "refined": pooled_depth_metrics(scene, refined_d),
-             "refined + conf 0.05 + sky": pooled_depth_metrics(scene, full_d)}
+    depth = {"vanilla": pooled_depth_metrics(scene, vanilla_d, selected),
+             "refined": pooled_depth_metrics(scene, refined_d, selected),
+             "refined + conf 0.05 + sky": pooled_depth_metrics(scene, full_d, selected)}
     err_v, err_r, n_planar = [], [], 0
-    for v in scene.views:
+    for v in (scene.views[i] for i in selected):
         gt = scene.gt_depth(v.index)
         if gt is None:
             continue
@@ -194,7 +197,8 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
                   "seconds_per_scale_mean": np.mean([p["seconds_per_scale"] for p in per_view], 0).tolist(),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
-    return {"scene": scene.name, "size": size, "run": str(run_dir), "confidence": conf_source, "solver": solver,
+    return {"scene": scene.name, "size": size, "run": str(run_dir), "views": [scene.views[i].name for i in selected],
+            "confidence": conf_source, "solver": solver,
             "refinement_options": options.to_dict(), "rows": rows, "depth": depth, "normals": normals,
             "timing": timing, "sky_pixels_dropped": int(sum(int(m.sum()) for m in sky)),
             "refined_counter_seconds": counter_seconds, "per_view": per_view}
@@ -231,9 +235,11 @@ def main() -> None:
     parser.add_argument("--proxy-confidence", choices=("counter",), default=None)
     parser.add_argument("--solver", choices=("fast", "adam"), default="fast")
     parser.add_argument("--reuse", action="store_true", help="read refined maps from --out instead of refining")
+    parser.add_argument("--views", default="", help="comma-separated view indices to refine and fuse (default all)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    table = run(args.run_dir, args.out, args.proxy_confidence, args.solver, args.reuse)
+    views = [int(v) for v in args.views.split(",") if v.strip()]
+    table = run(args.run_dir, args.out, args.proxy_confidence, args.solver, args.reuse, views)
     print_table(table)
     path = args.json or REPO / "benchmarks" / "results" / f"table3_{table['scene']}.json"
     write_json(path, table)

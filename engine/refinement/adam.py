@@ -13,6 +13,8 @@ import torch
 
 from engine.refinement.energy import ScaleProblem
 
+SMALL_PROBLEM = 65536  # pixels below which Adam runs single-threaded
+
 
 class TorchEnergy:
     """E(d, u) of one scale as a differentiable torch function (float32 unless told)."""
@@ -46,13 +48,19 @@ def solve_adam(problem: ScaleProblem, d0: np.ndarray, u0: np.ndarray, iters: int
         return d.detach().numpy().copy(), u.detach().numpy().copy(), 0
     opt = torch.optim.Adam([d, u], lr=lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=max(1, math.ceil(iters / lr_slots)), gamma=0.1)
-    with torch.no_grad():
-        d.clamp_(problem.d_min, problem.d_max)
-    for _ in range(iters):
-        opt.zero_grad(set_to_none=True)
-        f(d, u).backward()
-        opt.step()
-        sched.step()
+    threads = torch.get_num_threads()
+    if problem.size < SMALL_PROBLEM:  # intra-op threads only add synchronisation on small maps
+        torch.set_num_threads(1)
+    try:
         with torch.no_grad():
             d.clamp_(problem.d_min, problem.d_max)
+        for _ in range(iters):
+            opt.zero_grad(set_to_none=True)
+            f(d, u).backward()
+            opt.step()
+            sched.step()
+            with torch.no_grad():
+                d.clamp_(problem.d_min, problem.d_max)
+    finally:
+        torch.set_num_threads(threads)
     return d.detach().numpy().copy(), u.detach().numpy().copy(), iters
