@@ -98,7 +98,7 @@ def pooled_depth_metrics(scene, depths, selected) -> dict:
 
 
 def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: bool,
-        views: list[int] | None = None) -> dict:
+        views: list[int] | None = None, fast_iters: tuple[int, ...] | None = None) -> dict:
     session = ViewerSession.open(run_dir)
     scene, data = session.scene, session.data
     if data is None:
@@ -113,6 +113,8 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
         raise SystemExit(f"{run_dir}: the run has no confidence maps; pass --proxy-confidence counter")
     print(f"{scene.name}: {len(scene.views)} views; confidence: {conf_source}")
     options = RefinementOptions(solver=solver)
+    if fast_iters:
+        options = options.replace(fast_iters=fast_iters)
     selected = sorted(set(views)) if views else list(range(len(scene.views)))
     if views:
         print(f"only views {selected} are refined and fused (the others are left out of every row)")
@@ -236,10 +238,12 @@ def main() -> None:
     parser.add_argument("--solver", choices=("fast", "adam"), default="fast")
     parser.add_argument("--reuse", action="store_true", help="read refined maps from --out instead of refining")
     parser.add_argument("--views", default="", help="comma-separated view indices to refine and fuse (default all)")
+    parser.add_argument("--fast-iters", default="", help="primal-dual iterations per scale, coarse to fine")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     views = [int(v) for v in args.views.split(",") if v.strip()]
-    table = run(args.run_dir, args.out, args.proxy_confidence, args.solver, args.reuse, views)
+    fast_iters = tuple(int(v) for v in args.fast_iters.split(",") if v.strip()) or None
+    table = run(args.run_dir, args.out, args.proxy_confidence, args.solver, args.reuse, views, fast_iters)
     print_table(table)
     path = args.json or REPO / "benchmarks" / "results" / f"table3_{table['scene']}.json"
     write_json(path, table)

@@ -40,6 +40,9 @@ class RefinementOptions(Options):
     confidence_threshold: float | None = option(
         None, "binarise the confidence at this value (the README example uses 0.5); unset = continuous",
         metavar="T")
+    refined_conf_tau: float = option(0.05, "full pipeline: keep refined pixels whose confidence (second network) "
+                                     "is at least this", metavar="TAU")
+    sky_filter: bool = option(True, "full pipeline: drop sky and far-plane pixels of refined maps (SPEC §8)")
     hole_init: str = option("nearest", "initial depth of pixels without data: nearest valid depth "
                             "(converges faster) or the far plane (official code)", choices=HOLE_INITS)
 
@@ -63,6 +66,7 @@ class RefinementOptions(Options):
         check(self.sigma_spa > 0, "sigma_spa", self.sigma_spa, "must be > 0")
         check(1 <= self.degree <= self.window * self.window - 1, "degree", self.degree,
               "must be in 1..window*window-1")
+        check(0.0 <= self.refined_conf_tau <= 1.0, "refined_conf_tau", self.refined_conf_tau, "must be in [0, 1]")
         if self.confidence_threshold is not None:
             check(0.0 <= self.confidence_threshold <= 1.0, "confidence_threshold", self.confidence_threshold,
                   "must be in [0, 1]")
