@@ -15,6 +15,7 @@ Rows (F1 / completeness / accuracy at 2 cm and 5 cm, fused with COLMAP-style fus
     ours                          vanilla maps, preset deepc (20°)
     ours + conf 0.05 (fast)       vanilla maps filtered at c >= 0.05, preset deepc
     ours refined                  refined maps, preset refined (5°)
+    ours refined, 20° fusion      refined maps, preset deepc (separates the map change from the preset)
     ours refined + conf 0.05      refined maps filtered at c_refined >= 0.05, preset refined
     full: ... + sky filter        as above, then SPEC.md §8 (sky mask + far plane)
 Plus depth metrics (vanilla vs refined, against GT depth) and the mean / median angle between
@@ -171,6 +172,7 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
     rows = [score(scene, "ours", vanilla_d, vanilla_n, "deepc"),
             score(scene, "ours + conf 0.05 (fast)", [x[0] for x in fast], [x[1] for x in fast], "deepc"),
             score(scene, "ours refined", refined_d, refined_n, "refined"),
+            score(scene, "ours refined, 20° fusion", refined_d, refined_n, "deepc"),
             score(scene, "ours refined + conf 0.05", [x[0] for x in ref_conf], [x[1] for x in ref_conf], "refined"),
             score(scene, "full (+ sky filter)", full_d, full_n, "refined")]
 
