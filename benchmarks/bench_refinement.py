@@ -1,7 +1,7 @@
 """Refinement benchmark: speed and memory at 768x512, and the fast solver against the Adam reference.
 
     .venv/bin/python benchmarks/bench_refinement.py [--run /work/main/runs/fountain768] [--view 0]
-        [--crops 64x96,96x128] [--skip-full] [--json benchmarks/results/bench_refinement.json]
+        [--crops 64x96,96x128] [--skip-full] [--fast-iters 300,300,250,500] [--json benchmarks/results/bench_refinement.json]
 
 Input: one view of a vanilla ``deepc run`` (depth, normal, counter maps); confidence = the run's
 confidence maps or, without them, the proxy min(K, 3)/3 of the counter map (as table3_refinement.py).
@@ -73,6 +73,7 @@ def main() -> None:
     parser.add_argument("--view", type=int, default=0)
     parser.add_argument("--crops", default="64x96,96x128", help="HxW list, comma-separated ('' = none)")
     parser.add_argument("--skip-full", action="store_true")
+    parser.add_argument("--fast-iters", default="", help="primal-dual iterations per scale for the full map")
     parser.add_argument("--json", type=Path, default=REPO / "benchmarks" / "results" / "bench_refinement.json")
     args = parser.parse_args()
     inp = view_inputs(args.run, args.view)
@@ -83,7 +84,8 @@ def main() -> None:
     # Warm the numba caches so compile time is not counted.
     run_refine(crop(inp, 16, 16), RefinementOptions(scales=1, iters=(1,), lr=(1e-3,), lr_slots=(1,), fast_iters=(1,)))
     if not args.skip_full:
-        res, cpu = run_refine(inp, RefinementOptions())
+        fast_iters = tuple(int(v) for v in args.fast_iters.split(",") if v.strip())
+        res, cpu = run_refine(inp, RefinementOptions(fast_iters=fast_iters) if fast_iters else RefinementOptions())
         full = {"solver": "fast", "seconds": res.seconds, "cpu_seconds": cpu, "shapes": res.shapes,
                 "iterations_per_scale": res.iterations, "seconds_per_scale": res.seconds_per_scale,
                 "energy_per_scale": res.energy,
