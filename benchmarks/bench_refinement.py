@@ -1,7 +1,8 @@
 """Refinement benchmark: speed and memory at 768x512, and the fast solver against the Adam reference.
 
     .venv/bin/python benchmarks/bench_refinement.py [--run /work/main/runs/fountain768] [--view 0]
-        [--crops 64x96,96x128] [--skip-full] [--fast-iters 300,300,250,500] [--json benchmarks/results/bench_refinement.json]
+        [--crops 64x96,96x128] [--skip-full] [--fast-iters 300,300,250,500]
+        [--json benchmarks/results/bench_refinement.json]
 
 Input: one view of a vanilla ``deepc run`` (depth, normal, counter maps); confidence = the run's
 confidence maps or, without them, the proxy min(K, 3)/3 of the counter map (as table3_refinement.py).
