@@ -1,0 +1,89 @@
+"""Refinement and sky filtering of every view of a scene (the ``full`` pipeline's middle stages).
+
+    refined = refine_views(scene, depths, normals, confidences, options)         # SPEC.md §6
+    (confidence of the refined maps, filter c >= 0.05)                          # SPEC.md §6.6b
+    depths, normals = sky_filter_views(scene, depths, normals, vanilla_depths, vanilla_confidences)  # §8
+    fuse(..., FUSION_PRESETS["refined"])                                         # SPEC.md §7, 5°
+
+A view with nothing to refine from (:class:`NoDataError`) is reported through ``warnings`` and comes
+back as None; callers write an all-zero map for it, so it contributes nothing to fusion.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+from engine.refinement.options import RefinementOptions
+from engine.refinement.refine import NoDataError, RefinedMap, refine_depth
+from engine.sky import SkyOptions, far_mask, filter_sky, sky_mask
+
+
+def _camera(scene, i: int, shape: tuple[int, int]):
+    cam = scene.views[i].camera
+    return cam if (cam.height, cam.width) == shape else cam.rescaled(shape[1], shape[0])
+
+
+def refine_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarray | None],
+                 confidence_maps: list[np.ndarray], options: RefinementOptions | None = None,
+                 progress: Callable[[int, int, RefinedMap | None], None] | None = None) -> list[RefinedMap | None]:
+    """Refine the depth map of every view of ``scene`` (an ``engine.scene.Scene``) with its grey image,
+    camera and depth range; None for views without data (a warning names them)."""
+    from engine.io.images import resize_area, to_gray
+
+    options = (options or RefinementOptions()).validate()
+    out: list[RefinedMap | None] = []
+    for i, view in enumerate(scene.views):
+        depth = np.asarray(depth_maps[i])
+        cam = _camera(scene, i, depth.shape)
+        rgb = scene.image(i)
+        if rgb.shape[:2] != depth.shape:
+            rgb = resize_area(rgb, (depth.shape[1], depth.shape[0]))
+        try:
+            res = refine_depth(to_gray(rgb), depth, confidence_maps[i], cam.K_idx, view.depth_range,
+                               normal_maps[i], options)
+        except NoDataError as exc:
+            warnings.warn(f"view {view.name}: {exc}; its refined map is left empty", stacklevel=2)
+            res = None
+        out.append(res)
+        if progress is not None:
+            progress(i, len(scene.views), res)
+    return out
+
+
+def z99(scene, i: int) -> float:
+    """99th-percentile sparse depth of view i, recovered from its depth range (SPEC.md §1.3)."""
+    opts = scene.options
+    z_hi = scene.views[i].depth_range[1]
+    if opts.depth_range is not None:  # a fixed range: its far end stands for 1.5 z_99
+        return z_hi / 1.5
+    return z_hi / (opts.depth_stretch[1] * opts.depth_relax[1])
+
+
+def sky_filter_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarray],
+                     vanilla_depths: list[np.ndarray], vanilla_confidences: list[np.ndarray | None],
+                     options: SkyOptions | None = None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """SPEC.md §8 on refined maps: returns (depths, normals, dropped masks)."""
+    from engine.io.images import resize_area
+
+    options = (options or SkyOptions()).validate()
+    depths, normals, masks = [], [], []
+    for i in range(len(scene.views)):
+        depth = np.asarray(depth_maps[i])
+        if not options.enabled:
+            depths.append(depth)
+            normals.append(np.asarray(normal_maps[i]))
+            masks.append(np.zeros(depth.shape, bool))
+            continue
+        rgb = scene.image(i)
+        if rgb.shape[:2] != depth.shape:
+            rgb = resize_area(rgb, (depth.shape[1], depth.shape[0]))
+        sky = sky_mask(rgb, vanilla_depths[i], vanilla_confidences[i], options)
+        far = far_mask(depth, z99(scene, i), options.far_factor)
+        d, n = filter_sky(depth, normal_maps[i], sky, far)
+        depths.append(d)
+        normals.append(n)
+        masks.append(sky | far)
+    return depths, normals, masks

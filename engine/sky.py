@@ -1,0 +1,98 @@
+"""Sky filtering of refined depth maps (SPEC.md §8, the substitute for PCF-MVS's method).
+
+Refinement fills every pixel, so textureless sky receives plausible-looking depths that the
+geometric checks of fusion do not remove. Without a semantic-segmentation model (no weights can be
+downloaded here) the sky is found by a heuristic, SPEC.md §8 (b):
+
+    a pixel is sky iff it was unreliable in the *vanilla* PatchMatch output (no depth, or confidence
+    below ``conf_tau``), has low texture (grey std in a ``texture_window`` box below ``max_texture_std``),
+    is bright (grey > ``min_brightness``) or blue-dominant (B > R and B > G), and its 4-connected
+    component of such pixels touches the top image border;
+
+and, SPEC.md §8 (c), refined depths at or beyond ``far_factor`` · z_99 (z_99 = 99th percentile of the
+view's sparse-point depths) are dropped: the refinement clamps to the far end of the depth range,
+which with the default range (1.25 · 1.2 · z_99) is exactly 1.5 · z_99.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import ndimage
+
+from engine.options import Options, check, option
+
+
+@dataclasses.dataclass
+class SkyOptions(Options):
+    """Heuristic sky mask (SPEC.md §8 (b), (c))."""
+
+    enabled: bool = option(True, "drop sky pixels from refined maps before fusion")
+    conf_tau: float = option(0.05, "vanilla confidence below this counts as unreliable", metavar="TAU")
+    texture_window: int = option(7, "box size of the grey-level standard deviation", metavar="PX")
+    max_texture_std: float = option(0.02, "largest grey std (on [0, 1]) of a sky pixel", metavar="STD")
+    min_brightness: float = option(0.5, "grey level above which a low-texture pixel may be sky", metavar="G")
+    far_factor: float = option(1.5, "drop refined depths at or beyond this multiple of z_99", metavar="F")
+
+    def validate(self) -> SkyOptions:
+        super().validate()
+        check(0.0 <= self.conf_tau <= 1.0, "conf_tau", self.conf_tau, "must be in [0, 1]")
+        check(self.texture_window >= 3 and self.texture_window % 2 == 1, "texture_window", self.texture_window,
+              "must be odd and >= 3")
+        check(self.max_texture_std >= 0, "max_texture_std", self.max_texture_std, "must be >= 0")
+        check(0.0 <= self.min_brightness <= 1.0, "min_brightness", self.min_brightness, "must be in [0, 1]")
+        check(self.far_factor > 0, "far_factor", self.far_factor, "must be > 0")
+        return self
+
+
+def local_std(gray: np.ndarray, window: int) -> np.ndarray:
+    """(H, W) standard deviation of the grey level in a window x window box (replicate border)."""
+    g = np.asarray(gray, np.float64)
+    mean = ndimage.uniform_filter(g, window, mode="nearest")
+    mean_sq = ndimage.uniform_filter(g * g, window, mode="nearest")
+    return np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+
+
+def sky_mask(rgb: np.ndarray, vanilla_depth: np.ndarray, vanilla_confidence: np.ndarray | None = None,
+             options: SkyOptions | None = None) -> np.ndarray:
+    """(H, W) bool: pixels the heuristic of SPEC.md §8 (b) calls sky.
+
+    Args:
+        rgb: (H, W, 3) float image in [0, 1].
+        vanilla_depth: (H, W) vanilla PatchMatch depth, 0 = none.
+        vanilla_confidence: (H, W) confidence of the vanilla maps in [0, 1]; None = only pixels
+            without depth count as unreliable.
+    """
+    options = (options or SkyOptions()).validate()
+    rgb = np.asarray(rgb, np.float64)
+    depth = np.asarray(vanilla_depth)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[:2] != depth.shape:
+        raise ValueError(f"rgb {rgb.shape} and depth {depth.shape} must be (H, W, 3) and (H, W)")
+    unreliable = ~(np.isfinite(depth) & (depth > 0))
+    if vanilla_confidence is not None:
+        conf = np.asarray(vanilla_confidence, np.float64)
+        if conf.shape != depth.shape:
+            raise ValueError(f"confidence {conf.shape} and depth {depth.shape} differ in shape")
+        unreliable |= ~(conf >= options.conf_tau)
+    gray = rgb @ np.array([0.299, 0.587, 0.114])
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    looks_like_sky = (gray > options.min_brightness) | ((b > r) & (b > g))
+    candidate = unreliable & looks_like_sky & (local_std(gray, options.texture_window) < options.max_texture_std)
+    labels, _ = ndimage.label(candidate)  # default structure = 4-connectivity
+    touching = np.unique(labels[0][labels[0] > 0])
+    return np.isin(labels, touching) & candidate
+
+
+def far_mask(depth: np.ndarray, z99: float, far_factor: float = 1.5) -> np.ndarray:
+    """(H, W) bool: depths at or beyond far_factor · z99 (a relative 1e-4 margin catches depths clamped
+    to the far plane)."""
+    return np.asarray(depth) >= far_factor * z99 * (1.0 - 1e-4)
+
+
+def filter_sky(depth: np.ndarray, normal: np.ndarray, sky: np.ndarray, far: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """New (depth, normal) with the pixels of ``sky | far`` set to 0."""
+    drop = np.asarray(sky, bool) | np.asarray(far, bool)
+    return (np.where(drop, 0.0, depth).astype(np.float32),
+            np.where(drop[..., None], 0.0, normal).astype(np.float32))
