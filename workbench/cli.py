@@ -36,6 +36,11 @@ def _eval(args: argparse.Namespace) -> int:
     return cmd_eval(args)
 
 
+def _train(args: argparse.Namespace) -> int:
+    from workbench.train_command import cmd_train
+    return cmd_train(args)
+
+
 def _view(args: argparse.Namespace) -> int:
     from workbench.viewer import serve
     serve(args.target, host=args.host, port=args.port)
@@ -58,7 +63,7 @@ RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_prop
                         "view_sampling", "levels", "geom_passes", "num_threads"]
 
 
-SET_SECTIONS = ("patchmatch", "fusion", "stream")
+SET_SECTIONS = ("patchmatch", "confidence", "fusion", "stream")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -76,12 +81,20 @@ def cmd_run(args: argparse.Namespace) -> int:
                                    **section_overrides(args.set, "patchmatch", PatchMatchOptions))
     fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[args.fusion_preset],
                                **section_overrides(args.set, "fusion", FusionOptions))
-    options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, fusion=fusion).validate()
+    from engine.confidence.options import ConfidenceOptions
+    confidence = ConfidenceOptions(**section_overrides(args.set, "confidence", ConfidenceOptions))
+    if args.weights:
+        confidence = confidence.replace(weights=str(Path(args.weights).resolve()))
+    options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, confidence=confidence,
+                              fusion=fusion).validate()
     from workbench.stream import StreamOptions
     stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
-    if options.pipeline != "vanilla":
-        raise NotYetImplemented(f"deepc run --pipeline {options.pipeline}: the confidence network does not "
-                                "exist yet in this version (use --pipeline vanilla)")
+    if options.pipeline == "full":
+        raise NotYetImplemented("deepc run --pipeline full: confidence-guided refinement does not exist yet in "
+                                "this version (use --pipeline fast or vanilla)")
+    if options.pipeline == "fast":
+        from engine.confidence.weights import read_weights_file
+        read_weights_file(options.confidence.weights or _default_weights())  # bad weights fail before PatchMatch
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
@@ -117,6 +130,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _default_weights() -> Path:
+    from engine.confidence.weights import DEFAULT_WEIGHTS
+    return DEFAULT_WEIGHTS
+
+
 def _open_recording(path: str | None, scene, options, stream_options, live_url: str | None = None):
     from layouts import DEFAULT, LAYOUTS
     from workbench.recording import Recording
@@ -141,6 +159,10 @@ def _print_run_summary(metrics: dict, out: str) -> None:
         d = metrics["depth"]
         print(f"depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
               f"valid {d['valid_fraction']:.1f}%, abs rel {d['abs_rel']:.4f}")
+    if metrics["pipeline"] == "fast":
+        auc = f", ROC-AUC vs labels {metrics['confidence_auc']:.2f}" if "confidence_auc" in metrics else ""
+        print(f"confidence: {seconds['confidence']:.1f} s, {metrics['confidence_kept_pct']:.1f}% of the estimates "
+              f"kept at tau {metrics['options']['confidence']['tau']:g}{auc}")
     print(f"fused cloud: {metrics['fused_points']:,} points ({seconds['fusion']:.1f} s)")
     if "eval" in metrics:
         e = metrics["eval"]
@@ -173,8 +195,13 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the flags below override single values")
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
                                                          "min_num_pixels"])
+    run.add_argument("--weights", metavar="FILE", default=None,
+                     help="confidence-network weights for --pipeline fast (default: the shipped "
+                          "engine/confidence/weights/deepc_middle.pt); the filter threshold is "
+                          "--set confidence.tau=0.05")
     run.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                     help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set fusion.check_num_images=20, "
+                     help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
+                          "--set fusion.check_num_images=20, "
                           "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
     run.add_argument("--record", metavar="FILE.rrd", nargs="?", const="", default=None,
                      help="write a rerun recording (default path: OUT/recording.rrd)")
@@ -221,9 +248,12 @@ def build_parser() -> argparse.ArgumentParser:
     regress.add_argument("--record", action="store_true", help="also record .rrd files")
     regress.set_defaults(handler=_not_yet("regress", "the regression mode"))
 
-    train = sub.add_parser("train", help="train the confidence network")
-    train.add_argument("scenes", nargs="*", help="scenes with ground truth")
-    train.set_defaults(handler=_not_yet("train", "the confidence network"))
+    train = sub.add_parser("train", help="train the confidence network on scenes with GT depth",
+                           description="Run the engine on scenes with GT depth (cached), label the maps and "
+                                       "train the confidence network; resumable, deterministic for a seed.")
+    from workbench.train_command import add_train_arguments
+    add_train_arguments(train)
+    train.set_defaults(handler=_train)
     return parser
 
 

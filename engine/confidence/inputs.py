@@ -1,0 +1,39 @@
+"""Network inputs per reference view (SPEC.md §4.1): RGB, normals in polar coordinates, counter map.
+
+Channel order of the 6-channel input: 0-2 RGB in [0, 1]; 3 θ/(π/2) clipped to [0, 1] with θ the
+angle between the normal and the direction facing the camera; 4 (φ + π)/(2π) with φ = atan2(n_y, n_x);
+5 min(K, cap)/cap. Invalid pixels (zero normal) encode as (0, 0). The depth itself is not an input.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+RGB, NORMAL, COUNTER = slice(0, 3), slice(3, 5), slice(5, 6)
+NUM_CHANNELS = 6
+
+
+def encode_normals(normal: np.ndarray) -> np.ndarray:
+    """(H, W, 3) camera-frame normals -> (H, W, 2) float32 polar encoding; zero normals -> (0, 0)."""
+    n = np.asarray(normal, np.float32)
+    valid = np.any(n != 0, axis=-1)
+    theta = np.arccos(np.clip(-n[..., 2], -1.0, 1.0)) / (np.pi / 2)
+    phi = (np.arctan2(n[..., 1], n[..., 0]) + np.pi) / (2 * np.pi)
+    out = np.stack([np.clip(theta, 0.0, 1.0), phi], axis=-1).astype(np.float32)
+    out[~valid] = 0.0
+    return out
+
+
+def network_inputs(rgb: np.ndarray, normal: np.ndarray, counter: np.ndarray, cap: int = 10) -> np.ndarray:
+    """(6, H, W) float32 network input from (H, W, 3) RGB (uint8 or float in [0, 1]), (H, W, 3)
+    normals and the (H, W) counter map."""
+    rgb = np.asarray(rgb)
+    rgb = rgb.astype(np.float32) / 255.0 if rgb.dtype == np.uint8 else rgb.astype(np.float32)
+    h, w = rgb.shape[:2]
+    if normal.shape != (h, w, 3) or counter.shape != (h, w):
+        raise ValueError(f"RGB {rgb.shape}, normal {normal.shape} and counter {counter.shape} do not match")
+    out = np.empty((NUM_CHANNELS, h, w), np.float32)
+    out[RGB] = np.moveaxis(rgb, -1, 0)
+    out[NORMAL] = np.moveaxis(encode_normals(normal), -1, 0)
+    out[COUNTER] = np.minimum(np.asarray(counter, np.float32), cap)[None] / cap
+    return out
