@@ -15,6 +15,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from engine.errors import DeepCError
 from engine.io.outputs import write_json
 
@@ -52,6 +54,10 @@ def add_train_arguments(train: argparse.ArgumentParser) -> None:
                             "checkpoint is resumed")
     train.add_argument("--max-epochs", type=int, default=None, metavar="N",
                        help="stop after this many epochs in total (resume later to go on)")
+    train.add_argument("--init", default=None, metavar="WEIGHTS.pt",
+                       help="start from these weights (warm start) instead of a random initialisation")
+    train.add_argument("--validation-max-views", type=int, default=0, metavar="N",
+                       help="score at most N evenly spaced views of each validation set per epoch (0 = all)")
     engine_group = train.add_argument_group("engine runs on training scenes")
     engine_group.add_argument("--num-source-views", type=int, default=4, metavar="N")
     engine_group.add_argument("--max-image-size", type=int, default=0, metavar="PX")
@@ -90,6 +96,12 @@ def _load(runs: list[Path]):
     return samples
 
 
+def _subset(samples: list, count: int) -> list:
+    if count <= 0 or len(samples) <= count:
+        return samples
+    return [samples[int(i)] for i in np.linspace(0, len(samples) - 1, count).round()]
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from engine.confidence.training import TrainOptions, ValidationSet, train
     from engine.patchmatch import PatchMatchOptions
@@ -113,10 +125,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     validation = []
     for path in args.validation:
         run = _resolve_runs([path], [], cache, scene_options, pipeline_options)
-        validation.append(ValidationSet(Path(path).name, _load(run)))
+        validation.append(ValidationSet(Path(path).name, _subset(_load(run), args.validation_max_views)))
     if args.validation_synthetic:
         runs = _resolve_runs([], args.validation_synthetic, cache, scene_options, pipeline_options)
-        validation.append(ValidationSet("synthetic_heldout", _load(runs)))
+        validation.append(ValidationSet("synthetic_heldout", _subset(_load(runs), args.validation_max_views)))
     overlap = {s.scene for s in train_samples} & {s.scene for v in validation for s in v.samples}
     if overlap:
         raise DeepCError(f"scene(s) {', '.join(sorted(overlap))} are both in training and validation")
@@ -139,10 +151,14 @@ def cmd_train(args: argparse.Namespace) -> int:
                  f"{' (best so far, saved)' if event['improved'] else ''}; train {event['train_seconds']:.0f} s, "
                  f"validation {event['validation_seconds']:.0f} s")
 
-    data_names = [s.scene for s in train_samples[::1]]
-    data_names = sorted(set(data_names))
+    data_names = sorted({s.scene for s in train_samples})
+    init = None
+    if args.init:
+        from engine.confidence.weights import load_weights
+        init = load_weights(args.init)
     result = train(train_samples, validation, options, checkpoint, out, progress=progress,
-                   data_names=data_names, max_epochs=args.max_epochs)
+                   data_names=data_names, max_epochs=args.max_epochs, init=init,
+                   init_name=str(Path(args.init).resolve()) if args.init else "")
     result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
     write_json(out.with_name(out.stem + ".history.json"), result)
     best = result["best"]

@@ -142,11 +142,14 @@ def _state_bytes(obj: Any) -> bytes:
 def train(train_samples: list[ViewSample], validation: list[ValidationSet], options: TrainOptions,
           checkpoint: str | Path, weights_out: str | Path | None = None,
           progress: Callable[[dict], None] | None = None, data_names: list[str] | None = None,
-          max_epochs: int | None = None) -> dict[str, Any]:
+          max_epochs: int | None = None, init: ConfidenceNet | None = None,
+          init_name: str = "") -> dict[str, Any]:
     """Train (or resume from ``checkpoint``) and write the best model to ``weights_out`` (fp16).
 
     ``data_names`` identify the training data in the checkpoint: resuming with other data or options is
     an error. ``max_epochs`` stops early (after that many epochs in total) without changing the schedule.
+    ``init``: start from these weights (warm start, named ``init_name`` in the checkpoint) instead of a
+    seeded random initialisation; it must have the architecture ``options.fusion`` asks for.
     Returns the history (per-epoch loss, validation, seconds) and the best epoch."""
     options = options.validate()
     progress = progress or (lambda event: None)
@@ -158,10 +161,15 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
         torch.set_num_threads(options.num_threads)
     torch.manual_seed(options.seed)
     model = ConfidenceNet(options.fusion)
+    if init is not None:
+        if init.architecture != model.architecture:
+            raise DeepCError(f"initial weights are for {init.architecture}, training asks for {model.architecture}",
+                             init_name or None)
+        model.load_state_dict(init.state_dict())
     optimizer = torch.optim.Adam(model.parameters(), lr=options.lr, betas=(0.9, 0.999))
     loss_fn = loss_function(options.loss)
     checkpoint = Path(checkpoint)
-    identity = {"options": options.to_dict(), "data": list(data_names or [])}
+    identity = {"options": options.to_dict(), "data": list(data_names or []), "init": init_name}
     state: dict[str, Any] = {"epoch": 0, "history": [], "best": None}
     if checkpoint.is_file():
         try:
@@ -208,7 +216,7 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
         if improved:
             state["best"] = {"epoch": epoch + 1, "score": score, "validation": val}
             if weights_out is not None:
-                save_weights(weights_out, model, _meta(options, state, data_names, model))
+                save_weights(weights_out, model, _meta(options, state, data_names, model, init_name))
         state["epoch"] = epoch + 1
         atomic_write_bytes(checkpoint, _state_bytes({
             "identity": identity, "model": model.state_dict(), "optimizer": optimizer.state_dict(), **state}))
@@ -217,8 +225,9 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
             "parameters": parameter_count(model)}
 
 
-def _meta(options: TrainOptions, state: dict, data_names: list[str] | None, model: ConfidenceNet) -> dict:
+def _meta(options: TrainOptions, state: dict, data_names: list[str] | None, model: ConfidenceNet,
+          identity_init: str = "") -> dict:
     return {"trained": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "options": options.to_dict(), "epoch": state["best"]["epoch"], "validation": state["best"]["validation"],
-            "train_data": list(data_names or []), "parameters": parameter_count(model),
+            "train_data": list(data_names or []), "init": identity_init, "parameters": parameter_count(model),
             "train_seconds": float(sum(h["train_seconds"] for h in state["history"]))}
