@@ -201,7 +201,7 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            losses.append(float(loss))
+            losses.append(float(loss.detach()))
             progress({"kind": "step", "epoch": epoch, "step": i, "steps": options.steps_per_epoch,
                       "loss": losses[-1]})
         train_seconds = time.perf_counter() - t0
