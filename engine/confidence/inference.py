@@ -34,7 +34,7 @@ def _starts(size: int, core: int) -> list[int]:
     return list(range(0, size, core)) if size > 0 else [0]
 
 
-def predict_confidence(model: ConfidenceNet, inputs: np.ndarray, tile: int = 512, overlap: int = 48,
+def predict_confidence(model: ConfidenceNet, inputs: np.ndarray, tile: int = 1024, overlap: int = 64,
                        bf16: bool = False) -> np.ndarray:
     """(6, H, W) network input -> (H, W) float32 confidence in [0, 1]."""
     model.eval()

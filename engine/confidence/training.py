@@ -50,6 +50,8 @@ class TrainOptions(Options):
     lr: float = option(1e-3, "initial Adam learning rate", metavar="LR")
     lr_final: float = option(1e-4, "learning rate at the end (cosine decay)", metavar="LR")
     flip: bool = option(True, "random horizontal flips (n_x negated)")
+    color_jitter: float = option(0.2, "random per-crop RGB gain/bias of this size (photometric augmentation for "
+                                 "the transfer to photographs; 0 = off)", metavar="S")
     bf16: bool = option(True, "bfloat16 autocast for the forward pass (about 2x faster on AVX-512 CPUs)")
     seed: int = option(0, "seed of initialisation and crop sampling", metavar="N")
     num_threads: int = option(0, "torch threads (0 = torch's default)", metavar="N")
@@ -59,6 +61,7 @@ class TrainOptions(Options):
         for name in ("epochs", "steps_per_epoch", "batch"):
             check(getattr(self, name) >= 1, name, getattr(self, name), "must be >= 1")
         check(self.crop >= 32 and self.crop % 16 == 0, "crop", self.crop, "must be a multiple of 16, at least 32")
+        check(0.0 <= self.color_jitter < 1.0, "color_jitter", self.color_jitter, "must be in [0, 1)")
         check(0.0 <= self.min_labelled < 1.0, "min_labelled", self.min_labelled, "must be in [0, 1)")
         check(self.lr > 0 and self.lr_final > 0, "lr", self.lr, "learning rates must be positive")
         return self
@@ -109,7 +112,13 @@ def draw_batch(samples: list[ViewSample], options: TrainOptions, size: tuple[int
         x, y = s.inputs[:, y0:y0 + ch, x0:x0 + cw], s.labels[y0:y0 + ch, x0:x0 + cw]
         if options.flip and rng.random() < 0.5:
             x, y = flip_horizontal(x, y)
-        xs.append(np.asarray(x, np.float32))
+        x = np.array(x, np.float32)
+        if options.color_jitter > 0:
+            s_ = options.color_jitter
+            gain = rng.uniform(1 - s_, 1 + s_) * rng.uniform(1 - s_ / 4, 1 + s_ / 4, 3)
+            bias = rng.uniform(-s_ / 2, s_ / 2)
+            x[:3] = np.clip(x[:3] * gain[:, None, None] + bias, 0.0, 1.0)
+        xs.append(x)
         ys.append(np.asarray(y, np.int64))
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))[:, None]
 
