@@ -58,6 +58,8 @@ def add_train_arguments(train: argparse.ArgumentParser) -> None:
                        help="start from these weights (warm start) instead of a random initialisation")
     train.add_argument("--validation-max-views", type=int, default=0, metavar="N",
                        help="score at most N evenly spaced views of each validation set per epoch (0 = all)")
+    train.add_argument("--model-card", default=None, metavar="FILE.md",
+                       help="also write a model card (data, options, validation ROC-AUC per scene, date)")
     engine_group = train.add_argument_group("engine runs on training scenes")
     engine_group.add_argument("--num-source-views", type=int, default=4, metavar="N")
     engine_group.add_argument("--max-image-size", type=int, default=0, metavar="PX")
@@ -162,6 +164,45 @@ def cmd_train(args: argparse.Namespace) -> int:
     result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
     write_json(out.with_name(out.stem + ".history.json"), result)
     best = result["best"]
+    if args.model_card:
+        write_model_card(Path(args.model_card), out, result, train_runs, args)
     print(json.dumps({"weights": str(out), "best_epoch": best["epoch"], "score": best["score"],
                       "epochs_done": result["epochs_done"]}))
     return 0
+
+
+def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[Path], args: argparse.Namespace) -> None:
+    """A Markdown model card for the best weights of a training."""
+    import datetime
+
+    from engine.confidence.weights import load_weights
+    from engine.io.atomic import atomic_write_text
+
+    model = load_weights(weights)
+    meta = model.meta
+    best = result["best"]
+    history = result["history"]
+    lines = [
+        f"# Confidence network weights: `{weights.name}`", "",
+        f"- Written: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; best epoch "
+        f"{best['epoch']} of {result['epochs_done']} (trained {meta.get('trained')}).",
+        f"- Architecture: DeepC U-Net, {model.fusion} fusion, widths {list(model.widths)}, "
+        f"{result['parameters']:,} parameters; stored as fp16 ({weights.stat().st_size / 2**20:.1f} MB).",
+        f"- Training time: {sum(h['train_seconds'] for h in history) / 60:.1f} min of optimisation + "
+        f"{sum(h['validation_seconds'] for h in history) / 60:.1f} min of validation on a shared 2-core CPU"
+        + (f"; warm start from `{meta['init']}`" if meta.get("init") else "") + ".",
+        f"- Training data ({len(train_runs)} scenes, whole scenes only): "
+        + ", ".join(sorted(Path(r).name for r in train_runs)) + ". Engine runs: vanilla PatchMatch, "
+        f"schedule {args.schedule}, {args.num_source_views} source views, labels per SPEC.md §4.3 (2 px).",
+        "- Options: " + ", ".join(f"{k}={v}" for k, v in meta.get("options", {}).items()), "",
+        "## Validation ROC-AUC ×100 (pooled over labelled pixels) at the selected epoch", "",
+        "| set | views | ROC-AUC | inliers |", "|---|---|---|---|",
+    ]
+    for name, v in best["validation"]["sets"].items():
+        lines.append(f"| {name} | {len(v['per_view'])} | {v['auc']:.2f} | {100 * v['inlier_fraction']:.1f}% |")
+    lines += ["", "## History", "", "| epoch | loss | " + " | ".join(best["validation"]["sets"]) + " |",
+              "|---|---|" + "---|" * len(best["validation"]["sets"])]
+    for h in history:
+        aucs = " | ".join(f"{v['auc']:.2f}" for v in h["validation"]["sets"].values())
+        lines.append(f"| {h['epoch']} | {h['loss']:.4f} | {aucs} |")
+    atomic_write_text(path, "\n".join(lines) + "\n")
