@@ -19,6 +19,7 @@ import numpy as np
 
 from engine.confidence.apply import auc_report, predict_samples
 from engine.confidence.data import load_run
+from engine.confidence.options import ConfidenceOptions
 from engine.confidence.weights import load_weights
 from engine.io.outputs import write_json
 
@@ -37,6 +38,7 @@ def main() -> None:
     parser.add_argument("--variant", type=_pair, action="append", required=True, metavar="NAME=WEIGHTS.pt")
     parser.add_argument("--run", type=_pair, action="append", required=True, metavar="NAME=RUN_DIR")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "confidence_auc.json")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch's default)")
     args = parser.parse_args()
 
     models = {name: load_weights(path) for name, path in args.variant}
@@ -55,7 +57,7 @@ def main() -> None:
             if samples[0].scene in trained_on:
                 raise SystemExit(f"{vname} was trained on {samples[0].scene}: not a held-out scene")
             t = time.perf_counter()
-            report = auc_report(samples, predict_samples(model, samples))
+            report = auc_report(samples, predict_samples(model, samples, ConfidenceOptions(num_threads=args.threads)))
             report["seconds"] = time.perf_counter() - t
             row["scenes"][rname] = report
             print(f"{vname:<16} {rname:<14} AUC {report['auc']:6.2f} (mean per view {report['auc_mean_per_view']:6.2f}"
