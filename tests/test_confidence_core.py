@@ -101,12 +101,13 @@ def test_polar_normal_encoding_and_flip():
     np.testing.assert_allclose(np.cos(phi)[keep] * np.hypot(n[..., 0], n[..., 1])[keep], n[..., 0][keep], atol=1e-5)
 
     rgb = rng.integers(0, 255, (5, 7, 3), dtype=np.uint8)
-    counter = rng.integers(0, 14, (5, 7))
-    x = network_inputs(rgb, n, counter)
-    assert x.shape == (6, 5, 7) and x[5].max() <= 1.0 and np.isclose(x[0, 2, 3], rgb[2, 3, 0] / 255)
+    counter = rng.integers(0, 6, (5, 7))
+    x = network_inputs(rgb, n, counter, 4)
+    assert x.shape == (6, 5, 7) and x[5].max() == 1.0 and np.isclose(x[0, 2, 3], rgb[2, 3, 0] / 255)
+    np.testing.assert_allclose(x[5], np.minimum(counter, 4) / 4)
     mirrored = n[:, ::-1].copy()
     mirrored[..., 0] *= -1
-    expected = network_inputs(rgb[:, ::-1], mirrored, counter[:, ::-1])
+    expected = network_inputs(rgb[:, ::-1], mirrored, counter[:, ::-1], 4)
     labels = rng.integers(-1, 2, (5, 7)).astype(np.int8)
     flipped, flipped_labels = flip_horizontal(x, labels)
     # φ wraps at ±π: compare on the circle

@@ -84,7 +84,7 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
         labels = view_labels(scene, v.index, depth, label_px)
         if labels is None:
             labels = np.full(depth.shape, -1, np.int8)
-        inputs = network_inputs(rgb, maps["normal"], maps["counter"]).astype(np.float16)
+        inputs = network_inputs(rgb, maps["normal"], maps["counter"], len(v.source_views)).astype(np.float16)
         samples.append(ViewSample(scene.name, v.name, inputs, labels))
     return samples
 

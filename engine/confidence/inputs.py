@@ -2,7 +2,14 @@
 
 Channel order of the 6-channel input: 0-2 RGB in [0, 1]; 3 θ/(π/2) clipped to [0, 1] with θ the
 angle between the normal and the direction facing the camera; 4 (φ + π)/(2π) with φ = atan2(n_y, n_x);
-5 min(K, cap)/cap. Invalid pixels (zero normal) encode as (0, 0). The depth itself is not an input.
+5 min(K, N)/N with N the number of source views of the reference. Invalid pixels (zero normal) encode as
+(0, 0). The depth itself is not an input.
+
+Counter normalisation: SPEC.md §4.1 recommends min(K, 10)/10. We divide by the number of source views
+instead, so that the channel means "fraction of consistent source views" whatever N a run used: with
+min(K, 10)/10, a network trained on runs with 4 source views never sees values above 0.4, yet runs with
+5 (fountain_p11 validation) or 10 views (the CLI default) are mostly above it, and the confidence of such
+runs came out erratic (fountain ROC-AUC 46-87 between epochs in a first training).
 """
 
 from __future__ import annotations
@@ -24,9 +31,9 @@ def encode_normals(normal: np.ndarray) -> np.ndarray:
     return out
 
 
-def network_inputs(rgb: np.ndarray, normal: np.ndarray, counter: np.ndarray, cap: int = 10) -> np.ndarray:
+def network_inputs(rgb: np.ndarray, normal: np.ndarray, counter: np.ndarray, num_sources: int) -> np.ndarray:
     """(6, H, W) float32 network input from (H, W, 3) RGB (uint8 or float in [0, 1]), (H, W, 3)
-    normals and the (H, W) counter map."""
+    normals, the (H, W) counter map and the number of source views the counter was counted over."""
     rgb = np.asarray(rgb)
     rgb = rgb.astype(np.float32) / 255.0 if rgb.dtype == np.uint8 else rgb.astype(np.float32)
     h, w = rgb.shape[:2]
@@ -35,5 +42,6 @@ def network_inputs(rgb: np.ndarray, normal: np.ndarray, counter: np.ndarray, cap
     out = np.empty((NUM_CHANNELS, h, w), np.float32)
     out[RGB] = np.moveaxis(rgb, -1, 0)
     out[NORMAL] = np.moveaxis(encode_normals(normal), -1, 0)
-    out[COUNTER] = np.minimum(np.asarray(counter, np.float32), cap)[None] / cap
+    n = max(1, int(num_sources))
+    out[COUNTER] = np.clip(np.asarray(counter, np.float32), 0, n)[None] / n
     return out
