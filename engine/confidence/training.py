@@ -26,6 +26,7 @@ import torch
 
 from engine.confidence.data import ViewSample, flip_horizontal
 from engine.confidence.inference import _autocast, predict_confidence
+from engine.confidence.inputs import NORMAL, encode_normals
 from engine.confidence.losses import LOSSES, loss_function
 from engine.confidence.metrics import roc_auc
 from engine.confidence.network import FUSIONS, ConfidenceNet, parameter_count
@@ -50,6 +51,9 @@ class TrainOptions(Options):
     lr: float = option(1e-3, "initial Adam learning rate", metavar="LR")
     lr_final: float = option(1e-4, "learning rate at the end (cosine decay)", metavar="LR")
     flip: bool = option(True, "random horizontal flips (n_x negated)")
+    normal_noise: float = option(0.3, "per crop, perturb the normals by Gaussian noise of a random size up to this "
+                                 "(unit-vector units): PatchMatch normals of real, curved surfaces are much noisier "
+                                 "than those of the piecewise-planar synthetic scenes (0 = off)", metavar="S")
     color_jitter: float = option(0.2, "random per-crop RGB gain/bias of this size (photometric augmentation for "
                                  "the transfer to photographs; 0 = off)", metavar="S")
     bf16: bool = option(True, "bfloat16 autocast for the forward pass (about 2x faster on AVX-512 CPUs)")
@@ -61,6 +65,7 @@ class TrainOptions(Options):
         for name in ("epochs", "steps_per_epoch", "batch"):
             check(getattr(self, name) >= 1, name, getattr(self, name), "must be >= 1")
         check(self.crop >= 32 and self.crop % 16 == 0, "crop", self.crop, "must be a multiple of 16, at least 32")
+        check(0.0 <= self.normal_noise <= 2.0, "normal_noise", self.normal_noise, "must be in [0, 2]")
         check(0.0 <= self.color_jitter < 1.0, "color_jitter", self.color_jitter, "must be in [0, 1)")
         check(0.0 <= self.min_labelled < 1.0, "min_labelled", self.min_labelled, "must be in [0, 1)")
         check(self.lr > 0 and self.lr_final > 0, "lr", self.lr, "learning rates must be positive")
@@ -113,6 +118,8 @@ def draw_batch(samples: list[ViewSample], options: TrainOptions, size: tuple[int
         if options.flip and rng.random() < 0.5:
             x, y = flip_horizontal(x, y)
         x = np.array(x, np.float32)
+        if options.normal_noise > 0:
+            perturb_normals(x, rng.uniform(0, options.normal_noise), rng)
         if options.color_jitter > 0:
             s_ = options.color_jitter
             gain = rng.uniform(1 - s_, 1 + s_) * rng.uniform(1 - s_ / 4, 1 + s_ / 4, 3)
@@ -121,6 +128,20 @@ def draw_batch(samples: list[ViewSample], options: TrainOptions, size: tuple[int
         xs.append(x)
         ys.append(np.asarray(y, np.int64))
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))[:, None]
+
+
+def perturb_normals(x: np.ndarray, sigma: float, rng: np.random.Generator) -> None:
+    """Add isotropic Gaussian noise of size ``sigma`` to the unit normals encoded in (6, H, W) ``x`` (in place);
+    the result is renormalised, turned to face the camera and re-encoded; invalid pixels stay (0, 0)."""
+    theta_e, phi_e = x[NORMAL.start], x[NORMAL.start + 1]
+    valid = (theta_e != 0) | (phi_e != 0)
+    theta, phi = theta_e * (np.pi / 2), phi_e * (2 * np.pi) - np.pi
+    n = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], axis=-1)
+    n = n + rng.normal(0.0, sigma, n.shape).astype(np.float32)
+    n[..., 2] = -np.abs(n[..., 2])
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
+    enc = encode_normals(n)
+    x[NORMAL] = np.where(valid, np.moveaxis(enc, -1, 0), 0)
 
 
 def validate_model(model: ConfidenceNet, sets: list[ValidationSet], bf16: bool = True) -> dict[str, Any]:
