@@ -86,15 +86,15 @@ def test_label_map_matches_a_plain_loop(seed):
 def test_polar_normal_encoding_and_flip():
     rng = np.random.default_rng(0)
     n = rng.normal(size=(5, 7, 3))
-    n[..., 2] = -np.abs(n[..., 2])  # facing the camera
+    n[0, 1] = (0.0, 0.6, 0.8)  # facing away: θ > 90° stays distinct from grazing
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     n[0, 0] = 0.0
     n[1, 1] = (0.0, 0.0, -1.0)
     enc = encode_normals(n)
     assert enc.shape == (5, 7, 2) and enc.dtype == np.float32
-    assert (enc[0, 0] == 0).all() and enc[1, 1, 0] == 0
+    assert (enc[0, 0] == 0).all() and enc[1, 1, 0] == 0 and enc[0, 1, 0] > 0.5
     assert (enc >= 0).all() and (enc <= 1).all()
-    theta = enc[..., 0] * np.pi / 2
+    theta = enc[..., 0] * np.pi
     np.testing.assert_allclose(np.cos(theta)[n.any(-1)], -n[..., 2][n.any(-1)], atol=1e-6)
     phi = enc[..., 1] * 2 * np.pi - np.pi
     keep = n.any(-1) & (np.hypot(n[..., 0], n[..., 1]) > 1e-3)

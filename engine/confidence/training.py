@@ -132,13 +132,12 @@ def draw_batch(samples: list[ViewSample], options: TrainOptions, size: tuple[int
 
 def perturb_normals(x: np.ndarray, sigma: float, rng: np.random.Generator) -> None:
     """Add isotropic Gaussian noise of size ``sigma`` to the unit normals encoded in (6, H, W) ``x`` (in place);
-    the result is renormalised, turned to face the camera and re-encoded; invalid pixels stay (0, 0)."""
+    the result is renormalised and re-encoded; invalid pixels stay (0, 0)."""
     theta_e, phi_e = x[NORMAL.start], x[NORMAL.start + 1]
     valid = (theta_e != 0) | (phi_e != 0)
-    theta, phi = theta_e * (np.pi / 2), phi_e * (2 * np.pi) - np.pi
+    theta, phi = theta_e * np.pi, phi_e * (2 * np.pi) - np.pi
     n = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], axis=-1)
     n = n + rng.normal(0.0, sigma, n.shape).astype(np.float32)
-    n[..., 2] = -np.abs(n[..., 2])
     n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
     enc = encode_normals(n)
     x[NORMAL] = np.where(valid, np.moveaxis(enc, -1, 0), 0)
