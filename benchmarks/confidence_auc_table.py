@@ -6,7 +6,8 @@
 Each ``--run`` is a finished ``deepc run`` folder of a scene with GT depth that no variant was trained on
 (whole scenes, never views of a training scene: the script refuses a run whose scene is in a variant's
 training data). Labels follow SPEC.md §4.3; ROC-AUC ×100 pooled over all labelled pixels of the scene
-(and the mean of the per-view AUCs), inference as ``--pipeline fast`` runs it (bf16 autocast).
+(and the mean of the per-view AUCs), inference as ``--pipeline fast`` runs it (bf16 autocast, confidence 0
+where the normal faces away from the camera); ``network_only`` holds the AUC without that rule.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 from engine.confidence.apply import auc_report, predict_samples
 from engine.confidence.data import load_run
+from engine.confidence.inference import facing_away
 from engine.confidence.options import ConfidenceOptions
 from engine.confidence.weights import load_weights
 from engine.io.outputs import write_json
@@ -57,17 +59,22 @@ def main() -> None:
             if samples[0].scene in trained_on:
                 raise SystemExit(f"{vname} was trained on {samples[0].scene}: not a held-out scene")
             t = time.perf_counter()
-            report = auc_report(samples, predict_samples(model, samples, ConfidenceOptions(num_threads=args.threads)))
+            raw = predict_samples(model, samples, ConfidenceOptions(num_threads=args.threads, zero_backfacing=False))
+            report = auc_report(samples, [np.where(facing_away(s.inputs), np.float32(0), c)
+                                          for s, c in zip(samples, raw, strict=True)])
+            report["network_only"] = auc_report(samples, raw)
             report["seconds"] = time.perf_counter() - t
             row["scenes"][rname] = report
-            print(f"{vname:<16} {rname:<14} AUC {report['auc']:6.2f} (mean per view {report['auc_mean_per_view']:6.2f}"
-                  f", inliers {report['inlier_pct']:.1f}%)", flush=True)
+            alone = report["network_only"]["auc"]
+            print(f"{vname:<16} {rname:<14} AUC {report['auc']:6.2f} (network alone {alone:6.2f}, mean per view "
+                  f"{report['auc_mean_per_view']:6.2f}, inliers {report['inlier_pct']:.1f}%)", flush=True)
         synthetic = [r["auc"] for n, r in row["scenes"].items() if n != "fountain_p11"]
         row["mean_synthetic"] = float(np.mean(synthetic)) if synthetic else None
         row["mean_all"] = float(np.mean([r["auc"] for r in row["scenes"].values()]))
         table["variants"][vname] = row
     names = list(runs)
-    print(f"\nROC-AUC x100 (pooled over labelled pixels per scene)\n{'variant':<16}"
+    print(f"\nROC-AUC x100 (pooled over labelled pixels per scene; back-facing estimates at 0 as in --pipeline fast)"
+          f"\n{'variant':<16}"
           + "".join(f"{n[:12]:>13}" for n in names) + f"{'mean synth':>12}{'mean all':>10}")
     for vname, row in table["variants"].items():
         ms = row["mean_synthetic"]

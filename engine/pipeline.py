@@ -155,7 +155,7 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     with torch_threads(options.num_threads):
         for view, m, k in zip(scene.views, maps, counter, strict=True):
             x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
-            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16)
+            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16, options.zero_backfacing)
             out.append(np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32))
     return out
 

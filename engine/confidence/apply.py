@@ -20,8 +20,8 @@ def predict_samples(model: ConfidenceNet, samples: list[ViewSample],
     are not a reliable test, so callers mask with their depth maps)."""
     options = (options or ConfidenceOptions()).validate()
     with torch_threads(options.num_threads):
-        return [predict_confidence(model, s.inputs.astype(np.float32), options.tile, options.overlap, options.bf16)
-                for s in samples]
+        return [predict_confidence(model, s.inputs.astype(np.float32), options.tile, options.overlap, options.bf16,
+                                   options.zero_backfacing) for s in samples]
 
 
 def auc_report(samples: list[ViewSample], confidence: list[np.ndarray]) -> dict[str, Any]:

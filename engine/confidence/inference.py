@@ -13,6 +13,7 @@ import contextlib
 import numpy as np
 import torch
 
+from engine.confidence.inputs import NORMAL
 from engine.confidence.network import ConfidenceNet, pad_to_multiple
 
 
@@ -34,9 +35,22 @@ def _starts(size: int, core: int) -> list[int]:
     return list(range(0, size, core)) if size > 0 else [0]
 
 
+def facing_away(inputs: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels of a (6, H, W) network input whose normal faces away from the camera (θ > 90°)."""
+    return inputs[NORMAL.start] > 0.5
+
+
 def predict_confidence(model: ConfidenceNet, inputs: np.ndarray, tile: int = 1024, overlap: int = 64,
-                       bf16: bool = False) -> np.ndarray:
-    """(6, H, W) network input -> (H, W) float32 confidence in [0, 1]."""
+                       bf16: bool = False, zero_backfacing: bool = False) -> np.ndarray:
+    """(6, H, W) network input -> (H, W) float32 confidence in [0, 1]; with ``zero_backfacing``, 0 where
+    the normal faces away from the camera (see :class:`ConfidenceOptions`)."""
+    out = _predict(model, inputs, tile, overlap, bf16)
+    if zero_backfacing:
+        out[facing_away(inputs)] = 0.0
+    return out
+
+
+def _predict(model: ConfidenceNet, inputs: np.ndarray, tile: int, overlap: int, bf16: bool) -> np.ndarray:
     model.eval()
     _, h, w = inputs.shape
     out = np.empty((h, w), np.float32)

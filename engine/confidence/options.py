@@ -17,6 +17,9 @@ class ConfidenceOptions(Options):
     tile: int = option(1024, "largest tile side for inference (memory bound), multiple of 16", metavar="PX")
     overlap: int = option(64, "context pixels on each side of a tile", metavar="PX")
     bf16: bool = option(True, "bfloat16 autocast on CPUs that support it (2x faster, AUC unchanged to 0.1)")
+    zero_backfacing: bool = option(True, "confidence 0 where the estimated normal faces away from the camera "
+                                   "(an unobservable surface: the counter map's front-facing check, applied to "
+                                   "the network output)")
     num_threads: int = option(0, "torch threads (0 = torch's default)", metavar="N")
 
     def validate(self) -> ConfidenceOptions:
