@@ -173,6 +173,9 @@ def test_tiled_inference_equals_untiled():
     tiled = predict_confidence(model, x, tile=96, overlap=32)
     assert whole.shape == (100, 150) and (whole >= 0).all() and (whole <= 1).all()
     assert np.abs(whole - tiled).max() < 0.02  # padding differs at tile borders only within the overlap
+    masked = predict_confidence(model, x, tile=512, zero_backfacing=True)
+    away = x[3] > 0.5  # θ > 90°: the estimated surface faces away from the camera
+    assert away.any() and (masked[away] == 0).all() and np.array_equal(masked[~away], whole[~away])
 
 
 def test_weights_round_trip_and_errors(tmp_path):
