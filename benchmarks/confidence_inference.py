@@ -55,8 +55,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "confidence_inference.json")
     args = parser.parse_args()
     rows = []
-    for name, tile, bf16 in (("bf16, one tile (default)", 1024, True), ("fp32, one tile", 1024, False),
-                             ("bf16, 512-px tiles", 512, True)):
+    for name, tile, bf16 in (("bf16, one tile", 1024, True), ("fp32, one tile", 1024, False),
+                             ("bf16, 512-px tiles (default)", 512, True)):
         env = {**os.environ, "PYTHONPATH": str(REPO)}
         result = subprocess.run([sys.executable, "-c", CHILD, args.weights, str(args.threads), str(args.repeat),
                                  str(tile), "1" if bf16 else "0"], capture_output=True, text=True, env=env,

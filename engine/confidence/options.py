@@ -14,9 +14,10 @@ class ConfidenceOptions(Options):
     tau: float = option(0.05, "keep pixels whose confidence is at least this before fusion", metavar="TAU")
     weights: str = option("", "weights file (default: the shipped engine/confidence/weights/deepc_middle.pt)",
                           metavar="FILE")
-    tile: int = option(1024, "largest tile side for inference (memory bound), multiple of 16", metavar="PX")
+    tile: int = option(512, "largest tile side for inference, multiple of 16 (bounds memory; 512 is also the "
+                       "fastest on 2 cores)", metavar="PX")
     overlap: int = option(64, "context pixels on each side of a tile", metavar="PX")
-    bf16: bool = option(True, "bfloat16 autocast on CPUs that support it (2x faster, AUC unchanged to 0.1)")
+    bf16: bool = option(True, "bfloat16 autocast on CPUs that support it (faster, half the memory)")
     zero_backfacing: bool = option(True, "confidence 0 where the estimated normal faces away from the camera "
                                    "(an unobservable surface: the counter map's front-facing check, applied to "
                                    "the network output)")
