@@ -1,11 +1,13 @@
 """Filtering before fusion, with the structure of the paper's Table 2 (ours; mask1; mask2; conf τ).
 
     .venv/bin/python benchmarks/table2_filters.py RUN_DIR [RUN_DIR ...] [--out benchmarks/results/table2.json]
+        [--weights engine/confidence/weights/deepc_middle.pt]
 
 Each RUN_DIR is the output folder of ``deepc run`` (stereo depth/normal/counter maps and metrics.json,
 which names the scene). For each variant the maps are filtered, fused with the Table 2 setting (preset
 ``deepc``: 1 px, 1 %, 20°, 2 supporting views) and scored against the scene's GT points with the
-unobserved-space rule (GT depth maps). Confidence rows appear when the run has confidence maps.
+unobserved-space rule (GT depth maps). Confidence rows appear when the run has confidence maps, or
+when ``--weights`` predicts them for a vanilla run (as ``--pipeline fast`` would).
 F1, completeness and accuracy in percent at 2 cm and 5 cm.
 """
 
@@ -28,29 +30,36 @@ REPO = Path(__file__).resolve().parent.parent
 TOLERANCES = (0.02, 0.05)
 
 
-def variants(session: ViewerSession) -> list[tuple[str, str, float]]:
+def variants(session: ViewerSession, confidence: list | None = None) -> list[tuple[str, str, float]]:
     rows = [("ours", "none", 0), ("ours + mask1", "counter", 1), ("ours + mask2", "counter", 2)]
-    if session.has_confidence:
+    if session.has_confidence or confidence is not None:
         rows += [(f"ours + conf {tau}", "confidence", tau) for tau in (0.05, 0.1, 0.3, 0.5)]
     return rows
 
 
-def score_run(run_dir: Path) -> dict:
+def score_run(run_dir: Path, weights: Path | None = None) -> dict:
     session = ViewerSession.open(run_dir)
     scene = session.scene
     if not scene.has_gt_points:
         raise SystemExit(f"{run_dir}: scene {scene.name} has no GT points")
     options = FUSION_PRESETS["deepc"]
+    confidence = None
+    if weights is not None:  # predict the confidence of a vanilla run with these weights (as --pipeline fast does)
+        from engine.confidence.options import ConfidenceOptions
+        from engine.pipeline import confidence_stage
+        confidence = confidence_stage(scene, session.data, [d.counter for d in session.data],
+                                      ConfidenceOptions(weights=str(weights)))
     rows = []
-    for name, kind, value in variants(session):
+    for name, kind, value in variants(session, confidence):
         t = time.perf_counter()
         depths, normals = [], []
-        for d in session.data:
+        for i, d in enumerate(session.data):
             depth, normal = d.depth, d.normal
             if kind == "counter":
                 depth, normal = filter_by_counter(depth, normal, d.counter, int(value))
             elif kind == "confidence":
-                depth, normal = filter_by_confidence(depth, normal, d.confidence, value)
+                conf = d.confidence if confidence is None else confidence[i]
+                depth, normal = filter_by_confidence(depth, normal, conf, value)
             depths.append(depth)
             normals.append(normal)
         kept = 100.0 * sum(int((d > 0).sum()) for d in depths) / sum(int((d.depth > 0).sum()) for d in session.data)
@@ -63,7 +72,8 @@ def score_run(run_dir: Path) -> dict:
                         f"accuracy@{tol}": at["accuracy"]})
         rows.append(row)
     size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
-    return {"scene": scene.name, "size": size, "run": str(run_dir), "rows": rows}
+    return {"scene": scene.name, "size": size, "run": str(run_dir), "rows": rows,
+            "weights": None if weights is None else str(weights)}
 
 
 def print_table(table: dict) -> None:
@@ -80,8 +90,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", type=Path, nargs="+")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "table2_filters.json")
+    parser.add_argument("--weights", type=Path, default=None,
+                        help="predict confidence maps with these weights (for vanilla runs; default: use the "
+                             "run's own confidence maps when it has them)")
     args = parser.parse_args()
-    tables = [score_run(run) for run in args.runs]
+    tables = [score_run(run, args.weights) for run in args.runs]
     for table in tables:
         print_table(table)
     write_json(args.out, tables)

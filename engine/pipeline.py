@@ -16,8 +16,11 @@ from typing import Any
 import numpy as np
 
 from engine import __version__
+from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
+from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, evaluate_points
+from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene, write_fused_ply
 from engine.io.outputs import write_map, write_metrics
 from engine.io.ply import read_points
@@ -38,12 +41,14 @@ class PipelineOptions(Options):
                            "full: + refinement", choices=PIPELINES)
     patchmatch: PatchMatchOptions = option(PatchMatchOptions(), "PatchMatch options", cli=False)
     counter: CounterOptions = option(CounterOptions(), "counter-map options", cli=False)
+    confidence: ConfidenceOptions = option(ConfidenceOptions(), "confidence network and filtering (fast, full)",
+                                           cli=False)
     fusion: FusionOptions = option(FUSION_PRESETS["deepc"], "fusion options", cli=False)
     evaluation: EvaluationOptions = option(EvaluationOptions(), "evaluation options", cli=False)
 
     def validate(self) -> PipelineOptions:
         super().validate()
-        for stage in (self.patchmatch, self.counter, self.fusion, self.evaluation):
+        for stage in (self.patchmatch, self.counter, self.confidence, self.fusion, self.evaluation):
             stage.validate()
         return self
 
@@ -54,6 +59,7 @@ class PipelineResult:
 
     maps: list[ViewMaps]
     counter: list[np.ndarray]
+    confidence: list[np.ndarray] | None
     cloud: FusedCloud
     metrics: dict[str, Any]
 
@@ -91,9 +97,24 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if notify:
         notify("patchmatch", maps=maps, counter=counter)
 
+    confidence = None
+    depths, normals = [m.depth for m in maps], [m.normal for m in maps]
+    if options.pipeline == "fast":
+        t = time.perf_counter()
+        confidence = confidence_stage(scene, maps, counter, options.confidence)
+        for view, c in zip(scene.views, confidence, strict=True):
+            write_map(out_dir, "confidence", view.name, c)
+        filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
+                    for m, c in zip(maps, confidence, strict=True)]
+        depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
+        seconds["confidence"] = time.perf_counter() - t
+        if notify:
+            notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
+    elif options.pipeline != "vanilla":
+        raise DeepCError(f"pipeline {options.pipeline!r} is not available in this version (vanilla or fast)")
+
     t = time.perf_counter()
-    fusion_views = views_from_scene(scene, [m.depth for m in maps], [m.normal for m in maps], None,
-                                    options.fusion.check_num_images)
+    fusion_views = views_from_scene(scene, depths, normals, confidence, options.fusion.check_num_images)
     cloud = fuse(fusion_views, options.fusion)
     write_fused_ply(out_dir / "fused.ply", cloud)
     seconds["fusion"] = time.perf_counter() - t
@@ -114,12 +135,55 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         metrics["eval"] = evaluate_cloud(scene, cloud, options.evaluation).to_dict()
     if scene.has_gt_depth:
         metrics["depth"], metrics["depth_per_view"] = _depth_block(scene, maps)
+        if confidence is not None:
+            auc = confidence_auc(scene, [m.depth for m in maps], confidence)
+            metrics["confidence_auc"] = auc["pooled"]
+            metrics["confidence_auc_per_view"] = auc["per_view"]
+    if confidence is not None:
+        kept = sum(int((d > 0).sum()) for d in depths)
+        metrics["confidence_kept_pct"] = 100.0 * kept / max(1, sum(int((m.depth > 0).sum()) for m in maps))
     metrics["options"] = {"scene": scene.options.to_dict(), **options.to_dict()}
     metrics["version"] = __version__
     write_metrics(out_dir, metrics)
     if checkpoint is not None:
         checkpoint.clear()
-    return PipelineResult(maps, counter, cloud, metrics)
+    return PipelineResult(maps, counter, confidence, cloud, metrics)
+
+
+def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarray],
+                     options: ConfidenceOptions) -> list[np.ndarray]:
+    """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4)."""
+    from engine.confidence.inference import predict_confidence, torch_threads
+    from engine.confidence.inputs import network_inputs
+    from engine.confidence.weights import load_weights
+
+    model = load_weights(options.weights or None)
+    out = []
+    with torch_threads(options.num_threads):
+        for view, m, k in zip(scene.views, maps, counter, strict=True):
+            x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
+            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16, options.zero_backfacing)
+            out.append(np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32))
+    return out
+
+
+def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.ndarray]) -> dict[str, Any]:
+    """ROC-AUC ×100 of the confidence maps against the label maps of SPEC.md §4.3 (pooled and per view)."""
+    from engine.confidence.data import view_labels
+    from engine.confidence.metrics import roc_auc
+
+    scores, labels, per_view = [], [], []
+    for view, depth, c in zip(scene.views, depths, confidence, strict=True):
+        y = view_labels(scene, view.index, depth)
+        if y is None:
+            continue
+        keep = y >= 0
+        scores.append(c[keep])
+        labels.append(y[keep])
+        per_view.append({"view": view.name, "auc": 100 * roc_auc(c[keep], y[keep]),
+                         "labelled": int(keep.sum()), "inliers": int((y == 1).sum())})
+    pooled = 100 * roc_auc(np.concatenate(scores), np.concatenate(labels)) if scores else float("nan")
+    return {"pooled": pooled, "per_view": per_view}
 
 
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):

@@ -69,8 +69,7 @@ def test_bad_option_values_give_exit_2(tmp_path):
     assert result.returncode == 2 and "--depth-range" in result.stderr
 
 
-@pytest.mark.parametrize("args", [["train"], ["run", "sample_scenes/tiny", "--out", "x", "--pipeline",
-                                                                "fast", "--headless"]])
+@pytest.mark.parametrize("args", [["run", "sample_scenes/tiny", "--out", "x", "--pipeline", "full", "--headless"]])
 def test_stages_that_do_not_exist_yet_say_so(args, tmp_path):
     _one_line_error(deepc(*args), "does not exist yet")
 

@@ -36,6 +36,11 @@ def _eval(args: argparse.Namespace) -> int:
     return cmd_eval(args)
 
 
+def _train(args: argparse.Namespace) -> int:
+    from workbench.train_command import cmd_train
+    return cmd_train(args)
+
+
 def _view(args: argparse.Namespace) -> int:
     from workbench.viewer import serve
     serve(args.target, host=args.host, port=args.port)
@@ -63,7 +68,7 @@ RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_prop
                         "view_sampling", "levels", "geom_passes", "num_threads"]
 
 
-SET_SECTIONS = ("patchmatch", "fusion", "stream")
+SET_SECTIONS = ("patchmatch", "confidence", "fusion", "stream")
 
 
 def run_options_from_args(args: argparse.Namespace):
@@ -83,11 +88,19 @@ def run_options_from_args(args: argparse.Namespace):
                                    **section_overrides(args.set, "patchmatch", PatchMatchOptions))
     fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[args.fusion_preset],
                                **section_overrides(args.set, "fusion", FusionOptions))
-    options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, fusion=fusion).validate()
+    from engine.confidence.options import ConfidenceOptions
+    confidence = ConfidenceOptions(**section_overrides(args.set, "confidence", ConfidenceOptions))
+    if getattr(args, "weights", None):
+        confidence = confidence.replace(weights=str(Path(args.weights).resolve()))
+    options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, confidence=confidence,
+                              fusion=fusion).validate()
     stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
-    if options.pipeline != "vanilla":
-        raise NotYetImplemented(f"deepc run --pipeline {options.pipeline}: the confidence network does not "
-                                "exist yet in this version (use --pipeline vanilla)")
+    if options.pipeline == "full":
+        raise NotYetImplemented("deepc run --pipeline full: confidence-guided refinement does not exist yet in "
+                                "this version (use --pipeline fast or vanilla)")
+    if options.pipeline == "fast":
+        from engine.confidence.weights import read_weights_file
+        read_weights_file(options.confidence.weights or _default_weights())  # bad weights fail before PatchMatch
     return scene_options, options, stream_options
 
 
@@ -172,6 +185,11 @@ def _prepare_output(args: argparse.Namespace):
     return PatchMatchCheckpoint(out / CHECKPOINT_DIR, resume=args.resume)
 
 
+def _default_weights() -> Path:
+    from engine.confidence.weights import DEFAULT_WEIGHTS
+    return DEFAULT_WEIGHTS
+
+
 def _open_recording(path: str | None, scene, options, stream_options, live_url: str | None = None):
     from layouts import DEFAULT, LAYOUTS
     from workbench.recording import Recording
@@ -196,6 +214,10 @@ def _print_run_summary(metrics: dict, out: str) -> None:
         d = metrics["depth"]
         print(f"depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
               f"valid {d['valid_fraction']:.1f}%, abs rel {d['abs_rel']:.4f}")
+    if metrics["pipeline"] == "fast":
+        auc = f", ROC-AUC vs labels {metrics['confidence_auc']:.2f}" if "confidence_auc" in metrics else ""
+        print(f"confidence: {seconds['confidence']:.1f} s, {metrics['confidence_kept_pct']:.1f}% of the estimates "
+              f"kept at tau {metrics['options']['confidence']['tau']:g}{auc}")
     print(f"fused cloud: {metrics['fused_points']:,} points ({seconds['fusion']:.1f} s)")
     if "eval" in metrics:
         e = metrics["eval"]
@@ -220,9 +242,14 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
                                    "the flags below override single values")
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
                                                          "min_num_pixels"])
+    parser.add_argument("--weights", metavar="FILE", default=None,
+                        help="confidence-network weights for --pipeline fast and full (default: the shipped "
+                             "engine/confidence/weights/deepc_middle.pt); the filter threshold is "
+                             "--set confidence.tau=0.05")
     parser.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                        help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set fusion.check_num_images=20,"
-                             " or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
+                        help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
+                             "--set fusion.check_num_images=20, "
+                             "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -297,9 +324,12 @@ def build_parser() -> argparse.ArgumentParser:
                          help="also write a rerun recording of every run, linked from the report")
     regress.set_defaults(handler=_regress)
 
-    train = sub.add_parser("train", help="train the confidence network")
-    train.add_argument("scenes", nargs="*", help="scenes with ground truth")
-    train.set_defaults(handler=_not_yet("train", "the confidence network"))
+    train = sub.add_parser("train", help="train the confidence network on scenes with GT depth",
+                           description="Run the engine on scenes with GT depth (cached), label the maps and "
+                                       "train the confidence network; resumable, deterministic for a seed.")
+    from workbench.train_command import add_train_arguments
+    add_train_arguments(train)
+    train.set_defaults(handler=_train)
     return parser
 
 

@@ -217,10 +217,15 @@ class RerunStream(NullObserver):
         self.rec.log(f"world/fused/{pipeline}", rr.Points3D(xyz, colors=rgb, radii=radius), static=True)
 
     def on_stage(self, name: str, **info: Any) -> None:
-        """Log what a finished stage produced: counter maps after PatchMatch, the fused cloud after fusion."""
+        """Log what a finished stage produced: counter maps after PatchMatch, confidence maps after the
+        confidence stage, the fused cloud after fusion."""
         self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
         for view, counter in enumerate(info.get("counter") or []):
             self.log_view_map(view, "counter", colorize(counter, 0, 5, "coolwarm", counter <= 0))
+        depths = info.get("depth") or []
+        for view, conf in enumerate(info.get("confidence") or []):
+            invalid = depths[view] <= 0 if view < len(depths) else None
+            self.log_view_map(view, "confidence", colorize(conf, 0, 1, "viridis", invalid))
         cloud = info.get("cloud")
         if cloud is not None:
             self.log_cloud(str(info.get("pipeline", "vanilla")), np.asarray(cloud.xyz, np.float32), cloud.rgb,

@@ -1,0 +1,154 @@
+"""Training / validation data: engine runs on scenes with GT depth, turned into network inputs and labels.
+
+A *run* is the output folder of ``deepc run`` (its metrics.json names the scene and the options). For
+training, :func:`ensure_run` runs the engine on a scene once and caches the output folder; a cached run
+is reused only when its metrics.json names the same scene folder and the same options and all its maps
+exist. :func:`load_run` reads a run's maps and computes the label maps of SPEC.md §4.3.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from engine.confidence.inputs import NORMAL, network_inputs
+from engine.confidence.labels import label_map
+from engine.errors import DeepCError
+from engine.io.outputs import map_path, read_map, read_metrics
+from engine.scene import Scene, SceneOptions, load_scene
+
+
+@dataclasses.dataclass(eq=False)
+class ViewSample:
+    """One reference view: (6, H, W) float16 inputs and (H, W) int8 labels (1 / 0 / -1 unlabeled)."""
+
+    scene: str
+    view: str
+    inputs: np.ndarray
+    labels: np.ndarray
+
+    @property
+    def labelled_fraction(self) -> float:
+        return float((self.labels >= 0).mean())
+
+
+def flip_horizontal(inputs: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mirror a (6, H, W) input and its (H, W) labels left-right. Mirroring negates n_x, so the polar
+    angle φ becomes π − φ: its encoding e = (φ + π)/(2π) becomes 1.5 − e (wrapped into [0, 1));
+    θ is unchanged and invalid pixels (0, 0) stay invalid."""
+    x = inputs[:, :, ::-1].copy()
+    theta, e = x[NORMAL.start], x[NORMAL.start + 1]
+    valid = (theta != 0) | (e != 0)
+    flipped = 1.5 - e.astype(np.float32)
+    flipped = np.where(flipped >= 1.0, flipped - 1.0, flipped)
+    x[NORMAL.start + 1] = np.where(valid, flipped, 0).astype(x.dtype)
+    return x, labels[:, ::-1].copy()
+
+
+def run_scene(run_dir: str | Path) -> Scene:
+    """The scene of a run, loaded with the scene options the run used."""
+    run_dir = Path(run_dir)
+    metrics = read_metrics(run_dir)
+    scene_path = metrics.get("scene_path")
+    if not scene_path:
+        raise DeepCError("metrics.json does not name the scene (no scene_path)", run_dir / "metrics.json")
+    scene_opts = SceneOptions.from_dict(metrics.get("options", {}).get("scene", {}))
+    return load_scene(scene_path, scene_opts)
+
+
+def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 2.0,
+             require_gt: bool = True) -> list[ViewSample]:
+    """Inputs and labels of every view of a run (views without GT depth get all-unlabeled maps)."""
+    run_dir = Path(run_dir)
+    scene = scene or run_scene(run_dir)
+    if require_gt and not scene.has_gt_depth:
+        raise DeepCError("scene has no ground-truth depth maps (ground_truth/depth_maps/): "
+                         "it cannot give training labels", scene.root)
+    samples = []
+    for v in scene.views:
+        maps = {kind: read_map(run_dir, kind, v.name) for kind in ("depth", "normal", "counter")}
+        for kind, m in maps.items():
+            if m is None:
+                raise DeepCError(f"run has no {kind} map for view {v.name}", map_path(run_dir, kind, v.name))
+        depth = maps["depth"]
+        cam = v.camera if (v.camera.width, v.camera.height) == depth.shape[::-1] else v.camera.rescaled(
+            depth.shape[1], depth.shape[0])
+        rgb = scene.image(v.index)
+        if rgb.shape[:2] != depth.shape:
+            from engine.io.images import resize_area
+            rgb = resize_area(rgb, cam.size)
+        labels = view_labels(scene, v.index, depth, label_px)
+        if labels is None:
+            labels = np.full(depth.shape, -1, np.int8)
+        inputs = network_inputs(rgb, maps["normal"], maps["counter"], len(v.source_views)).astype(np.float16)
+        samples.append(ViewSample(scene.name, v.name, inputs, labels))
+    return samples
+
+
+def view_labels(scene: Scene, index: int, depth: np.ndarray, label_px: float = 2.0) -> np.ndarray | None:
+    """Label map (SPEC.md §4.3) of ``depth`` estimated for view ``index``; None without GT depth."""
+    from engine.resample import resample_depth
+
+    v = scene.views[index]
+    gt = scene.gt_depth(index)
+    if gt is None:
+        return None
+    h, w = depth.shape
+    cam = v.camera if (v.camera.width, v.camera.height) == (w, h) else v.camera.rescaled(w, h)
+    if gt.shape != depth.shape:
+        gt = resample_depth(gt, cam.size)
+    sources = [scene.views[j].camera for j in v.source_views]
+    return label_map(depth, gt, cam, sources, max_depth=v.depth_range[1], threshold_px=label_px)
+
+
+#: The option sections that determine the maps a training run uses (depth, normal, counter).
+MAP_SECTIONS = ("scene", "patchmatch", "counter")
+
+
+def run_is_complete(run_dir: Path, scene_root: Path, expected_options: dict) -> bool:
+    """Whether ``run_dir`` holds a finished run of ``scene_root`` whose options agree with
+    ``expected_options`` in every section that determines the maps (:data:`MAP_SECTIONS`)."""
+    try:
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    if metrics.get("scene_path") != str(scene_root.resolve()):
+        return False
+    saved = json.loads(json.dumps(metrics.get("options") or {}))
+    expected = json.loads(json.dumps(expected_options))
+    if any(saved.get(k) != expected.get(k) for k in MAP_SECTIONS):
+        return False
+    names = _model_image_names(metrics)
+    return names is not None and all(map_path(run_dir, kind, n).is_file()
+                                     for n in names for kind in ("depth", "normal", "counter"))
+
+
+def _model_image_names(metrics: dict) -> list[str] | None:
+    try:
+        scene = load_scene(metrics["scene_path"], SceneOptions.from_dict(metrics["options"]["scene"]))
+    except (DeepCError, KeyError, TypeError):
+        return None
+    return [v.name for v in scene.views]
+
+
+def ensure_run(scene_dir: str | Path, runs_root: str | Path, scene_options: SceneOptions, pipeline_options,
+               log: Callable[[str], None] = print) -> Path:
+    """The cached vanilla run of ``scene_dir`` under ``runs_root/<scene name>``; runs the engine when the
+    cache is missing, incomplete or made with other options."""
+    from engine.pipeline import run_pipeline
+
+    scene = load_scene(scene_dir, scene_options)
+    if not scene.has_gt_depth:
+        raise DeepCError("scene has no ground-truth depth maps (ground_truth/depth_maps/): "
+                         "it cannot give training labels", scene.root)
+    run_dir = Path(runs_root) / scene.name
+    expected = {"scene": scene_options.to_dict(), **pipeline_options.to_dict()}
+    if run_is_complete(run_dir, scene.root, expected):
+        return run_dir
+    log(f"running the engine on {scene.root} -> {run_dir}")
+    run_pipeline(scene, run_dir, pipeline_options)
+    return run_dir

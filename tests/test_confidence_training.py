@@ -1,0 +1,139 @@
+"""Training on the tiny scene (loss falls, resume is exact), `deepc train` and `deepc run --pipeline fast`."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from engine.confidence.data import load_run
+from engine.confidence.network import ConfidenceNet
+from engine.confidence.training import TrainOptions, ValidationSet, train
+from engine.confidence.weights import save_weights
+from engine.errors import DeepCError
+
+REPO = Path(__file__).resolve().parent.parent
+TINY = REPO / "sample_scenes" / "tiny"
+
+
+@pytest.fixture(scope="module")
+def noisy_run(tmp_path_factory) -> Path:
+    """A run of the tiny scene made from GT depth with wrong depths in random blobs (outliers) and a counter
+    map that only partly tells them apart, so that the network has something to learn."""
+    from engine.fusion import depth_normals
+    from engine.io.outputs import write_map, write_metrics
+    from engine.scene import load_scene
+
+    out = tmp_path_factory.mktemp("noisy_run")
+    scene = load_scene(TINY)
+    rng = np.random.default_rng(0)
+    for v in scene.views:
+        gt = scene.gt_depth(v.index)
+        h, w = gt.shape
+        yy, xx = np.mgrid[:h, :w]
+        bad = np.zeros((h, w), bool)
+        for _ in range(6):
+            cy, cx, r = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(6, 16)
+            bad |= (yy - cy) ** 2 + (xx - cx) ** 2 < r * r
+        depth = np.where(bad, gt * rng.uniform(0.7, 0.9), gt).astype(np.float32)
+        normal = depth_normals(v.camera, gt)
+        depth[~normal.any(axis=2)] = 0
+        counter = np.where(bad, rng.integers(0, 3, (h, w)), rng.integers(1, 5, (h, w))) * (depth > 0)
+        write_map(out, "depth", v.name, depth)
+        write_map(out, "normal", v.name, normal)
+        write_map(out, "counter", v.name, counter.astype(np.float32))
+    write_metrics(out, {"scene": scene.name, "scene_path": str(TINY.resolve()), "pipeline": "vanilla",
+                        "num_images": len(scene.views), "options": {"scene": scene.options.to_dict()}})
+    return out
+
+
+OPTIONS = TrainOptions(epochs=2, steps_per_epoch=4, batch=2, crop=64, bf16=False, lr=2e-3, lr_final=1e-3, seed=5)
+
+
+def test_labels_of_a_run(noisy_run):
+    samples = load_run(noisy_run)
+    assert len(samples) == 5
+    labels = np.concatenate([s.labels.ravel() for s in samples])
+    assert 0.05 < (labels == 0).mean() < 0.6 and (labels == 1).mean() > 0.3
+
+
+def test_training_loss_falls_and_resume_is_exact(noisy_run, tmp_path):
+    samples = load_run(noisy_run)
+    val = [ValidationSet("tiny", samples[:1])]
+    full = train(samples[1:], val, OPTIONS, tmp_path / "a.ckpt", tmp_path / "a.pt", data_names=["tiny"])
+    losses = [h["loss"] for h in full["history"]]
+    assert losses[-1] < losses[0]
+    assert (tmp_path / "a.pt").is_file() and 0 <= full["best"]["score"] <= 100
+
+    events = []
+    part = train(samples[1:], val, OPTIONS, tmp_path / "b.ckpt", tmp_path / "b.pt", data_names=["tiny"],
+                 max_epochs=1)
+    assert part["epochs_done"] == 1
+    resumed = train(samples[1:], val, OPTIONS, tmp_path / "b.ckpt", tmp_path / "b.pt", data_names=["tiny"],
+                    progress=events.append)
+    assert events[0] == {"kind": "resume", "epoch": 1}
+    assert [h["loss"] for h in resumed["history"]] == pytest.approx(losses, rel=1e-6)
+    a = torch.load(tmp_path / "a.ckpt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "b.ckpt", weights_only=False)["model"]
+    assert all(torch.allclose(a[k].float(), b[k].float(), atol=1e-6) for k in a)
+
+    with pytest.raises(DeepCError, match="other training options"):
+        train(samples[1:], val, OPTIONS.replace(loss="bce"), tmp_path / "b.ckpt")
+
+
+def deepc(*args, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "workbench.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+
+
+def test_train_command_refuses_scenes_without_gt(tmp_path):
+    result = deepc("train", REPO / "sample_scenes" / "middlebury_temple", "--cache", tmp_path / "cache",
+                   "--out", tmp_path / "w.pt")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "middlebury_temple" in lines[0] and "ground-truth depth" in lines[0]
+    assert not (tmp_path / "w.pt").exists()
+
+
+def test_train_command_on_a_run_writes_weights(noisy_run, tmp_path):
+    out = tmp_path / "w.pt"
+    result = deepc("train", noisy_run, "--out", out, "--epochs", "1", "--steps-per-epoch", "2", "--batch", "1",
+                   "--crop", "64", "--no-bf16")
+    assert result.returncode == 0, result.stderr
+    assert "epoch 1: loss" in result.stderr
+    assert json.loads(result.stdout.strip().splitlines()[-1])["epochs_done"] == 1
+    history = json.loads(out.with_name("w.history.json").read_text())
+    assert history["epochs_done"] == 1 and out.is_file()
+
+
+@pytest.mark.slow
+def test_run_fast_writes_confidence_maps_and_auc(tmp_path):
+    torch.manual_seed(0)
+    weights = save_weights(tmp_path / "random.pt", ConfidenceNet())
+    out = tmp_path / "out"
+    result = deepc("run", TINY, "--out", out, "--pipeline", "fast", "--headless", "--iterations", "1",
+                   "--levels", "1", "--weights", weights, "--set", "confidence.tau=0.5")
+    assert result.returncode == 0, result.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["pipeline"] == "fast" and 0 <= metrics["confidence_auc"] <= 100
+    assert metrics["seconds"]["confidence"] > 0 and metrics["options"]["confidence"]["tau"] == 0.5
+    from engine.io.outputs import read_map
+    from engine.scene import load_scene
+    kept = valid = 0
+    for v in load_scene(TINY).views:
+        c, depth = read_map(out, "confidence", v.name), read_map(out, "depth", v.name)
+        assert c is not None and c.shape == (120, 160) and (c >= 0).all() and (c <= 1).all()
+        kept += int(((c >= 0.5) & (depth > 0)).sum())
+        valid += int((depth > 0).sum())
+    assert metrics["confidence_kept_pct"] == pytest.approx(100 * kept / valid)
+
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not torch")
+    result = deepc("run", TINY, "--out", tmp_path / "o2", "--pipeline", "fast", "--headless", "--weights", bad)
+    assert result.returncode == 2 and "bad.pt" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o2").exists()

@@ -1,0 +1,208 @@
+"""``deepc train``: run the engine on scenes with GT depth (cached), label the maps and train the
+confidence network (engine/confidence/training.py), keeping the best checkpoint by validation ROC-AUC.
+
+Positional arguments and ``--validation`` take scene folders (the engine is run on them once and the
+run cached under ``--cache/runs/<scene>``) or finished run folders (``deepc run`` outputs, used as they
+are). ``--synthetic SEEDS`` adds randomised synthetic scenes (engine/synthetic/dataset.py), rendered
+into ``--cache/scenes`` when missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from engine.errors import DeepCError
+from engine.io.outputs import write_json
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'0-59' or '1,2,5-9' -> list of ints."""
+    seeds: list[int] = []
+    try:
+        for part in filter(None, text.split(",")):
+            lo, dash, hi = part.partition("-")
+            seeds.extend(range(int(lo), int(hi) + 1) if dash else [int(lo)])
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seeds must look like 0-59 or 1,2,5-9, got {text!r}") from None
+    return seeds
+
+
+def add_train_arguments(train: argparse.ArgumentParser) -> None:
+    from engine.confidence.training import TrainOptions
+    from workbench.flags import add_options_flags
+
+    train.add_argument("scenes", nargs="*", metavar="SCENE_OR_RUN",
+                       help="training scenes with GT depth maps, or finished run folders of such scenes")
+    train.add_argument("--synthetic", type=parse_seeds, default=[], metavar="SEEDS",
+                       help="also train on these randomised synthetic scenes, e.g. 0-59")
+    train.add_argument("--validation", nargs="*", default=[], metavar="SCENE_OR_RUN",
+                       help="held-out scenes or runs scored every epoch (each a separate ROC-AUC)")
+    train.add_argument("--validation-synthetic", type=parse_seeds, default=[], metavar="SEEDS",
+                       help="held-out synthetic scenes, scored together, e.g. 1000-1003")
+    train.add_argument("--cache", default="runs/train_cache", metavar="DIR",
+                       help="cache of rendered scenes (DIR/scenes) and engine runs (DIR/runs)")
+    train.add_argument("--out", default=None, metavar="WEIGHTS.pt",
+                       help="best weights (default: runs/train/<loss>_<fusion>/weights.pt)")
+    train.add_argument("--checkpoint", default=None, metavar="FILE",
+                       help="resumable state, written every epoch (default: next to --out); an existing "
+                            "checkpoint is resumed")
+    train.add_argument("--max-epochs", type=int, default=None, metavar="N",
+                       help="stop after this many epochs in total (resume later to go on)")
+    train.add_argument("--init", default=None, metavar="WEIGHTS.pt",
+                       help="start from these weights (warm start) instead of a random initialisation")
+    train.add_argument("--validation-max-views", type=int, default=0, metavar="N",
+                       help="score at most N evenly spaced views of each validation set per epoch (0 = all)")
+    train.add_argument("--model-card", default=None, metavar="FILE.md",
+                       help="also write a model card (data, options, validation ROC-AUC per scene, date)")
+    engine_group = train.add_argument_group("engine runs on training scenes")
+    engine_group.add_argument("--num-source-views", type=int, default=4, metavar="N")
+    engine_group.add_argument("--max-image-size", type=int, default=0, metavar="PX")
+    engine_group.add_argument("--schedule", choices=("paper", "acmm"), default="acmm")
+    add_options_flags(train.add_argument_group("training"), TrainOptions)
+
+
+def _log(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _resolve_runs(paths: list[str], seeds: list[int], cache: Path, scene_options, pipeline_options) -> list[Path]:
+    from engine.confidence.data import ensure_run
+    from engine.synthetic.dataset import write_training_scenes
+
+    folders = [Path(p) for p in paths]
+    if seeds:
+        folders += write_training_scenes(cache / "scenes", seeds)
+    runs = []
+    for folder in folders:
+        if not folder.is_dir():
+            raise DeepCError("no such scene or run folder", folder)
+        if (folder / "metrics.json").is_file():
+            runs.append(folder)
+        else:
+            runs.append(ensure_run(folder, cache / "runs", scene_options, pipeline_options, log=_log))
+    return runs
+
+
+def _load(runs: list[Path]):
+    from engine.confidence.data import load_run
+
+    samples = []
+    for run in runs:
+        samples.extend(load_run(run))
+    return samples
+
+
+def _subset(samples: list, count: int) -> list:
+    if count <= 0 or len(samples) <= count:
+        return samples
+    return [samples[int(i)] for i in np.linspace(0, len(samples) - 1, count).round()]
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from engine.confidence.training import TrainOptions, ValidationSet, train
+    from engine.patchmatch import PatchMatchOptions
+    from engine.pipeline import PipelineOptions
+    from engine.scene import SceneOptions
+    from workbench.flags import options_from_args
+
+    options: TrainOptions = options_from_args(TrainOptions, args)
+    if not args.scenes and not args.synthetic:
+        raise DeepCError("deepc train: give training scenes (SCENE_OR_RUN ...) and/or --synthetic SEEDS")
+    scene_options = SceneOptions(num_source_views=args.num_source_views, max_image_size=args.max_image_size)
+    pipeline_options = PipelineOptions(pipeline="vanilla",
+                                       patchmatch=PatchMatchOptions(schedule=args.schedule, seed=0)).validate()
+    cache = Path(args.cache)
+    out = Path(args.out) if args.out else Path("runs/train") / f"{options.loss}_{options.fusion}" / "weights.pt"
+    checkpoint = Path(args.checkpoint) if args.checkpoint else out.with_name(out.stem + ".checkpoint.pt")
+
+    t = time.perf_counter()
+    train_runs = _resolve_runs(args.scenes, args.synthetic, cache, scene_options, pipeline_options)
+    train_samples = _load(train_runs)
+    validation = []
+    for path in args.validation:
+        run = _resolve_runs([path], [], cache, scene_options, pipeline_options)
+        validation.append(ValidationSet(Path(path).name, _subset(_load(run), args.validation_max_views)))
+    if args.validation_synthetic:
+        runs = _resolve_runs([], args.validation_synthetic, cache, scene_options, pipeline_options)
+        validation.append(ValidationSet("synthetic_heldout", _subset(_load(runs), args.validation_max_views)))
+    overlap = {s.scene for s in train_samples} & {s.scene for v in validation for s in v.samples}
+    if overlap:
+        raise DeepCError(f"scene(s) {', '.join(sorted(overlap))} are both in training and validation")
+    labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
+    _log(f"training data: {len(train_runs)} runs, {len(train_samples)} views, {labelled:,} labelled pixels; "
+         f"validation: {', '.join(f'{v.name} ({len(v.samples)} views)' for v in validation) or 'none'} "
+         f"({time.perf_counter() - t:.0f} s)")
+
+    start = time.perf_counter()
+
+    def progress(event: dict) -> None:
+        if event["kind"] == "resume":
+            _log(f"resuming from {checkpoint} after epoch {event['epoch']}")
+        elif event["kind"] == "step" and (event["step"] % 10 == 0 or event["step"] + 1 == event["steps"]):
+            _log(f"epoch {event['epoch'] + 1}/{options.epochs} step {event['step'] + 1}/{event['steps']} "
+                 f"loss {event['loss']:.4f} ({time.perf_counter() - start:.0f} s)")
+        elif event["kind"] == "epoch":
+            aucs = ", ".join(f"{k} {v['auc']:.2f}" for k, v in event["validation"]["sets"].items())
+            _log(f"epoch {event['epoch']}: loss {event['loss']:.4f}, ROC-AUC {aucs or '-'}"
+                 f"{' (best so far, saved)' if event['improved'] else ''}; train {event['train_seconds']:.0f} s, "
+                 f"validation {event['validation_seconds']:.0f} s")
+
+    data_names = sorted({s.scene for s in train_samples})
+    init = None
+    if args.init:
+        from engine.confidence.weights import load_weights
+        init = load_weights(args.init)
+    result = train(train_samples, validation, options, checkpoint, out, progress=progress,
+                   data_names=data_names, max_epochs=args.max_epochs, init=init,
+                   init_name=str(Path(args.init).resolve()) if args.init else "")
+    result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
+    write_json(out.with_name(out.stem + ".history.json"), result)
+    best = result["best"]
+    if args.model_card:
+        write_model_card(Path(args.model_card), out, result, train_runs, args)
+    print(json.dumps({"weights": str(out), "best_epoch": best["epoch"], "score": best["score"],
+                      "epochs_done": result["epochs_done"]}))
+    return 0
+
+
+def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[Path], args: argparse.Namespace) -> None:
+    """A Markdown model card for the best weights of a training."""
+    import datetime
+
+    from engine.confidence.weights import load_weights
+    from engine.io.atomic import atomic_write_text
+
+    model = load_weights(weights)
+    meta = model.meta
+    best = result["best"]
+    history = result["history"]
+    lines = [
+        f"# Confidence network weights: `{weights.name}`", "",
+        f"- Written: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; best epoch "
+        f"{best['epoch']} of {result['epochs_done']} (trained {meta.get('trained')}).",
+        f"- Architecture: DeepC U-Net, {model.fusion} fusion, widths {list(model.widths)}, "
+        f"{result['parameters']:,} parameters; stored as fp16 ({weights.stat().st_size / 2**20:.1f} MB).",
+        f"- Training time: {sum(h['train_seconds'] for h in history) / 60:.1f} min of optimisation + "
+        f"{sum(h['validation_seconds'] for h in history) / 60:.1f} min of validation on a shared 2-core CPU"
+        + (f"; warm start from `{meta['init']}`" if meta.get("init") else "") + ".",
+        f"- Training data ({len(train_runs)} scenes, whole scenes only): "
+        + ", ".join(sorted(Path(r).name for r in train_runs)) + ". Engine runs: vanilla PatchMatch, "
+        f"schedule {args.schedule}, {args.num_source_views} source views, labels per SPEC.md §4.3 (2 px).",
+        "- Options: " + ", ".join(f"{k}={v}" for k, v in meta.get("options", {}).items()), "",
+        "## Validation ROC-AUC ×100 (pooled over labelled pixels) at the selected epoch", "",
+        "| set | views | ROC-AUC | inliers |", "|---|---|---|---|",
+    ]
+    for name, v in best["validation"]["sets"].items():
+        lines.append(f"| {name} | {len(v['per_view'])} | {v['auc']:.2f} | {100 * v['inlier_fraction']:.1f}% |")
+    lines += ["", "## History", "", "| epoch | loss | " + " | ".join(best["validation"]["sets"]) + " |",
+              "|---|---|" + "---|" * len(best["validation"]["sets"])]
+    for h in history:
+        aucs = " | ".join(f"{v['auc']:.2f}" for v in h["validation"]["sets"].values())
+        lines.append(f"| {h['epoch']} | {h['loss']:.4f} | {aucs} |")
+    atomic_write_text(path, "\n".join(lines) + "\n")
