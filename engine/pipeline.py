@@ -18,7 +18,6 @@ import numpy as np
 from engine import __version__
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
-from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene, write_fused_ply
@@ -27,6 +26,7 @@ from engine.io.ply import read_points
 from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
+from engine.refinement.options import RefinementOptions
 from engine.scene import Scene
 
 PIPELINES = ("vanilla", "fast", "full")
@@ -43,12 +43,14 @@ class PipelineOptions(Options):
     counter: CounterOptions = option(CounterOptions(), "counter-map options", cli=False)
     confidence: ConfidenceOptions = option(ConfidenceOptions(), "confidence network and filtering (fast, full)",
                                            cli=False)
+    refinement: RefinementOptions = option(RefinementOptions(), "confidence-guided refinement (full)", cli=False)
     fusion: FusionOptions = option(FUSION_PRESETS["deepc"], "fusion options", cli=False)
     evaluation: EvaluationOptions = option(EvaluationOptions(), "evaluation options", cli=False)
 
     def validate(self) -> PipelineOptions:
         super().validate()
-        for stage in (self.patchmatch, self.counter, self.confidence, self.fusion, self.evaluation):
+        for stage in (self.patchmatch, self.counter, self.confidence, self.refinement, self.fusion,
+                      self.evaluation):
             stage.validate()
         return self
 
@@ -97,7 +99,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if notify:
         notify("patchmatch", maps=maps, counter=counter)
 
-    confidence = None
+    confidence = refined = None
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
     if options.pipeline == "fast":
         t = time.perf_counter()
@@ -110,11 +112,42 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         seconds["confidence"] = time.perf_counter() - t
         if notify:
             notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
-    elif options.pipeline != "vanilla":
-        raise DeepCError(f"pipeline {options.pipeline!r} is not available in this version (vanilla or fast)")
+        fusion_confidence = confidence
+    elif options.pipeline == "full":
+        t = time.perf_counter()
+        confidence = confidence_stage(scene, maps, counter, options.confidence)
+        for view, c in zip(scene.views, confidence, strict=True):
+            write_map(out_dir, "confidence", view.name, c)
+        seconds["confidence"] = time.perf_counter() - t
+        if notify:
+            notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
+        t = time.perf_counter()
+        refined = refinement_stage(scene, maps, confidence, options.refinement)
+        for view, r in zip(scene.views, refined, strict=True):
+            write_map(out_dir, "refined_depth", view.name, r.depth)
+            write_map(out_dir, "refined_normal", view.name, r.normal)
+        seconds["refinement"] = time.perf_counter() - t
+        t = time.perf_counter()
+        # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering
+        refined_counter = compute_counter_maps(views, refined, options.counter)
+        refined_options = options.confidence.replace(weights=options.confidence.refined_weights
+                                                     or options.confidence.weights)
+        refined_confidence = confidence_stage(scene, refined, refined_counter, refined_options)
+        filtered = [filter_by_confidence(r.depth, r.normal, c, options.refinement.refined_conf_tau)
+                    for r, c in zip(refined, refined_confidence, strict=True)]
+        depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
+        if options.refinement.sky_filter:
+            from engine.refinement.views import sky_filter_views
+            depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence)
+        seconds["confidence"] += time.perf_counter() - t
+        fusion_confidence = refined_confidence
+        if notify:
+            notify("refinement", refined=refined, confidence=refined_confidence)
+    else:
+        fusion_confidence = None
 
     t = time.perf_counter()
-    fusion_views = views_from_scene(scene, depths, normals, confidence, options.fusion.check_num_images)
+    fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
     cloud = fuse(fusion_views, options.fusion)
     write_fused_ply(out_dir / "fused.ply", cloud)
     seconds["fusion"] = time.perf_counter() - t
@@ -139,9 +172,12 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             auc = confidence_auc(scene, [m.depth for m in maps], confidence)
             metrics["confidence_auc"] = auc["pooled"]
             metrics["confidence_auc_per_view"] = auc["per_view"]
+        if refined is not None:
+            metrics["refined_depth"], metrics["refined_depth_per_view"] = _depth_block(scene, refined)
     if confidence is not None:
         kept = sum(int((d > 0).sum()) for d in depths)
-        metrics["confidence_kept_pct"] = 100.0 * kept / max(1, sum(int((m.depth > 0).sum()) for m in maps))
+        before = refined if refined is not None else maps
+        metrics["confidence_kept_pct"] = 100.0 * kept / max(1, sum(int((m.depth > 0).sum()) for m in before))
     metrics["options"] = {"scene": scene.options.to_dict(), **options.to_dict()}
     metrics["version"] = __version__
     write_metrics(out_dir, metrics)
@@ -164,6 +200,22 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
             x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
             c = predict_confidence(model, x, options.tile, options.overlap, options.bf16, options.zero_backfacing)
             out.append(np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32))
+    return out
+
+
+def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],
+                     options: RefinementOptions) -> list[ViewMaps]:
+    """Refined dense depth and normals per view (SPEC.md §6) as :class:`ViewMaps` (cost and selected views
+    zero); a view without data to refine from stays empty (a warning names it)."""
+    from engine.refinement.views import refine_views
+
+    refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options)
+    out = []
+    for m, r in zip(maps, refined, strict=True):
+        depth = np.zeros_like(m.depth) if r is None else np.asarray(r.depth, np.float32)
+        normal = np.zeros_like(m.normal) if r is None else np.asarray(r.normal, np.float32)
+        out.append(ViewMaps(depth, np.where(depth[..., None] > 0, normal, 0).astype(np.float32),
+                            np.zeros_like(m.cost), np.zeros_like(m.selected_views)))
     return out
 
 

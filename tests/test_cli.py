@@ -69,11 +69,6 @@ def test_bad_option_values_give_exit_2(tmp_path):
     assert result.returncode == 2 and "--depth-range" in result.stderr
 
 
-@pytest.mark.parametrize("args", [["run", "sample_scenes/tiny", "--out", "x", "--pipeline", "full", "--headless"]])
-def test_stages_that_do_not_exist_yet_say_so(args, tmp_path):
-    _one_line_error(deepc(*args), "does not exist yet")
-
-
 def test_set_refuses_unknown_stages_and_options(tmp_path):
     base = ["run", SAMPLES / "tiny", "--out", tmp_path / "o", "--headless"]
     _one_line_error(deepc(*base, "--set", "nonsense.x=1"), "unknown stage")

@@ -137,3 +137,29 @@ def test_run_fast_writes_confidence_maps_and_auc(tmp_path):
     result = deepc("run", TINY, "--out", tmp_path / "o2", "--pipeline", "fast", "--headless", "--weights", bad)
     assert result.returncode == 2 and "bad.pt" in result.stderr and len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o2").exists()
+
+
+@pytest.mark.slow
+def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
+    out = tmp_path / "out"
+    result = deepc("run", TINY, "--out", out, "--pipeline", "full", "--headless", "--iterations", "1",
+                   "--levels", "1", "--set", "refinement.scales=2", "--set", "refinement.fast_iters=60,40",
+                   "--set", "refinement.iters=10,10", "--set", "refinement.lr=0.01,0.01",
+                   "--set", "refinement.lr_slots=1,1")
+    assert result.returncode == 0, result.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["pipeline"] == "full" and metrics["seconds"]["refinement"] > 0
+    assert metrics["options"]["fusion"]["max_normal_error"] == 5.0  # the refined preset by default
+    # refinement fills holes: every GT pixel has a refined estimate, while PatchMatch's own maps stay as they were
+    assert metrics["refined_depth"]["valid_fraction"] > 99.0
+    assert metrics["refined_depth"]["within_5pct"] >= metrics["depth"]["within_5pct"] - 5.0
+    from engine.io.outputs import read_map
+    from engine.io.ply import read_points
+    from engine.scene import load_scene
+    for v in load_scene(TINY).views:
+        depth, normal = read_map(out, "refined_depth", v.name), read_map(out, "refined_normal", v.name)
+        assert depth.shape == (120, 160) and normal.shape == (120, 160, 3)
+        valid = depth > 0
+        assert valid.mean() > 0.9 and np.allclose(np.linalg.norm(normal[valid], axis=-1), 1.0, atol=1e-3)
+        assert read_map(out, "confidence", v.name) is not None
+    assert metrics["fused_points"] == len(read_points(out / "fused.ply")) > 0

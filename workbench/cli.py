@@ -10,7 +10,7 @@ import argparse
 import signal
 import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from engine import __version__
@@ -19,16 +19,6 @@ from engine.scene import SceneOptions, load_scene
 from workbench.flags import add_options_flags, options_from_args, section_overrides
 
 EXIT_OK, EXIT_REGRESSED, EXIT_USAGE = 0, 1, 2
-
-
-class NotYetImplemented(DeepCError):
-    """A subcommand whose pipeline stage has not been built yet."""
-
-
-def _not_yet(command: str, stage: str) -> Callable[[argparse.Namespace], int]:
-    def handler(args: argparse.Namespace) -> int:
-        raise NotYetImplemented(f"deepc {command}: {stage} does not exist yet in this version")
-    return handler
 
 
 def _eval(args: argparse.Namespace) -> int:
@@ -68,7 +58,7 @@ RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_prop
                         "view_sampling", "levels", "geom_passes", "num_threads"]
 
 
-SET_SECTIONS = ("patchmatch", "confidence", "fusion", "stream")
+SET_SECTIONS = ("patchmatch", "confidence", "refinement", "fusion", "stream")
 
 
 def run_options_from_args(args: argparse.Namespace):
@@ -86,21 +76,23 @@ def run_options_from_args(args: argparse.Namespace):
     scene_options = options_from_args(SceneOptions, args)
     patchmatch = options_from_args(PatchMatchOptions, args,
                                    **section_overrides(args.set, "patchmatch", PatchMatchOptions))
-    fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[args.fusion_preset],
+    preset = args.fusion_preset or ("refined" if args.pipeline == "full" else "deepc")
+    fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[preset],
                                **section_overrides(args.set, "fusion", FusionOptions))
     from engine.confidence.options import ConfidenceOptions
     confidence = ConfidenceOptions(**section_overrides(args.set, "confidence", ConfidenceOptions))
     if getattr(args, "weights", None):
         confidence = confidence.replace(weights=str(Path(args.weights).resolve()))
+    from engine.refinement.options import RefinementOptions
+    refinement = RefinementOptions(**section_overrides(args.set, "refinement", RefinementOptions))
     options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, confidence=confidence,
-                              fusion=fusion).validate()
+                              refinement=refinement, fusion=fusion).validate()
     stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
-    if options.pipeline == "full":
-        raise NotYetImplemented("deepc run --pipeline full: confidence-guided refinement does not exist yet in "
-                                "this version (use --pipeline fast or vanilla)")
-    if options.pipeline == "fast":
+    if options.pipeline in ("fast", "full"):
         from engine.confidence.weights import read_weights_file
         read_weights_file(options.confidence.weights or _default_weights())  # bad weights fail before PatchMatch
+        if options.pipeline == "full" and options.confidence.refined_weights:
+            read_weights_file(options.confidence.refined_weights)
     return scene_options, options, stream_options
 
 
@@ -214,7 +206,11 @@ def _print_run_summary(metrics: dict, out: str) -> None:
         d = metrics["depth"]
         print(f"depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
               f"valid {d['valid_fraction']:.1f}%, abs rel {d['abs_rel']:.4f}")
-    if metrics["pipeline"] == "fast":
+    if "refined_depth" in metrics:
+        d = metrics["refined_depth"]
+        print(f"refined depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
+              f"valid {d['valid_fraction']:.1f}% ({seconds['refinement']:.1f} s)")
+    if metrics["pipeline"] in ("fast", "full"):
         auc = f", ROC-AUC vs labels {metrics['confidence_auc']:.2f}" if "confidence_auc" in metrics else ""
         print(f"confidence: {seconds['confidence']:.1f} s, {metrics['confidence_kept_pct']:.1f}% of the estimates "
               f"kept at tau {metrics['options']['confidence']['tau']:g}{auc}")
@@ -237,9 +233,9 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
     add_options_flags(parser.add_argument_group("patchmatch"), PatchMatchOptions, only=RUN_PATCHMATCH_FLAGS)
     from engine.fusion import FUSION_PRESETS, FusionOptions
     fusion_group = parser.add_argument_group("fusion")
-    fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default="deepc",
-                              help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels); "
-                                   "the flags below override single values")
+    fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default=None,
+                              help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels; "
+                                   "refined = 5° for --pipeline full); the flags below override single values")
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
                                                          "min_num_pixels"])
     parser.add_argument("--weights", metavar="FILE", default=None,

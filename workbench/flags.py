@@ -31,6 +31,8 @@ def _base_type(hint: Any) -> Any:
 def _tuple_parser(name: str, kinds: tuple):
     def parse(text: str):
         parts = text.split(",")
+        if len(kinds) == 2 and kinds[1] is Ellipsis:  # tuple[int, ...]: any number of values
+            return tuple(_tuple_parser(name, (kinds[0],) * len(parts))(text))
         if len(parts) != len(kinds):
             raise argparse.ArgumentTypeError(f"{name} takes {len(kinds)} comma-separated values, got {text!r}")
         try:

@@ -14,6 +14,9 @@ class ConfidenceOptions(Options):
     tau: float = option(0.05, "keep pixels whose confidence is at least this before fusion", metavar="TAU")
     weights: str = option("", "weights file (default: the shipped engine/confidence/weights/deepc_middle.pt)",
                           metavar="FILE")
+    refined_weights: str = option("", "weights for the confidence of refined maps (full pipeline; default: the "
+                                  "same weights as --weights until a network trained on refined maps ships)",
+                                  metavar="FILE")
     tile: int = option(512, "largest tile side for inference, multiple of 16 (bounds memory; 512 is also the "
                        "fastest on 2 cores)", metavar="PX")
     overlap: int = option(64, "context pixels on each side of a tile", metavar="PX")
