@@ -99,8 +99,7 @@ def run_options_from_args(args: argparse.Namespace):
         raise NotYetImplemented("deepc run --pipeline full: confidence-guided refinement does not exist yet in "
                                 "this version (use --pipeline fast or vanilla)")
     if options.pipeline == "fast":
-        from engine.confidence.weights import read_weights_file
-        read_weights_file(options.confidence.weights or _default_weights())  # bad weights fail before PatchMatch
+        _check_weights(Path(options.confidence.weights or _default_weights()))
     return scene_options, options, stream_options
 
 
@@ -183,6 +182,24 @@ def _prepare_output(args: argparse.Namespace):
     if removed:
         print(f"removed {len(removed)} temporary file(s) left by an interrupted run", file=sys.stderr)
     return PatchMatchCheckpoint(out / CHECKPOINT_DIR, resume=args.resume)
+
+
+_CHECKED_WEIGHTS: set[tuple[str, int, int]] = set()
+
+
+def _check_weights(path: Path) -> None:
+    """Load the weights once (network built, every tensor checked) so that bad weights fail before anything
+    runs; a suite naming the same file many times checks it once (keyed by size and modification time)."""
+    from engine.confidence.weights import load_weights
+
+    try:
+        stat = path.stat()
+        key = (str(path), stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        key = None
+    if key is None or key not in _CHECKED_WEIGHTS:
+        load_weights(path)
+        _CHECKED_WEIGHTS.add(key)
 
 
 def _default_weights() -> Path:
