@@ -343,7 +343,7 @@ tolerances = { auc = 1.0, cpu_time = false }
 
 def confidence_weights_target(tmp: Path) -> FuzzTarget:
     """Confidence-network weights file (engine/confidence/weights.py load_weights) in the shipped format:
-    a tiny network (widths 2, 4; ~11 KB instead of 15 MB) so that each mutation is cheap to load."""
+    a tiny network (widths 2, 4; 30 KB instead of 15 MB) so that each mutation is cheap to load."""
     from engine.confidence.network import ConfidenceNet
     from engine.confidence.weights import load_weights, save_weights
 
