@@ -86,6 +86,15 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     start = time.perf_counter()
     notify = getattr(observer, "on_stage", None)
 
+    model = refined_model = None
+    if options.pipeline in ("fast", "full"):
+        # Loaded (and checked) before PatchMatch and kept in memory: bad weights fail at once, and a weights
+        # file moved or overwritten while PatchMatch runs cannot end a long run at its last stage.
+        from engine.confidence.weights import load_weights
+        model = load_weights(options.confidence.weights or None)
+        refined_model = load_weights(options.confidence.refined_weights) if options.confidence.refined_weights \
+            else model
+
     views = patchmatch_views(scene)
     t = time.perf_counter()
     maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress, checkpoint=checkpoint)
@@ -103,7 +112,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
     if options.pipeline == "fast":
         t = time.perf_counter()
-        confidence = confidence_stage(scene, maps, counter, options.confidence)
+        confidence = confidence_stage(scene, maps, counter, options.confidence, model)
         for view, c in zip(scene.views, confidence, strict=True):
             write_map(out_dir, "confidence", view.name, c)
         filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
@@ -115,7 +124,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         fusion_confidence = confidence
     elif options.pipeline == "full":
         t = time.perf_counter()
-        confidence = confidence_stage(scene, maps, counter, options.confidence)
+        confidence = confidence_stage(scene, maps, counter, options.confidence, model)
         for view, c in zip(scene.views, confidence, strict=True):
             write_map(out_dir, "confidence", view.name, c)
         seconds["confidence"] = time.perf_counter() - t
@@ -130,9 +139,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         t = time.perf_counter()
         # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering
         refined_counter = compute_counter_maps(views, refined, options.counter)
-        refined_options = options.confidence.replace(weights=options.confidence.refined_weights
-                                                     or options.confidence.weights)
-        refined_confidence = confidence_stage(scene, refined, refined_counter, refined_options)
+        refined_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
         filtered = [filter_by_confidence(r.depth, r.normal, c, options.refinement.refined_conf_tau)
                     for r, c in zip(refined, refined_confidence, strict=True)]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
@@ -187,13 +194,15 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 
 
 def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarray],
-                     options: ConfidenceOptions) -> list[np.ndarray]:
-    """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4)."""
+                     options: ConfidenceOptions, model: Any = None) -> list[np.ndarray]:
+    """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4); ``model``: a loaded
+    :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now)."""
     from engine.confidence.inference import predict_confidence, torch_threads
     from engine.confidence.inputs import network_inputs
     from engine.confidence.weights import load_weights
 
-    model = load_weights(options.weights or None)
+    if model is None:
+        model = load_weights(options.weights or None)
     out = []
     with torch_threads(options.num_threads):
         for view, m, k in zip(scene.views, maps, counter, strict=True):

@@ -294,8 +294,65 @@ def images_target(tmp: Path) -> FuzzTarget:
     return FuzzTarget("images", tmp, ["view.png", "view.jpg"], read)
 
 
-# Deferred until their readers land (other branches): "regress_suite" (workbench/regress.py, TOML) and
-# "confidence_weights" (engine/confidence/). Each is one function like those above, added here.
+def regress_suite_target(tmp: Path) -> FuzzTarget:
+    """Regression suite TOML (workbench/regress.py load_suite): every key kind, parsed as ``deepc regress`` does."""
+    from workbench.regress import load_suite
+
+    for scene in ("tiny", "small"):  # load_suite checks that each scene folder has sparse/
+        (tmp / scene).symlink_to(SAMPLES / scene, target_is_directory=True)
+    (tmp / "suite.toml").write_text(VALID_SUITE)
+    return FuzzTarget("regress_suite", tmp, ["suite.toml"], lambda root: load_suite(root / "suite.toml"),
+                      text=True)
+
+
+VALID_SUITE = """name = "fuzz"
+baseline = "baselines"
+thumbnail_views = 4
+
+[defaults]
+schedule = "acmm"
+seed = 0
+max-image-size = 160
+
+[tolerances]
+f1 = 0.5
+time = 0.5
+
+[[scene]]
+path = "tiny"
+plane-propagation = false
+
+[[scene]]
+path = "small"
+name = "small-192"
+max-image-size = 192
+tolerances = { accuracy = 1.0 }
+
+[[pipeline]]
+name = "vanilla"
+pipeline = "vanilla"
+set = ["patchmatch.iterations=2", "patchmatch.window=7"]
+
+[[pipeline]]
+name = "fast"
+pipeline = "fast"
+scenes = ["tiny"]
+tolerances = { auc = 1.0, cpu_time = false }
+"""
+
+
+def confidence_weights_target(tmp: Path) -> FuzzTarget:
+    """Confidence-network weights file (engine/confidence/weights.py load_weights) in the shipped format:
+    a tiny network (widths 2, 4; 30 KB instead of 15 MB) so that each mutation is cheap to load."""
+    from engine.confidence.network import ConfidenceNet
+    from engine.confidence.weights import load_weights, save_weights
+
+    torch = __import__("torch")
+    torch.manual_seed(0)
+    save_weights(tmp / "weights.pt", ConfidenceNet("middle", (2, 4)), {"val_auc": 80.5, "note": "fuzz"})
+    return FuzzTarget("confidence_weights", tmp, ["weights.pt"], lambda root: load_weights(root / "weights.pt"))
+
+
 TARGETS: dict[str, Callable[[Path], FuzzTarget]] = {
     "dense_bin": dense_target,
     "ply": ply_target,
@@ -303,5 +360,6 @@ TARGETS: dict[str, Callable[[Path], FuzzTarget]] = {
     "colmap_binary": colmap_binary_target,
     "eth3d_mlp": eth3d_mlp_target,
     "images": images_target,
+    "regress_suite": regress_suite_target,
+    "confidence_weights": confidence_weights_target,
 }
-

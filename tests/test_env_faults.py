@@ -9,6 +9,7 @@ and are skipped otherwise.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import subprocess
@@ -110,3 +111,34 @@ def test_ground_truth_removed_mid_run_is_a_clear_error_and_resumable(tmp_path):
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert (out / "metrics.json").is_file() and not (out / CHECKPOINT_DIR).exists()
+
+
+def test_weights_removed_mid_run_do_not_end_the_run(tmp_path):
+    """The confidence weights are loaded and checked before PatchMatch and kept in memory: a weights file
+    deleted, or replaced by garbage, while PatchMatch runs cannot end a long run at its last stage."""
+    from engine.confidence.weights import DEFAULT_WEIGHTS
+
+    weights = tmp_path / "copy.pt"
+    shutil.copyfile(DEFAULT_WEIGHTS, weights)
+    out = tmp_path / "out"
+    proc = start_run(SAMPLES / "tiny", out, "--pipeline", "fast", "--weights", str(weights))
+
+    def garble_when_patchmatch_started() -> bool:
+        if saved_states(out) >= 1 and weights.exists():
+            weights.unlink()
+            (tmp_path / "copy.pt.partial").write_bytes(b"garbage")
+            (tmp_path / "copy.pt.partial").rename(weights)  # a half-copied file where the weights were
+        return False
+
+    code, err = kill_when(proc, garble_when_patchmatch_started, 0)
+    assert code == 0 and "Traceback" not in err, err[-2000:]
+    assert weights.read_bytes() == b"garbage"  # the fault really happened during the run
+    check_no_partial(out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    confidence_maps = list(out.glob("stereo/confidence_maps/*.bin"))
+    assert metrics["pipeline"] == "fast" and len(confidence_maps) == metrics["num_images"]
+    # the next run refuses the damaged file at once, with one line naming it, and writes nothing
+    result = deepc("run", SAMPLES / "tiny", "--out", tmp_path / "out2", "--headless", *FAST, "--pipeline", "fast",
+                   "--weights", weights)
+    _one_line_error(result.returncode, result.stderr, str(weights), "not a readable weights file")
+    assert not (tmp_path / "out2").exists()

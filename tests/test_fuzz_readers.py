@@ -15,7 +15,8 @@ from fuzzing import TARGETS, FuzzCounts, check_input, damaged_inputs
 from hypothesis import HealthCheck, given, settings
 
 # examples per target in CI: the COLMAP targets load a scene per example (~0.1 s)
-EXAMPLES = {"dense_bin": 150, "ply": 150, "colmap_text": 60, "colmap_binary": 60, "eth3d_mlp": 100, "images": 100}
+EXAMPLES = {"dense_bin": 150, "ply": 150, "colmap_text": 60, "colmap_binary": 60, "eth3d_mlp": 100, "images": 100,
+            "regress_suite": 100, "confidence_weights": 150}
 
 
 @pytest.fixture(scope="module")
@@ -60,3 +61,45 @@ def test_half_copied_binary_model_is_refused_at_the_command_line(tmp_path):
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1, result.stderr
     assert lines[0].startswith("deepc: error: ") and str(points) in lines[0] and "truncated" in lines[0]
+
+
+def _damaged_weights(tmp_path) -> list:
+    """Weights files as damage leaves them: half copied, and one stored number's bits flipped to NaN."""
+    import torch
+
+    from engine.confidence.network import ConfidenceNet
+    from engine.confidence.weights import save_weights
+
+    good = save_weights(tmp_path / "good.pt", ConfidenceNet("middle", (2, 4)))
+    half = tmp_path / "half.pt"
+    half.write_bytes(good.read_bytes()[:len(good.read_bytes()) // 2])
+    model = ConfidenceNet("middle", (2, 4))
+    with torch.no_grad():
+        model.head.bias.fill_(float("nan"))
+    return [(half, "not a readable weights file"), (save_weights(tmp_path / "nan.pt", model), "NaN")]
+
+
+def test_damaged_suite_and_weights_are_refused_at_the_command_line(tmp_path):
+    """`deepc regress --suite F` and `deepc run --weights F`: exit 2, one line naming the file, and nothing
+    started (no report, no output folder: bad weights are refused before PatchMatch)."""
+    from fuzzing import VALID_SUITE
+
+    for scene in ("tiny", "small"):
+        (tmp_path / scene).symlink_to(SAMPLES / scene, target_is_directory=True)
+    suites = [(VALID_SUITE[:VALID_SUITE.index("[[pipeline]]") + 5], "not valid TOML"),
+              (VALID_SUITE.replace("thumbnail_views = 4", "thumbnail_views = nan"), "thumbnail_views")]
+    for i, (text, expected) in enumerate(suites):
+        suite = tmp_path / f"suite{i}.toml"
+        suite.write_text(text)
+        result = _deepc("regress", "--suite", suite, "--report", tmp_path / "report")
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        assert result.returncode == 2 and len(lines) == 1, result.stderr
+        assert str(suite) in lines[0] and expected in lines[0], lines[0]
+        assert not (tmp_path / "report").exists()
+    for weights, expected in _damaged_weights(tmp_path):
+        result = _deepc("run", SAMPLES / "tiny", "--out", tmp_path / "out", "--pipeline", "fast", "--weights", weights,
+                        "--headless")
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        assert result.returncode == 2 and len(lines) == 1, result.stderr
+        assert lines[0].startswith("deepc: error: ") and str(weights) in lines[0] and expected in lines[0], lines[0]
+        assert not (tmp_path / "out").exists()

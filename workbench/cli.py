@@ -88,11 +88,10 @@ def run_options_from_args(args: argparse.Namespace):
     options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, confidence=confidence,
                               refinement=refinement, fusion=fusion).validate()
     stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
-    if options.pipeline in ("fast", "full"):
-        from engine.confidence.weights import read_weights_file
-        read_weights_file(options.confidence.weights or _default_weights())  # bad weights fail before PatchMatch
+    if options.pipeline in ("fast", "full"):  # bad weights fail before PatchMatch
+        _check_weights(Path(options.confidence.weights or _default_weights()))
         if options.pipeline == "full" and options.confidence.refined_weights:
-            read_weights_file(options.confidence.refined_weights)
+            _check_weights(Path(options.confidence.refined_weights))
     return scene_options, options, stream_options
 
 
@@ -175,6 +174,24 @@ def _prepare_output(args: argparse.Namespace):
     if removed:
         print(f"removed {len(removed)} temporary file(s) left by an interrupted run", file=sys.stderr)
     return PatchMatchCheckpoint(out / CHECKPOINT_DIR, resume=args.resume)
+
+
+_CHECKED_WEIGHTS: set[tuple[str, int, int]] = set()
+
+
+def _check_weights(path: Path) -> None:
+    """Load the weights once (network built, every tensor checked) so that bad weights fail before anything
+    runs; a suite naming the same file many times checks it once (keyed by size and modification time)."""
+    from engine.confidence.weights import load_weights
+
+    try:
+        stat = path.stat()
+        key = (str(path), stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        key = None
+    if key is None or key not in _CHECKED_WEIGHTS:
+        load_weights(path)
+        _CHECKED_WEIGHTS.add(key)
 
 
 def _default_weights() -> Path:
