@@ -22,7 +22,6 @@ import time
 import numpy as np
 
 from engine.errors import DeepCError
-from engine.refinement.adam import solve_adam
 from engine.refinement.energy import ScaleProblem, energy_terms
 from engine.refinement.graph import similarity_graph
 from engine.refinement.options import RefinementOptions
@@ -197,6 +196,8 @@ def refine_depth(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_
             u = normal_to_u(resize_nearest(normal_prev, shape), z, K)
         n_it = int(iters[s])
         if options.solver == "adam":
+            from engine.refinement.adam import solve_adam  # torch: only for the reference solver
+
             d_f, u_f, done = solve_adam(problem, d.ravel(), u.reshape(-1, 2), n_it, options.lr[s], options.lr_slots[s])
         else:
             d_f, u_f, done = solve_primal_dual(problem, d.ravel(), u.reshape(-1, 2), n_it, options.fast_balance)
