@@ -34,7 +34,7 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def add_train_arguments(train: argparse.ArgumentParser) -> None:
-    from engine.confidence.training import TrainOptions
+    from engine.confidence.options import TrainOptions
     from workbench.flags import add_options_flags
 
     train.add_argument("scenes", nargs="*", metavar="SCENE_OR_RUN",

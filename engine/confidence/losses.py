@@ -13,7 +13,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-LOSSES = ("deepc_squared", "deepc_l2", "bce", "wbce")
+from engine.confidence.options import LOSSES
+
 NEGATIVE_WEIGHT = 3.0
 
 

@@ -16,8 +16,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from engine.confidence.options import FUSIONS
+
 STREAMS = {"rgb": (0, 3), "normal": (3, 5), "counter": (5, 6)}
-FUSIONS = ("middle", "early")
 DEFAULT_WIDTHS = (32, 64, 128, 256)
 
 

@@ -27,49 +27,13 @@ import torch
 from engine.confidence.data import ViewSample, flip_horizontal
 from engine.confidence.inference import _autocast, predict_confidence
 from engine.confidence.inputs import NORMAL, encode_normals
-from engine.confidence.losses import LOSSES, loss_function
+from engine.confidence.losses import loss_function
 from engine.confidence.metrics import roc_auc
-from engine.confidence.network import FUSIONS, ConfidenceNet, parameter_count
+from engine.confidence.network import ConfidenceNet, parameter_count
+from engine.confidence.options import TrainOptions  # noqa: F401  (re-exported: the options live torch-free)
 from engine.confidence.weights import save_weights
 from engine.errors import DeepCError
 from engine.io.atomic import atomic_write_bytes
-from engine.options import Options, check, option
-
-
-@dataclasses.dataclass
-class TrainOptions(Options):
-    """Options of ``deepc train`` (SPEC.md §12 ``confnet``)."""
-
-    loss: str = option("deepc_squared", "training loss", choices=LOSSES)
-    fusion: str = option("middle", "middle: one encoder per stream (paper); early: one encoder on 6 channels",
-                         choices=FUSIONS)
-    epochs: int = option(20, "epochs", metavar="N")
-    steps_per_epoch: int = option(40, "optimiser steps per epoch", metavar="N")
-    batch: int = option(4, "crops per step", metavar="N")
-    crop: int = option(192, "crop side in pixels (multiple of 16; clamped to the smallest image)", metavar="PX")
-    min_labelled: float = option(0.05, "reject crops with a smaller fraction of labelled pixels", metavar="F")
-    lr: float = option(1e-3, "initial Adam learning rate", metavar="LR")
-    lr_final: float = option(1e-4, "learning rate at the end (cosine decay)", metavar="LR")
-    flip: bool = option(True, "random horizontal flips (n_x negated)")
-    normal_noise: float = option(0.3, "per crop, perturb the normals by Gaussian noise of a random size up to this "
-                                 "(unit-vector units): PatchMatch normals of real, curved surfaces are much noisier "
-                                 "than those of the piecewise-planar synthetic scenes (0 = off)", metavar="S")
-    color_jitter: float = option(0.2, "random per-crop RGB gain/bias of this size (photometric augmentation for "
-                                 "the transfer to photographs; 0 = off)", metavar="S")
-    bf16: bool = option(True, "bfloat16 autocast for the forward pass (about 2x faster on AVX-512 CPUs)")
-    seed: int = option(0, "seed of initialisation and crop sampling", metavar="N")
-    num_threads: int = option(0, "torch threads (0 = torch's default)", metavar="N")
-
-    def validate(self) -> TrainOptions:
-        super().validate()
-        for name in ("epochs", "steps_per_epoch", "batch"):
-            check(getattr(self, name) >= 1, name, getattr(self, name), "must be >= 1")
-        check(self.crop >= 32 and self.crop % 16 == 0, "crop", self.crop, "must be a multiple of 16, at least 32")
-        check(0.0 <= self.normal_noise <= 2.0, "normal_noise", self.normal_noise, "must be in [0, 2]")
-        check(0.0 <= self.color_jitter < 1.0, "color_jitter", self.color_jitter, "must be in [0, 1)")
-        check(0.0 <= self.min_labelled < 1.0, "min_labelled", self.min_labelled, "must be in [0, 1)")
-        check(self.lr > 0 and self.lr_final > 0, "lr", self.lr, "learning rates must be positive")
-        return self
 
 
 @dataclasses.dataclass
