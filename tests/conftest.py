@@ -109,3 +109,13 @@ def wait_for(predicate, timeout: float = 30.0, interval: float = 0.05):
             return value
         time.sleep(interval)
     pytest.fail(f"timed out after {timeout} s waiting for {getattr(predicate, '__name__', 'a condition')}")
+
+
+def run_async(coro, timeout: float = 300.0):
+    """Run ``coro`` to completion on a fresh event loop in its own thread: playwright's sync API (the
+    browser tests) leaves an event loop running on the main thread, where ``asyncio.run`` refuses to start."""
+    import asyncio
+    import concurrent.futures
+
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
+        return pool.submit(asyncio.run, coro).result(timeout=timeout)

@@ -13,7 +13,7 @@ import psutil
 import pytest
 import viser
 import websockets
-from conftest import REPO, SAMPLES, running_viewer, wait_for
+from conftest import REPO, SAMPLES, run_async, running_viewer, wait_for
 from interruption import FAST
 
 sys.path.insert(0, str(REPO / "benchmarks"))
@@ -63,7 +63,7 @@ def test_path_traversal_through_the_export_field_stays_in_exports(fake_run, tmp_
                                                               "updates": updates}))
                         await asyncio.sleep(0.3)
 
-        asyncio.run(attack())
+        run_async(attack(), timeout=120)
         exports = fake_run / "exports"
         wait_for(lambda: exports.is_dir() and len(list(exports.glob("*.ply"))) >= 1, timeout=60)
         for name in TRAVERSALS:  # and the same names through the method the button calls

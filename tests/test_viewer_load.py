@@ -4,11 +4,10 @@ exact result of the last event, reconnecting and late clients get the current st
 
 from __future__ import annotations
 
-import asyncio
 import sys
 
 import pytest
-from conftest import REPO, running_viewer
+from conftest import REPO, run_async, running_viewer
 
 sys.path.insert(0, str(REPO / "benchmarks"))
 
@@ -19,7 +18,7 @@ pytestmark = pytest.mark.slow
 
 def test_five_clients_fifty_events_per_second(fake_run):
     with running_viewer(fake_run) as app:
-        result = asyncio.run(load(app, clients=5, rate=50, seconds=5, reconnect_every=2))
+        result = run_async(load(app, clients=5, rate=50, seconds=5, reconnect_every=2), timeout=300)
     summary = summarise(result)
     assert summary["errors"] == [] and summary["settled"]
     assert summary["events"] >= 200  # the load really was applied
