@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+from table2_filters import score_cells
 
 from engine.consistency import compute_counter_maps
 from engine.evaluation import EvaluationOptions
@@ -213,9 +214,7 @@ def print_table(t: dict) -> None:
     print(f"{'method':<26} {'preset':<8} {'F1':>6} {'compl.':>7} {'acc.':>6} | {'F1':>6} {'compl.':>7} {'acc.':>6} "
           f"{'points':>9}")
     for r in t["rows"]:
-        print(f"{r['method']:<26} {r['preset']:<8} {r['f1@0.02']:>6.2f} {r['completeness@0.02']:>7.2f} "
-              f"{r['accuracy@0.02']:>6.2f} | {r['f1@0.05']:>6.2f} {r['completeness@0.05']:>7.2f} "
-              f"{r['accuracy@0.05']:>6.2f} {r['points']:>9,}")
+        print(f"{r['method']:<26} {r['preset']:<8} {score_cells(r)} {r['points']:>9,}")
     print(f"\n{'depth maps':<26} {'valid %':>8} {'<1 %':>7} {'<5 %':>7} {'abs_rel':>8}")
     for name, m in t["depth"].items():
         print(f"{name:<26} {m['valid_fraction']:>8.2f} {m['within_1pct']:>7.2f} {m['within_5pct']:>7.2f} "

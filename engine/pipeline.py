@@ -108,28 +108,21 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if notify:
         notify("patchmatch", maps=maps, counter=counter)
 
-    confidence = refined = None
+    confidence = refined = fusion_confidence = None
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
-    if options.pipeline == "fast":
+    if options.pipeline in ("fast", "full"):
         t = time.perf_counter()
-        confidence = confidence_stage(scene, maps, counter, options.confidence, model)
+        confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model)
         for view, c in zip(scene.views, confidence, strict=True):
             write_map(out_dir, "confidence", view.name, c)
-        filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
-                    for m, c in zip(maps, confidence, strict=True)]
-        depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
+        if options.pipeline == "fast":
+            filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
+                        for m, c in zip(maps, confidence, strict=True)]
+            depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         seconds["confidence"] = time.perf_counter() - t
         if notify:
             notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
-        fusion_confidence = confidence
-    elif options.pipeline == "full":
-        t = time.perf_counter()
-        confidence = confidence_stage(scene, maps, counter, options.confidence, model)
-        for view, c in zip(scene.views, confidence, strict=True):
-            write_map(out_dir, "confidence", view.name, c)
-        seconds["confidence"] = time.perf_counter() - t
-        if notify:
-            notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
+    if options.pipeline == "full":
         t = time.perf_counter()
         refined = refinement_stage(scene, maps, confidence, options.refinement)
         for view, r in zip(scene.views, refined, strict=True):
@@ -139,19 +132,16 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         t = time.perf_counter()
         # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering
         refined_counter = compute_counter_maps(views, refined, options.counter)
-        refined_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
+        fusion_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
         filtered = [filter_by_confidence(r.depth, r.normal, c, options.refinement.refined_conf_tau)
-                    for r, c in zip(refined, refined_confidence, strict=True)]
+                    for r, c in zip(refined, fusion_confidence, strict=True)]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         if options.refinement.sky_filter:
             from engine.refinement.views import sky_filter_views
             depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence)
         seconds["confidence"] += time.perf_counter() - t
-        fusion_confidence = refined_confidence
         if notify:
-            notify("refinement", refined=refined, confidence=refined_confidence)
-    else:
-        fusion_confidence = None
+            notify("refinement")
 
     t = time.perf_counter()
     fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
