@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import statistics
-import struct
 import sys
 import tempfile
 import time
@@ -25,23 +24,18 @@ import msgspec
 import numpy as np
 import viser
 import websockets
-import zstandard
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tests"))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 from conftest import make_fake_run  # noqa: E402
+from viewer_clients import decode_frame  # noqa: E402
 
 from engine.io.outputs import write_json  # noqa: E402
 from engine.scene import SceneOptions  # noqa: E402
 from workbench.session import ViewerSession  # noqa: E402
 from workbench.viewer import ViewerApp  # noqa: E402
-
-
-def decode_frame(data: bytes) -> list[dict]:
-    raw_size, zstd_size = struct.unpack_from("<QQ", data, 0)
-    payload = zstandard.ZstdDecompressor().decompress(data[16:16 + zstd_size], max_output_size=raw_size)
-    return msgspec.msgpack.decode(payload).get("messages", [])
 
 
 async def measure(app: ViewerApp, moves: list[tuple[object, float]]) -> list[dict]:

@@ -221,7 +221,7 @@ def _round_half_away(x: float) -> int:
     return -int(math.floor(-x + 0.5))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _median(buf: np.ndarray, n: int, scratch: np.ndarray) -> float:
     """Median of buf[:n] (mean of the two middle values for even n), as COLMAP's Median()."""
     for i in range(n):
@@ -243,7 +243,7 @@ def _median(buf: np.ndarray, n: int, scratch: np.ndarray) -> float:
     return 0.5 * s[mid] + 0.5 * s[mid - 1]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx,
                  max_reproj_sq, max_depth_err, min_cos, min_px, max_px, max_trav):
     """COLMAP's traversal with two equivalent reorganisations for speed (memory traffic dominates):

@@ -12,6 +12,7 @@ from engine.camera import Camera
 from engine.errors import DeepCError, OptionsError
 from engine.evaluation import (
     EvaluationOptions,
+    PointIndex,
     classify_beam,
     classify_beam_reference,
     evaluate_eth3d,
@@ -49,6 +50,18 @@ def test_perfect_and_shifted():
     assert list(res.to_dict()) == ["tolerances", "accuracy", "completeness", "f1"]
     assert res.to_dict()["tolerances"] == list(TOL)
     assert "F1" in res.format_table()
+
+
+def test_prepared_ground_truth_scores_the_same():
+    # The viewer scores many clouds against one GT through a PointIndex built once: same numbers.
+    rng = np.random.default_rng(3)
+    gt = _grid_plane(step=0.01)
+    recon = np.concatenate([gt[::3] + rng.normal(0, 0.01, (len(gt[::3]), 3)), rng.random((500, 3))])
+    index = PointIndex(gt)
+    for cloud in (recon, recon[:0], recon[::5]):
+        assert evaluate_points(cloud, index).to_dict() == evaluate_points(cloud, gt).to_dict()
+    with pytest.raises(DeepCError, match="ground truth"):
+        PointIndex(np.full((3, 3), np.nan))
 
 
 def test_voxel_averaging_cancels_density():

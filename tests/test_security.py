@@ -18,7 +18,7 @@ from interruption import FAST
 
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from bench_viewer_load import _CAMERA  # noqa: E402
+from viewer_clients import CAMERA as _CAMERA  # noqa: E402
 
 from workbench.cli import build_parser  # noqa: E402
 from workbench.viewer import safe_file_name  # noqa: E402

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from engine.errors import DeepCError
-from engine.evaluation import EvaluationOptions, evaluate_points
+from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.outputs import read_map, read_metrics
@@ -86,6 +86,8 @@ class ViewerSession:
         self._evals = _LRU(16)
         self._gt_points: np.ndarray | None = None
         self._gt_views: list | None = None
+        self._gt_point_index: PointIndex | None = None
+        self._gt_lock = threading.RLock()  # the GT is read once, by whichever thread needs it first
 
     # ---- opening ------------------------------------------------------------------------------
     @classmethod
@@ -183,6 +185,26 @@ class ViewerSession:
             key = params.fusion_key()
             return self._clouds.get(key, self._base_clouds.get(key))
 
+    def cached_scores(self, params: ViewParams) -> dict[str, float] | None:
+        """The scores of ``params``' cloud if already computed, else None (never computes)."""
+        with self._cache_lock:
+            return self._evals.get(params.fusion_key())
+
+    def nearest_base_cloud(self, params: ViewParams) -> tuple[FusedCloud | None, bool]:
+        """The base cloud previews of ``params`` should mask, never computing: its own when cached (True),
+        else the newest cached base cloud of the same pipeline with other fusion thresholds (False), else
+        (None, False)."""
+        base = self.base_params(params)
+        with self._cache_lock:
+            own = self._base_clouds.get(base.fusion_key())
+            if own is not None:
+                return own, True
+            pipeline = base.filter_key()
+            for key in reversed(self._base_clouds):  # newest first
+                if key[0] == pipeline:
+                    return self._base_clouds[key], False
+        return None, False
+
     def base_cloud(self, params: ViewParams) -> FusedCloud:
         """The cloud of ``params`` with no confidence or counter filter and at least 1 view: the
         superset that previews mask."""
@@ -213,17 +235,25 @@ class ViewerSession:
             return None
         def compute() -> dict[str, float]:
             points = self.cloud(params) if cloud is None else cloud
-            gt_points, gt_views = self._ground_truth()
-            result = evaluate_points(np.asarray(points.xyz, np.float64), gt_points,
+            _, gt_views = self._ground_truth()
+            result = evaluate_points(np.asarray(points.xyz, np.float64), self._gt_index(),
                                      EvaluationOptions(tolerances=(REPORT_TOLERANCE,)), gt_views)
             return result.at(REPORT_TOLERANCE)
         return self._cached(self._evals, params.fusion_key(), compute)
 
     def _ground_truth(self) -> tuple[np.ndarray, list | None]:
-        if self._gt_points is None:
-            self._gt_points = read_points(self.scene.gt_points_path)
-            self._gt_views = self.scene.gt_views() or None
-        return self._gt_points, self._gt_views
+        with self._gt_lock:
+            if self._gt_points is None:
+                self._gt_points = read_points(self.scene.gt_points_path)
+                self._gt_views = self.scene.gt_views() or None
+            return self._gt_points, self._gt_views
+
+    def _gt_index(self) -> PointIndex:
+        """The GT points' search index, built once (1M points: about a second, too slow for every change)."""
+        with self._gt_lock:
+            if self._gt_point_index is None:
+                self._gt_point_index = PointIndex(self._ground_truth()[0])
+            return self._gt_point_index
 
     # ---- colours and per-view images ----------------------------------------------------------------
     def colors(self, cloud: FusedCloud, mode: str) -> np.ndarray:
@@ -241,11 +271,9 @@ class ViewerSession:
         if mode == "error":
             if not self.has_gt:
                 return cloud.rgb
-            from scipy.spatial import cKDTree
-
-            gt_points, _ = self._ground_truth()
-            dist, _ = cKDTree(gt_points).query(np.asarray(cloud.xyz, np.float64), k=1,
-                                               distance_upper_bound=4 * REPORT_TOLERANCE)
+            # workers=-1 also releases the GIL, so the viewer's websocket thread keeps sending meanwhile
+            dist, _ = self._gt_index().tree.query(np.asarray(cloud.xyz, np.float64), k=1,
+                                                  distance_upper_bound=4 * REPORT_TOLERANCE, workers=-1)
             return colorize(np.minimum(dist, 4 * REPORT_TOLERANCE)[None, :], 0.0, 2 * REPORT_TOLERANCE,
                             "inferno")[0]
         raise DeepCError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")

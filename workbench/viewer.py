@@ -26,6 +26,10 @@ from workbench.session import COLOR_MODES, ViewerSession, ViewParams, describe
 from workbench.stream import subsample
 
 THUMBNAIL = 160  # longest side of the images sent with the frustums
+PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows in full
+DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
+EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
+EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user who never lets go)
 
 
 def safe_file_name(text: str, suffix: str) -> str:
@@ -76,12 +80,17 @@ class ViewerApp:
         self.host = host
         self._pending: ViewParams | None = None
         self._generation = 0  # bumped by every request
+        self._last_request = 0.0  # time.monotonic() of the last request
         self._done_generation = 0  # last generation whose exact cloud and scores are shown
         self._cond = threading.Condition()
         self._stopping = False
         self._state_lock = threading.Lock()
         self.cloud = None
         self.cloud_params: ViewParams | None = None
+        self._cloud_message_id = -1  # broadcast-buffer id of the last cloud push (see _wait_for_delivery)
+        self._base_colors_key: tuple | None = None
+        self._base_colors_value: np.ndarray | None = None
+        self._base_colors_ref = None
         self._selected_view = 0
         self._preview_latest = _LatestOnly(self._preview)
         self._recolor_latest = _LatestOnly(self._recolor)
@@ -198,6 +207,7 @@ class ViewerApp:
         with self._cond:
             self._generation += 1
             generation = self._generation
+            self._last_request = time.monotonic()
         self._preview_latest(params, generation)
         with self._cond:
             if generation == self._generation:  # else a newer request is queued instead
@@ -205,18 +215,63 @@ class ViewerApp:
                 self._cond.notify()
 
     def _preview(self, params: ViewParams, generation: int) -> None:
+        self._wait_for_delivery()
         if generation != self._generation:
             return  # a newer request came in: its own preview follows
-        base = self.session.cached_cloud(ViewerSession.base_params(params))
-        if base is not None and self.session.cached_cloud(params) is None:
-            mask = ViewerSession.preview_mask(base, params)
-            self._show(base.subset(mask), params, preview=True)
+        exact = self.session.cached_cloud(params)
+        if exact is not None:  # computed before: show the exact result now rather than after the worker
+            self._show(exact, params, preview=False, scores=self.session.cached_scores(params))
+            return
+        base, own = self.session.nearest_base_cloud(params)
+        if base is None:  # nothing to mask yet: say what is coming
+            self.metrics.content = "**fusing…**  \nexact result follows"
+            return
+        keep = np.flatnonzero(ViewerSession.preview_mask(base, params))
+        total = len(keep)
+        if total > PREVIEW_MAX_POINTS:  # an even stride keeps the cloud's shape and density pattern
+            keep = keep[np.linspace(0, total - 1, PREVIEW_MAX_POINTS).astype(np.int64)]
+        colors = self._base_colors(base)[keep]
+        self._show(base.subset(keep), params, preview=True, count=total, colors=colors, stale_fusion=not own)
+
+    def _base_colors(self, base) -> np.ndarray:
+        """Colours of the whole base cloud, cached: previews only index them (the error colours need a
+        nearest-GT query that takes longer than a preview may)."""
+        mode = str(self.color_mode.value)
+        key = (id(base), mode)
+        if self._base_colors_key != key:
+            self._base_colors_value = self.session.colors(base, mode)
+            self._base_colors_key = key
+            self._base_colors_ref = base  # keeps id(base) from being reused while cached
+        return self._base_colors_value
+
+    def _wait_for_delivery(self) -> None:
+        """Block until every connected client has taken the last cloud push off the broadcast buffer.
+
+        viser drops a queued update when a newer one of the same property arrives, but not the one a
+        client is already sending: under 50 events per second from five tabs the clouds in flight, not
+        the computation, set the latency. Waiting here (newer events meanwhile replace this preview's
+        arguments) keeps at most one cloud in flight per client."""
+        buffer = self.server._websock_server.get_message_buffer()  # viser 1.1 internals, checked in a test
+        deadline = time.monotonic() + DELIVERY_WAIT_S
+        while time.monotonic() < deadline and self._cloud_message_id >= 0:
+            cursors = list(buffer.generator_cursors.values())
+            if all(cursor >= self._cloud_message_id for cursor in cursors):
+                return
+            time.sleep(0.005)
 
     def _work(self) -> None:
         while True:
             with self._cond:
                 while self._pending is None and not self._stopping:
                     self._cond.wait()
+                # While a slider is being dragged the previews answer; an exact result for a value already
+                # left behind would only take the CPU from them.
+                overdue = time.monotonic() + EXACT_MAX_DELAY_S
+                while not self._stopping:
+                    wait = min(self._last_request + EXACT_QUIET_S, overdue) - time.monotonic()
+                    if wait <= 0:
+                        break
+                    self._cond.wait(wait)
                 if self._stopping:
                     return
                 params, generation = self._pending, self._generation
@@ -226,7 +281,8 @@ class ViewerApp:
                 cloud = self.session.cloud(params)
                 if generation != self._generation:
                     continue  # a newer request is queued: skip the stale push
-                self._show(cloud, params, preview=False)
+                if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
+                    self._show(cloud, params, preview=False)
                 scores = self.session.evaluate(params, cloud)
                 if generation == self._generation:
                     self.metrics.content = self._metrics_text(cloud, scores)
@@ -234,14 +290,20 @@ class ViewerApp:
                 self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
             self._done_generation = generation
 
-    def _metrics_text(self, cloud, scores, preview: bool = False) -> str:
+    def _metrics_text(self, cloud, scores, preview: bool = False, count: int | None = None,
+                      stale_fusion: bool = False) -> str:
         if preview:
-            return f"**{len(cloud):,} points** (preview)  \nexact result follows…"
+            total = len(cloud) if count is None else count
+            shown = "" if total == len(cloud) else f", {len(cloud):,} shown"
+            fusion = ", previous fusion thresholds" if stale_fusion else ""
+            return f"**{total:,} points** (preview{shown}{fusion})  \nexact result follows…"
         return f"**{len(cloud):,} points**  \n{describe(scores)}"
 
-    def _show(self, cloud, params: ViewParams, preview: bool) -> None:
+    def _show(self, cloud, params: ViewParams, preview: bool, count: int | None = None,
+              colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False) -> None:
         with self._state_lock:
-            colors = self.session.colors(cloud, str(self.color_mode.value))
+            if colors is None:
+                colors = self.session.colors(cloud, str(self.color_mode.value))
             points = np.asarray(cloud.xyz, np.float32)
             with self.server.atomic():
                 if self.cloud_handle is None:
@@ -252,9 +314,13 @@ class ViewerApp:
                     self.cloud_handle.points = points
                     self.cloud_handle.colors = colors
                 if preview:
-                    self.metrics.content = self._metrics_text(cloud, None, preview=True)
-                elif self.session.has_gt:
+                    self.metrics.content = self._metrics_text(cloud, None, preview=True, count=count,
+                                                              stale_fusion=stale_fusion)
+                elif scores is not None or not self.session.has_gt:
+                    self.metrics.content = self._metrics_text(cloud, scores)
+                else:
                     self.metrics.content = f"**{len(cloud):,} points**  \nscoring…"
+                self._cloud_message_id = self.server._websock_server.get_message_buffer().message_counter - 1
             self.cloud, self.cloud_params = cloud, params
 
     def _recolor(self) -> None:
