@@ -217,7 +217,18 @@ def test_the_default_suite_has_a_current_baseline_for_every_run():
 
 @pytest.fixture(scope="module")
 def regress_runs(tmp_path_factory):
-    """Make a baseline, rerun cleanly, rerun with one PatchMatch iteration, then accept that on purpose."""
+    """Make a baseline, rerun cleanly, rerun with one PatchMatch iteration, then accept that on purpose; all with
+    fake secrets in the environment (reports, baselines and recordings must not carry them)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("AWS_SECRET_ACCESS_KEY", SECRET)
+        mp.setenv("GITHUB_TOKEN", SECRET + "-gh")
+        return _regress_runs(tmp_path_factory)
+
+
+SECRET = "deepc-fake-secret-Rg42pV"
+
+
+def _regress_runs(tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("regress")
     clean = write_suite(root / "suite")
     degraded = write_suite(root / "degraded", extra="iterations = 1")
@@ -232,6 +243,17 @@ def regress_runs(tmp_path_factory):
     runs["accepted_file"] = json.loads((baselines / "tiny" / "vanilla.json").read_text())
     runs["root"] = root
     return runs
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # incl. the module fixture's runs, on a busy machine
+def test_reports_baselines_and_recordings_hold_no_secret(regress_runs):
+    files = [p for p in regress_runs["root"].rglob("*") if p.is_file()]
+    assert {p.suffix for p in files} >= {".html", ".json", ".rrd", ".ply"}
+    for path in files:
+        assert SECRET.encode() not in path.read_bytes(), path
+    for _code, out, err in (regress_runs[k] for k in ("make", "clean", "degraded", "accept")):
+        assert SECRET not in out + err
 
 
 @pytest.mark.slow
