@@ -168,8 +168,9 @@ def refine_run(run_dir: str | Path, weights: str | Path | None = None, options=N
     if refined_maps_complete(run_dir, names, key):
         return RefinedRun(run_dir, True, 0, {})
     if read_metrics(run_dir).get("pipeline") == "full" and (run_dir / "refined").is_dir():
-        raise DeepCError("the refined maps of this full run were made with other weights or options; refining "
-                         "again would overwrite outputs of the run (refine a vanilla run instead)", run_dir / "refined")
+        raise DeepCError("the refined maps of this full run were made with other weights or options (or before "
+                         "stamps existed); refining again would overwrite outputs of the run (refine a vanilla run "
+                         "instead)", run_dir / "refined")
 
     seconds: dict[str, float] = {}
     t = time.perf_counter()
