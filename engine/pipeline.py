@@ -27,6 +27,7 @@ from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.refinement.options import RefinementOptions
+from engine.refinement.runs import file_sha256, maps_digest, refinement_key, write_refined_maps, write_stamp
 from engine.scene import Scene
 
 PIPELINES = ("vanilla", "fast", "full")
@@ -86,12 +87,13 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     start = time.perf_counter()
     notify = getattr(observer, "on_stage", None)
 
-    model = refined_model = None
+    model = refined_model = weights_sha256 = None
     if options.pipeline in ("fast", "full"):
         # Loaded (and checked) before PatchMatch and kept in memory: bad weights fail at once, and a weights
         # file moved or overwritten while PatchMatch runs cannot end a long run at its last stage.
-        from engine.confidence.weights import load_weights
+        from engine.confidence.weights import DEFAULT_WEIGHTS, load_weights
         model = load_weights(options.confidence.weights or None)
+        weights_sha256 = file_sha256(options.confidence.weights or DEFAULT_WEIGHTS)  # for the refined maps' stamp
         refined_model = load_weights(options.confidence.refined_weights) if options.confidence.refined_weights \
             else model
 
@@ -125,14 +127,18 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline == "full":
         t = time.perf_counter()
         refined = refinement_stage(scene, maps, confidence, options.refinement)
-        for view, r in zip(scene.views, refined, strict=True):
-            write_map(out_dir, "refined_depth", view.name, r.depth)
-            write_map(out_dir, "refined_normal", view.name, r.normal)
         seconds["refinement"] = time.perf_counter() - t
         t = time.perf_counter()
-        # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering
+        # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering; all are
+        # written, with a stamp, so the run also serves as training data of that second network
         refined_counter = compute_counter_maps(views, refined, options.counter)
         fusion_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
+        names = [v.name for v in scene.views]
+        write_refined_maps(out_dir, names, refined, refined_counter, fusion_confidence)
+        inputs = maps_digest(names, [m.depth for m in maps], [m.normal for m in maps], counter)
+        key = refinement_key(scene, weights_sha256, options, inputs)
+        write_stamp(out_dir, key, options.confidence.weights or DEFAULT_WEIGHTS,
+                    {"refinement": seconds["refinement"], "counter_and_confidence": time.perf_counter() - t})
         filtered = [filter_by_confidence(r.depth, r.normal, c, options.refinement.refined_conf_tau)
                     for r, c in zip(refined, fusion_confidence, strict=True)]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
@@ -171,6 +177,9 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             metrics["confidence_auc_per_view"] = auc["per_view"]
         if refined is not None:
             metrics["refined_depth"], metrics["refined_depth_per_view"] = _depth_block(scene, refined)
+            auc = confidence_auc(scene, [r.depth for r in refined], fusion_confidence)
+            metrics["refined_confidence_auc"] = auc["pooled"]
+            metrics["refined_confidence_auc_per_view"] = auc["per_view"]
     if confidence is not None:
         kept = sum(int((d > 0).sum()) for d in depths)
         before = refined if refined is not None else maps
@@ -203,12 +212,15 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
 
 
 def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],
-                     options: RefinementOptions) -> list[ViewMaps]:
+                     options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None
+                     ) -> list[ViewMaps]:
     """Refined dense depth and normals per view (SPEC.md §6) as :class:`ViewMaps` (cost and selected views
-    zero); a view without data to refine from stays empty (a warning names it)."""
+    zero); a view without data to refine from stays empty (a warning names it). ``progress(i, n, result)``
+    after each view (result None for an empty one)."""
     from engine.refinement.views import refine_views
 
-    refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options)
+    refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
+                           progress)
     out = []
     for m, r in zip(maps, refined, strict=True):
         depth = np.zeros_like(m.depth) if r is None else np.asarray(r.depth, np.float32)

@@ -67,6 +67,37 @@ def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True, 
     return out_dir
 
 
+def make_noisy_run(scene_dir: Path, out_dir: Path) -> Path:
+    """A vanilla run folder made from GT depth with wrong depths in random blobs (outliers) and a counter map
+    that only partly tells them apart, so that a confidence network has something to learn."""
+    import numpy as np
+
+    from engine.fusion import depth_normals
+    from engine.io.outputs import write_map, write_metrics
+    from engine.scene import load_scene
+
+    scene = load_scene(scene_dir)
+    rng = np.random.default_rng(0)
+    for v in scene.views:
+        gt = scene.gt_depth(v.index)
+        h, w = gt.shape
+        yy, xx = np.mgrid[:h, :w]
+        bad = np.zeros((h, w), bool)
+        for _ in range(6):
+            cy, cx, r = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(6, 16)
+            bad |= (yy - cy) ** 2 + (xx - cx) ** 2 < r * r
+        depth = np.where(bad, gt * rng.uniform(0.7, 0.9), gt).astype(np.float32)
+        normal = depth_normals(v.camera, gt)
+        depth[~normal.any(axis=2)] = 0
+        counter = np.where(bad, rng.integers(0, 3, (h, w)), rng.integers(1, 5, (h, w))) * (depth > 0)
+        write_map(out_dir, "depth", v.name, depth)
+        write_map(out_dir, "normal", v.name, normal)
+        write_map(out_dir, "counter", v.name, counter.astype(np.float32))
+    write_metrics(out_dir, {"scene": scene.name, "scene_path": str(Path(scene_dir).resolve()), "pipeline": "vanilla",
+                            "num_images": len(scene.views), "options": {"scene": scene.options.to_dict()}})
+    return out_dir
+
+
 @pytest.fixture(scope="session")
 def fake_run(tmp_path_factory) -> Path:
     """A fake `deepc run` output of sample_scenes/tiny (vanilla + fast maps)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import make_noisy_run
 
 from engine.confidence.data import load_run
 from engine.confidence.network import ConfidenceNet
@@ -23,33 +25,7 @@ TINY = REPO / "sample_scenes" / "tiny"
 
 @pytest.fixture(scope="module")
 def noisy_run(tmp_path_factory) -> Path:
-    """A run of the tiny scene made from GT depth with wrong depths in random blobs (outliers) and a counter
-    map that only partly tells them apart, so that the network has something to learn."""
-    from engine.fusion import depth_normals
-    from engine.io.outputs import write_map, write_metrics
-    from engine.scene import load_scene
-
-    out = tmp_path_factory.mktemp("noisy_run")
-    scene = load_scene(TINY)
-    rng = np.random.default_rng(0)
-    for v in scene.views:
-        gt = scene.gt_depth(v.index)
-        h, w = gt.shape
-        yy, xx = np.mgrid[:h, :w]
-        bad = np.zeros((h, w), bool)
-        for _ in range(6):
-            cy, cx, r = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(6, 16)
-            bad |= (yy - cy) ** 2 + (xx - cx) ** 2 < r * r
-        depth = np.where(bad, gt * rng.uniform(0.7, 0.9), gt).astype(np.float32)
-        normal = depth_normals(v.camera, gt)
-        depth[~normal.any(axis=2)] = 0
-        counter = np.where(bad, rng.integers(0, 3, (h, w)), rng.integers(1, 5, (h, w))) * (depth > 0)
-        write_map(out, "depth", v.name, depth)
-        write_map(out, "normal", v.name, normal)
-        write_map(out, "counter", v.name, counter.astype(np.float32))
-    write_metrics(out, {"scene": scene.name, "scene_path": str(TINY.resolve()), "pipeline": "vanilla",
-                        "num_images": len(scene.views), "options": {"scene": scene.options.to_dict()}})
-    return out
+    return make_noisy_run(TINY, tmp_path_factory.mktemp("noisy_run"))
 
 
 OPTIONS = TrainOptions(epochs=2, steps_per_epoch=4, batch=2, crop=64, bf16=False, lr=2e-3, lr_final=1e-3, seed=5)
@@ -162,4 +138,24 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
         valid = depth > 0
         assert valid.mean() > 0.9 and np.allclose(np.linalg.norm(normal[valid], axis=-1), 1.0, atol=1e-3)
         assert read_map(out, "confidence", v.name) is not None
+        # the refined maps' own counter maps and confidence (training data of a second network)
+        counter, confidence = read_map(out, "refined_counter", v.name), read_map(out, "refined_confidence", v.name)
+        assert counter.shape == confidence.shape == (120, 160) and counter[valid].max() >= 1
+        assert (confidence[~valid] == 0).all() and 0 < confidence[valid].mean() <= 1
     assert metrics["fused_points"] == len(read_points(out / "fused.ply")) > 0
+    assert 0 <= metrics["refined_confidence_auc"] <= 100
+
+    # refine_run on the same run and options takes the full run's refined maps as they are, and refining its
+    # vanilla maps again gives exactly those maps
+    from engine.pipeline import PipelineOptions
+    from engine.refinement.runs import REFINED_KINDS, refine_run
+    options = PipelineOptions.from_dict({k: v for k, v in metrics["options"].items() if k != "scene"})
+    assert refine_run(out, options=options).reused
+    with pytest.raises(DeepCError, match="would overwrite outputs of the run"):
+        refine_run(out, options=options.replace(refinement=options.refinement.replace(lambda_reg=2.0)))
+    names = [v.name for v in load_scene(TINY).views]
+    saved = {(k, n): read_map(out, k, n) for k in REFINED_KINDS for n in names}
+    shutil.rmtree(out / "refined")
+    assert not refine_run(out, options=options).reused
+    for (kind, name), array in saved.items():
+        np.testing.assert_array_equal(read_map(out, kind, name), array, err_msg=f"{kind} {name}")

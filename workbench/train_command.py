@@ -4,7 +4,9 @@ confidence network (engine/confidence/training.py), keeping the best checkpoint 
 Positional arguments and ``--validation`` take scene folders (the engine is run on them once and the
 run cached under ``--cache/runs/<scene>``) or finished run folders (``deepc run`` outputs, used as they
 are). ``--synthetic SEEDS`` adds randomised synthetic scenes (engine/synthetic/dataset.py), rendered
-into ``--cache/scenes`` when missing.
+into ``--cache/scenes`` when missing. ``--refined`` trains the second network of ``--pipeline full``: every
+run is refined first (engine/refinement/runs.py, cached in RUN/refined/) and the network learns on the
+refined maps.
 """
 
 from __future__ import annotations
@@ -60,11 +62,44 @@ def add_train_arguments(train: argparse.ArgumentParser) -> None:
                        help="score at most N evenly spaced views of each validation set per epoch (0 = all)")
     train.add_argument("--model-card", default=None, metavar="FILE.md",
                        help="also write a model card (data, options, validation ROC-AUC per scene, date)")
+    train.add_argument("--refined", action="store_true",
+                       help="train the second network of --pipeline full (confidence.refined_weights): every "
+                            "training and validation run is first refined as the full pipeline does (confidence "
+                            "of --refine-weights, refinement, counter maps of the refined maps; cached in "
+                            "RUN/refined/ and reused while weights, options and maps match) and the network "
+                            "learns on the refined maps")
+    train.add_argument("--refine-weights", default=None, metavar="WEIGHTS.pt",
+                       help="with --refined: network-1 weights whose confidence guides the refinement "
+                            "(default: the shipped engine/confidence/weights/deepc_middle.pt)")
+    train.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
+                       help="with --refined: options of that refinement as for deepc run --pipeline full, stages "
+                            f"{', '.join(REFINE_SECTIONS)}, e.g. --set refinement.lambda_reg=5")
     engine_group = train.add_argument_group("engine runs on training scenes")
     engine_group.add_argument("--num-source-views", type=int, default=4, metavar="N")
     engine_group.add_argument("--max-image-size", type=int, default=0, metavar="PX")
     engine_group.add_argument("--schedule", choices=("paper", "acmm"), default="acmm")
     add_options_flags(train.add_argument_group("training"), TrainOptions)
+
+
+#: ``--set`` stages of ``deepc train --refined`` (those that determine the refined maps)
+REFINE_SECTIONS = ("refinement", "counter", "confidence")
+
+
+def refine_options(assignments: list[str]):
+    """The :class:`PipelineOptions` of the full pipeline with ``--set`` overrides of :data:`REFINE_SECTIONS`."""
+    from engine.confidence.options import ConfidenceOptions
+    from engine.consistency import CounterOptions
+    from engine.pipeline import PipelineOptions
+    from engine.refinement.options import RefinementOptions
+    from workbench.flags import section_overrides
+
+    for item in assignments:
+        section = item.partition("=")[0].partition(".")[0]
+        if section not in REFINE_SECTIONS:
+            raise DeepCError(f"--set {item!r}: deepc train takes only the stages {', '.join(REFINE_SECTIONS)}")
+    sections = {"refinement": RefinementOptions, "counter": CounterOptions, "confidence": ConfidenceOptions}
+    return PipelineOptions(pipeline="full", **{name: cls(**section_overrides(assignments, name, cls))
+                                               for name, cls in sections.items()}).validate()
 
 
 def _log(text: str) -> None:
@@ -89,12 +124,48 @@ def _resolve_runs(paths: list[str], seeds: list[int], cache: Path, scene_options
     return runs
 
 
-def _load(runs: list[Path]):
+class Refiner:
+    """Refines runs (or reuses their cached refined maps) with one network-1 weights file, loaded once."""
+
+    def __init__(self, weights: str | None, options):
+        from engine.confidence.weights import DEFAULT_WEIGHTS, load_weights
+        from engine.refinement.runs import file_sha256
+
+        self.weights = Path(weights).resolve() if weights else DEFAULT_WEIGHTS
+        self.model = load_weights(self.weights)
+        self.options = options
+        self.sha256 = file_sha256(self.weights)
+
+    def __call__(self, run: Path) -> None:
+        from engine.refinement.runs import refine_run
+
+        result = refine_run(run, self.weights, self.options, model=self.model,
+                            log=lambda line: _log("  refining " + line))
+        if result.reused:
+            _log(f"{run}: cached refined maps reused (stamp matches)")
+        else:
+            s = result.seconds
+            _log(f"{run}: {result.views} views refined in {sum(s.values()):.0f} s (confidence "
+                 f"{s['confidence']:.0f} s, refinement {s['refinement']:.0f} s, counter maps {s['counter']:.0f} s)")
+
+    def description(self) -> dict:
+        """What the training inputs are, for the checkpoint identity and the weights' meta."""
+        from engine.refinement.runs import INFERENCE, POST_REFINEMENT
+
+        confidence = self.options.confidence.to_dict()
+        return {"maps": "refined", "refine_weights": str(self.weights), "refine_weights_sha256": self.sha256,
+                "refinement": {k: v for k, v in self.options.refinement.to_dict().items() if k not in POST_REFINEMENT},
+                "counter": self.options.counter.to_dict(), "confidence": {k: confidence[k] for k in INFERENCE}}
+
+
+def _load(runs: list[Path], refiner: Refiner | None = None):
     from engine.confidence.data import load_run
 
     samples = []
     for run in runs:
-        samples.extend(load_run(run))
+        if refiner is not None:
+            refiner(run)
+        samples.extend(load_run(run, refined=refiner is not None))
     return samples
 
 
@@ -114,28 +185,34 @@ def cmd_train(args: argparse.Namespace) -> int:
     options: TrainOptions = options_from_args(TrainOptions, args)
     if not args.scenes and not args.synthetic:
         raise DeepCError("deepc train: give training scenes (SCENE_OR_RUN ...) and/or --synthetic SEEDS")
+    if (args.refine_weights or args.set) and not args.refined:
+        raise DeepCError("deepc train: --refine-weights and --set only make sense with --refined")
     scene_options = SceneOptions(num_source_views=args.num_source_views, max_image_size=args.max_image_size)
     pipeline_options = PipelineOptions(pipeline="vanilla",
                                        patchmatch=PatchMatchOptions(schedule=args.schedule, seed=0)).validate()
     cache = Path(args.cache)
-    out = Path(args.out) if args.out else Path("runs/train") / f"{options.loss}_{options.fusion}" / "weights.pt"
+    default_name = f"{'refined_' if args.refined else ''}{options.loss}_{options.fusion}"
+    out = Path(args.out) if args.out else Path("runs/train") / default_name / "weights.pt"
     checkpoint = Path(args.checkpoint) if args.checkpoint else out.with_name(out.stem + ".checkpoint.pt")
 
     t = time.perf_counter()
+    refiner = Refiner(args.refine_weights, refine_options(args.set)) if args.refined else None
     train_runs = _resolve_runs(args.scenes, args.synthetic, cache, scene_options, pipeline_options)
-    train_samples = _load(train_runs)
+    train_samples = _load(train_runs, refiner)
     validation = []
     for path in args.validation:
         run = _resolve_runs([path], [], cache, scene_options, pipeline_options)
-        validation.append(ValidationSet(Path(path).name, _subset(_load(run), args.validation_max_views)))
+        validation.append(ValidationSet(Path(path).name, _subset(_load(run, refiner), args.validation_max_views)))
     if args.validation_synthetic:
         runs = _resolve_runs([], args.validation_synthetic, cache, scene_options, pipeline_options)
-        validation.append(ValidationSet("synthetic_heldout", _subset(_load(runs), args.validation_max_views)))
+        validation.append(ValidationSet("synthetic_heldout",
+                                        _subset(_load(runs, refiner), args.validation_max_views)))
     overlap = {s.scene for s in train_samples} & {s.scene for v in validation for s in v.samples}
     if overlap:
         raise DeepCError(f"scene(s) {', '.join(sorted(overlap))} are both in training and validation")
     labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
-    _log(f"training data: {len(train_runs)} runs, {len(train_samples)} views, {labelled:,} labelled pixels; "
+    _log(f"training data ({'refined' if refiner else 'vanilla'} maps): {len(train_runs)} runs, "
+         f"{len(train_samples)} views, {labelled:,} labelled pixels; "
          f"validation: {', '.join(f'{v.name} ({len(v.samples)} views)' for v in validation) or 'none'} "
          f"({time.perf_counter() - t:.0f} s)")
 
@@ -160,7 +237,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         init = load_weights(args.init)
     result = train(train_samples, validation, options, checkpoint, out, progress=progress,
                    data_names=data_names, max_epochs=args.max_epochs, init=init,
-                   init_name=str(Path(args.init).resolve()) if args.init else "")
+                   init_name=str(Path(args.init).resolve()) if args.init else "",
+                   inputs=refiner.description() if refiner else None)
     result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
     write_json(out.with_name(out.stem + ".history.json"), result)
     best = result["best"]
@@ -194,6 +272,7 @@ def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[P
         f"- Training data ({len(train_runs)} scenes, whole scenes only): "
         + ", ".join(sorted(Path(r).name for r in train_runs)) + ". Engine runs: vanilla PatchMatch, "
         f"schedule {args.schedule}, {args.num_source_views} source views, labels per SPEC.md §4.3 (2 px).",
+        _inputs_line(meta.get("inputs")),
         "- Options: " + ", ".join(f"{k}={v}" for k, v in meta.get("options", {}).items()), "",
         "## Validation ROC-AUC ×100 (pooled over labelled pixels) at the selected epoch", "",
         "| set | views | ROC-AUC | inliers |", "|---|---|---|---|",
@@ -206,3 +285,13 @@ def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[P
         aucs = " | ".join(f"{v['auc']:.2f}" for v in h["validation"]["sets"].values())
         lines.append(f"| {h['epoch']} | {h['loss']:.4f} | {aucs} |")
     atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _inputs_line(inputs: dict | None) -> str:
+    if not inputs or inputs.get("maps") != "refined":
+        return "- Network inputs: vanilla PatchMatch maps (network 1: `confidence.weights` of --pipeline fast/full)."
+    return ("- Network inputs: **refined maps** (network 2: `confidence.refined_weights` of --pipeline full). Each "
+            "run was refined as the full pipeline does (SPEC.md §6.6b): confidence of network 1 "
+            f"`{inputs['refine_weights']}` (sha256 {inputs['refine_weights_sha256'][:12]}), piece-wise planar "
+            f"refinement ({inputs['refinement']['solver']} solver, {inputs['refinement']['scales']} scales), "
+            "counter maps recomputed on the refined maps; labels compare the refined depth with GT depth.")

@@ -61,19 +61,27 @@ def run_scene(run_dir: str | Path) -> Scene:
 
 
 def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 2.0,
-             require_gt: bool = True) -> list[ViewSample]:
-    """Inputs and labels of every view of a run (views without GT depth get all-unlabeled maps)."""
+             require_gt: bool = True, refined: bool = False) -> list[ViewSample]:
+    """Inputs and labels of every view of a run (views without GT depth get all-unlabeled maps).
+
+    ``refined``: the refined depth, normal and counter maps of ``RUN/refined/`` instead (the inputs of the
+    full pipeline's second confidence network; see :mod:`engine.refinement.runs`), labelled by comparing
+    the refined depth with GT depth."""
     run_dir = Path(run_dir)
     scene = scene or run_scene(run_dir)
     if require_gt and not scene.has_gt_depth:
         raise DeepCError("scene has no ground-truth depth maps (ground_truth/depth_maps/): "
                          "it cannot give training labels", scene.root)
     samples = []
+    prefix = "refined_" if refined else ""
     for v in scene.views:
-        maps = {kind: read_map(run_dir, kind, v.name) for kind in ("depth", "normal", "counter")}
+        maps = {kind: read_map(run_dir, prefix + kind, v.name) for kind in ("depth", "normal", "counter")}
         for kind, m in maps.items():
             if m is None:
-                raise DeepCError(f"run has no {kind} map for view {v.name}", map_path(run_dir, kind, v.name))
+                hint = " (refine the run first: engine.refinement.runs.refine_run, deepc train --refined)" \
+                    if refined else ""
+                raise DeepCError(f"run has no {prefix.replace('_', ' ')}{kind} map for view {v.name}{hint}",
+                                 map_path(run_dir, prefix + kind, v.name))
         depth = maps["depth"]
         cam = v.camera if (v.camera.width, v.camera.height) == depth.shape[::-1] else v.camera.rescaled(
             depth.shape[1], depth.shape[0])

@@ -136,13 +136,15 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
           checkpoint: str | Path, weights_out: str | Path | None = None,
           progress: Callable[[dict], None] | None = None, data_names: list[str] | None = None,
           max_epochs: int | None = None, init: ConfidenceNet | None = None,
-          init_name: str = "") -> dict[str, Any]:
+          init_name: str = "", inputs: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train (or resume from ``checkpoint``) and write the best model to ``weights_out`` (fp16).
 
     ``data_names`` identify the training data in the checkpoint: resuming with other data or options is
     an error. ``max_epochs`` stops early (after that many epochs in total) without changing the schedule.
     ``init``: start from these weights (warm start, named ``init_name`` in the checkpoint) instead of a
     seeded random initialisation; it must have the architecture ``options.fusion`` asks for.
+    ``inputs`` describes maps other than vanilla PatchMatch ones (e.g. refined maps and the weights that guided
+    the refinement); it is part of the checkpoint's identity and of the weights' meta (``meta["inputs"]``).
     Returns the history (per-epoch loss, validation, seconds) and the best epoch."""
     options = options.validate()
     progress = progress or (lambda event: None)
@@ -163,6 +165,8 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
     loss_fn = loss_function(options.loss)
     checkpoint = Path(checkpoint)
     identity = {"options": options.to_dict(), "data": list(data_names or []), "init": init_name}
+    if inputs:  # only then, so checkpoints of trainings on vanilla maps stay resumable
+        identity["inputs"] = inputs
     state: dict[str, Any] = {"epoch": 0, "history": [], "best": None}
     if checkpoint.is_file():
         try:
@@ -209,7 +213,8 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
         if improved:
             state["best"] = {"epoch": epoch + 1, "score": score, "validation": val}
             if weights_out is not None:
-                save_weights(weights_out, model, _meta(options, state, data_names, model, init_name))
+                save_weights(weights_out, model, {**_meta(options, state, data_names, model, init_name),
+                                                  **({"inputs": inputs} if inputs else {})})
         state["epoch"] = epoch + 1
         atomic_write_bytes(checkpoint, _state_bytes({
             "identity": identity, "model": model.state_dict(), "optimizer": optimizer.state_dict(), **state}))

@@ -1,7 +1,7 @@
 """The output folder of ``deepc run`` (CONTRACT.md §4): per-view maps, metrics.json.
 
     OUT/stereo/{depth,normal,cost,counter,confidence}_maps/<name>.bin   COLMAP dense .bin
-    OUT/refined/{depth,normal}_maps/<name>.bin
+    OUT/refined/{depth,normal,counter,confidence}_maps/<name>.bin, OUT/refined/stamp.json
     OUT/fused.ply, OUT/metrics.json
 
 Every file is written atomically, so an interrupted run never leaves a half-written map.
@@ -29,6 +29,8 @@ MAP_KINDS = {
     "confidence": ("stereo/confidence_maps", 1),
     "refined_depth": ("refined/depth_maps", 1),
     "refined_normal": ("refined/normal_maps", 3),
+    "refined_counter": ("refined/counter_maps", 1),  # counter maps of the refined maps (SPEC.md §6.6b)
+    "refined_confidence": ("refined/confidence_maps", 1),  # their confidence (second network)
 }
 
 
