@@ -34,6 +34,28 @@ def test_confidence_threshold_and_mask_k_remove_points(session):
     assert scores_fast["completeness"] < scores_vanilla["completeness"]
 
 
+def test_full_pipeline_filters_refined_maps_by_their_own_confidence(fake_run, tmp_path):
+    import shutil
+
+    from engine.io.outputs import read_map, write_map
+    run = shutil.copytree(fake_run, tmp_path / "run")
+    session = ViewerSession.open(run)
+    for v in session.scene.views:  # refined = vanilla maps, but the second network trusts the other half
+        write_map(run, "refined_depth", v.name, read_map(run, "depth", v.name))
+        write_map(run, "refined_normal", v.name, read_map(run, "normal", v.name))
+        write_map(run, "refined_confidence", v.name, 1.0 - read_map(run, "confidence", v.name))
+    session = ViewerSession.open(run)
+    assert "full" in session.pipelines
+    params = dict(conf_tau=0.5)
+    for (d_fast, _), (d_full, _), d in zip(session.filtered_maps(ViewParams(pipeline="fast", **params)),
+                                           session.filtered_maps(ViewParams(pipeline="full", **params)),
+                                           session.data, strict=True):
+        assert np.array_equal(d_full > 0, (d.depth > 0) & (d.refined_confidence >= 0.5))
+        assert not np.array_equal(d_full > 0, d_fast > 0)
+    full = session.cloud(ViewParams(pipeline="full", **params))
+    assert np.nanmin(full.mean_confidence) >= 0.5  # the cloud carries the refined maps' confidence
+
+
 def test_a_fusion_change_reuses_the_filtered_maps(session):
     params = ViewParams(pipeline="fast", conf_tau=0.3)
     maps = session.filtered_maps(params)

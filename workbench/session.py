@@ -57,6 +57,8 @@ class ViewData:
     confidence: np.ndarray | None
     refined_depth: np.ndarray | None
     refined_normal: np.ndarray | None
+    refined_counter: np.ndarray | None = None  # counter maps of the refined maps (older full runs: None)
+    refined_confidence: np.ndarray | None = None  # confidence of the refined maps (second network)
 
 
 class _LRU(OrderedDict):
@@ -159,13 +161,17 @@ class ViewerSession:
     def _filter(self, params: ViewParams) -> list[tuple[np.ndarray, np.ndarray]]:
         out = []
         for d in self.data:
-            depth, normal = d.depth, d.normal
-            if params.pipeline == "full":
+            depth, normal, confidence, counter = d.depth, d.normal, d.confidence, d.counter
+            if params.pipeline == "full":  # the refined maps, filtered by their own confidence and counter
                 depth, normal = d.refined_depth, d.refined_normal
+                if d.refined_confidence is not None:
+                    confidence = d.refined_confidence
+                if d.refined_counter is not None:
+                    counter = d.refined_counter
             if params.pipeline != "vanilla" and params.conf_tau > 0:
-                depth, normal = filter_by_confidence(depth, normal, d.confidence, params.conf_tau)
-            if params.mask_k > 0 and d.counter is not None:
-                depth, normal = filter_by_counter(depth, normal, d.counter, params.mask_k)
+                depth, normal = filter_by_confidence(depth, normal, confidence, params.conf_tau)
+            if params.mask_k > 0 and counter is not None:
+                depth, normal = filter_by_counter(depth, normal, counter, params.mask_k)
             out.append((depth, normal))
         return out
 
@@ -173,7 +179,8 @@ class ViewerSession:
         """The exactly fused cloud for ``params`` (cached by filter and fusion options)."""
         def compute() -> FusedCloud:
             maps = self.filtered_maps(params)
-            confidence = [d.confidence for d in self.data] if self.has_confidence else None
+            confidence = [d.refined_confidence if params.pipeline == "full" and d.refined_confidence is not None
+                          else d.confidence for d in self.data] if self.has_confidence else None
             views = views_from_scene(self.scene, [m[0] for m in maps], [m[1] for m in maps], confidence,
                                      params.fusion.check_num_images)
             return fuse(views, params.fusion)
@@ -305,7 +312,8 @@ def _read_view_data(out_dir: Path, scene: Scene) -> list[ViewData]:
             raise DeepCError(f"the run has no depth/normal map for view {v.name}", out_dir)
         data.append(ViewData(depth, normal, read_map(out_dir, "counter", v.name),
                              read_map(out_dir, "confidence", v.name), read_map(out_dir, "refined_depth", v.name),
-                             read_map(out_dir, "refined_normal", v.name)))
+                             read_map(out_dir, "refined_normal", v.name), read_map(out_dir, "refined_counter", v.name),
+                             read_map(out_dir, "refined_confidence", v.name)))
     return data
 
 
