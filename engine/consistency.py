@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from engine.interrupt import check_interrupt
 from engine.options import Options, check, option
 from engine.patchmatch.context import build_context
 from engine.patchmatch.engine import PatchMatchView, ViewMaps
@@ -139,6 +140,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
         raise ValueError(f"{len(views)} views but {len(maps)} maps")
     out = []
     for i, v in enumerate(views):
+        check_interrupt()  # between kernels (engine/interrupt.py)
         m = maps[i]
         h, w = m.depth.shape
         counter = np.zeros((h, w), np.uint8)

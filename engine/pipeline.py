@@ -21,6 +21,7 @@ from engine.consistency import CounterOptions, compute_counter_maps
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene, write_fused_ply
+from engine.interrupt import check_interrupt
 from engine.io.outputs import write_map, write_metrics
 from engine.io.ply import read_points
 from engine.metrics import depth_metrics
@@ -103,6 +104,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     counter = compute_counter_maps(views, maps, options.counter)
     seconds["patchmatch"] = time.perf_counter() - t
     for view, m, k in zip(scene.views, maps, counter, strict=True):
+        check_interrupt()  # stop requests are honoured between kernels and files (engine/interrupt.py)
         write_map(out_dir, "depth", view.name, m.depth)
         write_map(out_dir, "normal", view.name, m.normal)
         write_map(out_dir, "cost", view.name, m.cost)
@@ -116,6 +118,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         t = time.perf_counter()
         confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model)
         for view, c in zip(scene.views, confidence, strict=True):
+            check_interrupt()
             write_map(out_dir, "confidence", view.name, c)
         if options.pipeline == "fast":
             filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
@@ -149,9 +152,11 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         if notify:
             notify("refinement")
 
+    check_interrupt()
     t = time.perf_counter()
     fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
     cloud = fuse(fusion_views, options.fusion)
+    check_interrupt()
     write_fused_ply(out_dir / "fused.ply", cloud)
     seconds["fusion"] = time.perf_counter() - t
     if notify:
@@ -186,6 +191,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         metrics["confidence_kept_pct"] = 100.0 * kept / max(1, sum(int((m.depth > 0).sum()) for m in before))
     metrics["options"] = {"scene": scene.options.to_dict(), **options.to_dict()}
     metrics["version"] = __version__
+    check_interrupt()
     write_metrics(out_dir, metrics)
     if checkpoint is not None:
         checkpoint.clear()
@@ -205,6 +211,7 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     out = []
     with torch_threads(options.num_threads):
         for view, m, k in zip(scene.views, maps, counter, strict=True):
+            check_interrupt()
             x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
             c = predict_confidence(model, x, options.tile, options.overlap, options.bf16, options.zero_backfacing)
             out.append(np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32))

@@ -38,8 +38,10 @@ def _view(args: argparse.Namespace) -> int:
 
 
 def _regress(args: argparse.Namespace) -> int:
+    from engine.interrupt import deferred_interrupts
     from workbench.regress import cmd_regress
-    return cmd_regress(args)
+    with deferred_interrupts():  # in-process pipelines: stop at the engine's safe points, as `run` does
+        return cmd_regress(args)
 
 
 def _replay(args: argparse.Namespace) -> int:
@@ -96,6 +98,7 @@ def run_options_from_args(args: argparse.Namespace):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from engine.interrupt import deferred_interrupts
     from engine.pipeline import run_pipeline
     from workbench.progress import PassProgress
 
@@ -115,8 +118,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if record or live:
             recording = _open_recording(record, scene, options, stream_options, live.grpc_url if live else None)
         try:
-            result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                  progress=progress, checkpoint=checkpoint)
+            # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
+            with deferred_interrupts():
+                result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
+                                      progress=progress, checkpoint=checkpoint)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -351,7 +356,8 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):  #
 
 
 def _terminate(signum, frame):  # noqa: ARG001
-    raise KeyboardInterrupt  # SIGTERM cleans up like Ctrl+C: no orphaned viewer, no partial file
+    # SIGTERM cleans up like Ctrl+C: no orphaned viewer, no partial file (deferred during `run`'s pipeline)
+    raise KeyboardInterrupt
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -20,6 +20,7 @@ import numpy as np
 
 from engine.camera import Camera
 from engine.errors import DeepCError
+from engine.interrupt import check_interrupt
 from engine.observer import IterationEvent, readonly
 from engine.patchmatch import kernels as K
 from engine.patchmatch.context import ViewContext, build_context
@@ -327,6 +328,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
         for i, v in enumerate(views):
             if resume is not None:
                 break  # this level's states are the resume point's
+            check_interrupt()
             h, w = images[i][level].shape
             st = _State(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32),
                         np.zeros((h, w), np.float32), np.zeros((h, w), np.uint32))
@@ -353,6 +355,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
             snapshot = [s.Z.copy() for s in states] if geometric else None
             for i, v in enumerate(views):
+                check_interrupt()
                 saved = None if checkpoint is None else checkpoint.load(level, pass_index, i, states[i].Z.shape)
                 if saved is not None:
                     states[i] = _State(**saved)
@@ -417,6 +420,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
     elif options.detail_restorer_reference == "upsampled":
         cpre = st.C.copy()
     for t in range(n_iter):
+        check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
         t0 = time.perf_counter()
         fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
                          perturbation_scale(options, t, done_before))

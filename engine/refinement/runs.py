@@ -30,6 +30,7 @@ import numpy as np
 
 from engine import __version__
 from engine.errors import DeepCError
+from engine.interrupt import check_interrupt
 from engine.io.outputs import map_path, read_map, read_metrics, write_json, write_map
 
 STAMP = Path("refined") / "stamp.json"
@@ -98,6 +99,7 @@ def write_refined_maps(out_dir: str | Path, names: list[str], refined: list, cou
     """Write the refined depth, normals, counter (and confidence) maps of every view; any stamp goes first."""
     (Path(out_dir) / STAMP).unlink(missing_ok=True)
     for i, name in enumerate(names):
+        check_interrupt()  # between files only (engine/interrupt.py)
         write_map(out_dir, "refined_depth", name, refined[i].depth)
         write_map(out_dir, "refined_normal", name, refined[i].normal)
         write_map(out_dir, "refined_counter", name, counter[i])
