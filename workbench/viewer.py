@@ -301,10 +301,10 @@ class ViewerApp:
 
     def _show(self, cloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False) -> None:
+        if colors is None:  # outside the lock: the error colours take a nearest-GT query that previews must not wait on
+            colors = self.session.colors(cloud, str(self.color_mode.value))
+        points = np.asarray(cloud.xyz, np.float32)
         with self._state_lock:
-            if colors is None:
-                colors = self.session.colors(cloud, str(self.color_mode.value))
-            points = np.asarray(cloud.xyz, np.float32)
             with self.server.atomic():
                 if self.cloud_handle is None:
                     self.cloud_handle = self.server.scene.add_point_cloud(
