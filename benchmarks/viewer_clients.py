@@ -148,10 +148,19 @@ async def run_clients(config: dict, last_sent_cb, final_state) -> dict:
         t = time.monotonic()
         while not victim.updates and time.monotonic() - t < 5:
             await asyncio.sleep(0.01)
-        # current = what the clients that stayed connected last received
-        current = {c.updates[-1][1] for c in pool if c is not victim and c.updates}
-        got = victim.updates[-1][1] if victim.updates else None
-        reconnects.append({"at_s": t - start, "state_received_s": (victim.updates[0][0] - t) if got else None,
+        # the replay on connect starts with the panel's creation (old text); its end holds the current text
+        await asyncio.sleep(0.2)
+        first = victim.updates[0][0] if victim.updates else t
+        got_at, got = ([u for u in victim.updates if u[0] <= first + 0.2] or [(t, None)])[-1]
+        # current = what the clients that stayed connected were shown around then (the state changes up to
+        # 50 times a second, so "the same instant" needs a window): their last text before, any within 1 s
+        await asyncio.sleep(1.0)
+        current = set()
+        for c in pool:
+            if c is not victim:
+                before = [text for at, text in c.updates if at <= got_at]
+                current |= set(before[-1:]) | {text for at, text in c.updates if abs(at - got_at) <= 1.0}
+        reconnects.append({"at_s": t - start, "state_received_s": (first - t) if got else None,
                            "current": got in current})
         reconnecting.discard(victim.index)
 
@@ -175,7 +184,7 @@ async def run_clients(config: dict, last_sent_cb, final_state) -> dict:
             next_reconnect += config["reconnect_every"]
             tasks.append(asyncio.create_task(reconnect(pool[rng.randrange(clients)])))
     await asyncio.gather(*tasks)
-    last_sent = time.monotonic()
+    last_sent = max(t for c in pool for t, _ in c.sent)  # the last event (reconnect tasks may end later)
     last_sent_cb(last_sent)
     final = await final_state()
     await asyncio.sleep(0.5)
