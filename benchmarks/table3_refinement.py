@@ -2,6 +2,11 @@
 
     .venv/bin/python benchmarks/table3_refinement.py RUN_DIR --out OUT_DIR [--proxy-confidence counter]
         [--solver fast|adam] [--reuse] [--views 0,1,2] [--json benchmarks/results/table3_<scene>.json]
+    .venv/bin/python benchmarks/table3_refinement.py VANILLA_RUN_DIR --weights NET1.pt [--refined-weights NET2.pt]
+
+The second form computes what ``--pipeline fast`` and ``full`` compute, from a finished vanilla run:
+network-1 confidence, the refinement through ``engine.refinement.runs.refine_run`` (cached in
+RUN_DIR/refined/), the refined maps' counter maps and their confidence from the second network.
 
 RUN_DIR is the output folder of ``deepc run`` (CONTRACT.md §4). Every view is refined (SPEC.md §6) with
 the run's confidence maps; a vanilla run has none, and then ``--proxy-confidence counter`` stands in
@@ -34,6 +39,7 @@ import numpy as np
 from scipy import ndimage
 from table2_filters import score_cells
 
+from engine.confidence.options import ConfidenceOptions
 from engine.consistency import compute_counter_maps
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
@@ -42,8 +48,9 @@ from engine.io.images import to_gray
 from engine.io.outputs import read_map, write_json, write_map
 from engine.metrics import depth_metrics
 from engine.patchmatch import ViewMaps
-from engine.pipeline import evaluate_cloud, patchmatch_views
+from engine.pipeline import confidence_stage, evaluate_cloud, patchmatch_views
 from engine.refinement import NoDataError, RefinementOptions, refine_depth
+from engine.refinement.runs import file_sha256, refine_run
 from engine.refinement.views import sky_filter_views
 from workbench.session import ViewerSession
 
@@ -99,12 +106,22 @@ def pooled_depth_metrics(scene, depths, selected) -> dict:
     return {k: m[k] for k in ("abs_rel", "within_1pct", "within_5pct", "valid_fraction")}
 
 
+def _network_confidence(scene, depths, normals, counter, weights: Path) -> list[np.ndarray]:
+    """Confidence of maps as ``--pipeline fast|full`` computes it (tiled bf16, back-facing rule)."""
+    empty = [np.zeros(d.shape, np.float32) for d in depths]
+    maps = [ViewMaps(d, n, e, e.astype(np.uint32)) for d, n, e in zip(depths, normals, empty, strict=True)]
+    return confidence_stage(scene, maps, counter, ConfidenceOptions(weights=str(weights)))
+
+
 def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: bool,
-        views: list[int] | None = None, fast_iters: tuple[int, ...] | None = None) -> dict:
+        views: list[int] | None = None, fast_iters: tuple[int, ...] | None = None,
+        weights: Path | None = None, refined_weights: Path | None = None) -> dict:
     session = ViewerSession.open(run_dir)
     scene, data = session.scene, session.data
     if data is None:
         raise SystemExit(f"{run_dir}: no maps")
+    if weights is not None:  # the pipeline's own path: network 1, refine_run (cached in RUN/refined), network 2
+        return run_networks(run_dir, session, weights, refined_weights)
     if session.has_confidence:
         conf_source = "network (run's confidence maps)"
         confidences = [d.confidence for d in data]
@@ -164,6 +181,47 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
     counter_seconds = time.perf_counter() - t
 
     keep = np.isin(np.arange(len(data)), selected)
+    result = table_rows(scene, data, selected, keep, confidences, refined_d, refined_n, refined_conf)
+    timing = {}
+    if per_view and all("seconds" in p for p in per_view):
+        timing = {"seconds_per_map_mean": float(np.mean([p["seconds"] for p in per_view])),
+                  "cpu_seconds_per_map_mean": float(np.mean([p["cpu_seconds"] for p in per_view])),
+                  "iterations_per_scale": per_view[0]["iterations"],
+                  "seconds_per_scale_mean": np.mean([p["seconds_per_scale"] for p in per_view], 0).tolist(),
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
+    return {"scene": scene.name, "size": size, "run": str(run_dir), "views": [scene.views[i].name for i in selected],
+            "confidence": conf_source, "solver": solver, "refinement_options": options.to_dict(), **result,
+            "timing": timing, "refined_counter_seconds": counter_seconds, "per_view": per_view}
+
+
+def run_networks(run_dir: Path, session, weights: Path, refined_weights: Path | None) -> dict:
+    """Table 3 as ``--pipeline fast`` and ``full`` compute it, on a finished vanilla run: network-1
+    confidence, ``refine_run`` (cached in RUN/refined/ with a stamp), the refined maps' counter maps and
+    their confidence from the second network (``refined_weights``; default: network 1 again)."""
+    scene, data = session.scene, session.data
+    refined_weights = refined_weights or weights
+    confidences = _network_confidence(scene, [d.depth for d in data], [d.normal for d in data],
+                                      [d.counter for d in data], weights)
+    done = refine_run(run_dir, weights=weights, log=lambda line: print("  " + line, flush=True))
+    names = [v.name for v in scene.views]
+    refined_d = [read_map(run_dir, "refined_depth", n) for n in names]
+    refined_n = [read_map(run_dir, "refined_normal", n) for n in names]
+    refined_k = [read_map(run_dir, "refined_counter", n) for n in names]
+    refined_conf = _network_confidence(scene, refined_d, refined_n, refined_k, refined_weights)
+    selected = list(range(len(scene.views)))
+    result = table_rows(scene, data, selected, np.ones(len(data), bool), confidences, refined_d, refined_n,
+                        refined_conf)
+    size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
+    source = (f"network 1 {weights.name} (sha256 {file_sha256(weights)[:12]}); refined maps' confidence: "
+              f"{refined_weights.name} (sha256 {file_sha256(refined_weights)[:12]})")
+    return {"scene": scene.name, "size": size, "run": str(run_dir), "views": names, "confidence": source,
+            "solver": "fast", **result, "timing": {}, "refine_run": {"reused": done.reused,
+                                                                      "seconds": done.seconds}}
+
+
+def table_rows(scene, data, selected, keep, confidences, refined_d, refined_n, refined_conf) -> dict:
+    """The Table-3 rows, depth metrics and planar-normal errors of vanilla vs refined maps."""
     vanilla_d = [d.depth if keep[i] else np.zeros_like(d.depth) for i, d in enumerate(data)]
     vanilla_n = [d.normal if keep[i] else np.zeros_like(d.normal) for i, d in enumerate(data)]
     fast = [filter_by_confidence(d, n, c, 0.05) for d, n, c in zip(vanilla_d, vanilla_n, confidences, strict=True)]
@@ -194,19 +252,8 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
     normals = {"planar_pixels": n_planar,
                "patchmatch": {"mean_deg": float(err_v.mean()), "median_deg": float(np.median(err_v))},
                "refined": {"mean_deg": float(err_r.mean()), "median_deg": float(np.median(err_r))}}
-    timing = {}
-    if per_view and all("seconds" in p for p in per_view):
-        timing = {"seconds_per_map_mean": float(np.mean([p["seconds"] for p in per_view])),
-                  "cpu_seconds_per_map_mean": float(np.mean([p["cpu_seconds"] for p in per_view])),
-                  "iterations_per_scale": per_view[0]["iterations"],
-                  "seconds_per_scale_mean": np.mean([p["seconds_per_scale"] for p in per_view], 0).tolist(),
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-    size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
-    return {"scene": scene.name, "size": size, "run": str(run_dir), "views": [scene.views[i].name for i in selected],
-            "confidence": conf_source, "solver": solver,
-            "refinement_options": options.to_dict(), "rows": rows, "depth": depth, "normals": normals,
-            "timing": timing, "sky_pixels_dropped": int(sum(int(m.sum()) for m in sky)),
-            "refined_counter_seconds": counter_seconds, "per_view": per_view}
+    return {"rows": rows, "depth": depth, "normals": normals,
+            "sky_pixels_dropped": int(sum(int(m.sum()) for m in sky))}
 
 
 def print_table(t: dict) -> None:
@@ -234,7 +281,12 @@ def print_table(t: dict) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
-    parser.add_argument("--out", type=Path, required=True, help="where the refined maps go")
+    parser.add_argument("--out", type=Path, default=None, help="where the refined maps go (not with --weights)")
+    parser.add_argument("--weights", type=Path, default=None,
+                        help="network-1 weights: confidence and refinement as the pipeline computes them "
+                             "(refine_run, cached in RUN_DIR/refined/)")
+    parser.add_argument("--refined-weights", type=Path, default=None,
+                        help="second network, for the refined maps' confidence (default: --weights)")
     parser.add_argument("--proxy-confidence", choices=("counter",), default=None)
     parser.add_argument("--solver", choices=("fast", "adam"), default="fast")
     parser.add_argument("--reuse", action="store_true", help="read refined maps from --out instead of refining")
@@ -244,7 +296,10 @@ def main() -> None:
     args = parser.parse_args()
     views = [int(v) for v in args.views.split(",") if v.strip()]
     fast_iters = tuple(int(v) for v in args.fast_iters.split(",") if v.strip()) or None
-    table = run(args.run_dir, args.out, args.proxy_confidence, args.solver, args.reuse, views, fast_iters)
+    if args.weights is None and args.out is None:
+        parser.error("--out is required without --weights")
+    table = run(args.run_dir, args.out, args.proxy_confidence, args.solver, args.reuse, views, fast_iters,
+                args.weights, args.refined_weights)
     print_table(table)
     path = args.json or REPO / "benchmarks" / "results" / f"table3_{table['scene']}.json"
     write_json(path, table)
