@@ -99,7 +99,9 @@ def load(app: ViewerApp, clients: int, rate: float, seconds: float, reconnect_ev
         if proc.is_alive():
             proc.kill()
     start = result["start"]
-    result.update(settled=settled, rss=[(t - start, m) for t, m in rss if t >= start])
+    result.update(settled=settled, rss=[(t - start, m) for t, m in rss if t >= start],
+                  control_names={h._impl.uuid: h.label for h in (app.conf_tau, app.mask_k, app.min_views, app.reproj,
+                                                                 app.depth_err, app.color_mode)})
     return result
 
 
@@ -109,6 +111,9 @@ def summarise(result: dict) -> dict:
         return scale * values[min(len(values) - 1, int(q * len(values)))] if values else None
 
     preview, exact = result["latencies"]["preview"], result["latencies"]["exact"]
+    names = result.get("control_names", {})
+    per_control = {names.get(k, k): {"events": len(v), "p50_ms": pct(v, 0.5, 1000), "p95_ms": pct(v, 0.95, 1000)}
+                   for k, v in result["latencies"].items() if k not in ("preview", "exact")}
     rss = [m for _, m in result["rss"]]
     third = max(1, len(rss) // 3)
     growth = (statistics.mean(rss[-third:]) / statistics.mean(rss[:third]) - 1) if rss else 0.0
@@ -118,7 +123,7 @@ def summarise(result: dict) -> dict:
     return {"events": result["events"], "exact_measured": len(exact), "preview_measured": len(preview),
             "events_dropped_by_reconnect": result["dropped_by_reconnect"],
             "preview_ms_p50": pct(preview, 0.5, 1000), "preview_ms_p95": pct(preview, 0.95, 1000),
-            "preview_ms_max": pct(preview, 1.0, 1000),
+            "preview_ms_max": pct(preview, 1.0, 1000), "preview_by_control": per_control,
             "exact_s_p50": pct(exact, 0.5, 1), "exact_s_p95": pct(exact, 0.95, 1), "exact_s_max": pct(exact, 1.0, 1),
             "final_exact_s_max": max(settle) if len(settle) == len(result["settle"]) else None,
             "rss_mb_every_5s": [round(m) for t, m in result["rss"] if int(t) % 5 == 0][:50],

@@ -65,7 +65,8 @@ class Client:
         self.history: list[float] = []  # arrival times of every answer (metrics or cloud), all connections
         self.exact_history: list[float] = []  # arrival times of exact results, all connections
         self.closed_at: list[float] = []  # when this client dropped its connection
-        self.sent: list[tuple[float, str]] = []  # (time, "preview" | "exact": what the event can get at once)
+        # (time, "preview" | "exact": what the event can get at once, GUI element uuid)
+        self.sent: list[tuple[float, str, str]] = []
         self.reader: asyncio.Task | None = None
 
     async def connect(self) -> None:
@@ -99,7 +100,7 @@ class Client:
         await self.reader
 
     async def send(self, uuid: str, value, kind: str) -> None:
-        self.sent.append((time.monotonic(), kind))
+        self.sent.append((time.monotonic(), kind, uuid))
         await self.ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": uuid,
                                                    "updates": {"value": value}}))
 
@@ -109,7 +110,7 @@ class Client:
         the answer arrived are counted apart (their wait is the reconnect's)."""
         out: dict[str, list[float]] = {"preview": [], "exact": []}
         dropped = 0
-        for sent_at, kind in self.sent:
+        for sent_at, kind, uuid in self.sent:
             for key, times in (("preview", self.history), ("exact", self.exact_history)):
                 if key == "preview" and kind != "preview":
                     continue
@@ -120,6 +121,8 @@ class Client:
                     dropped += key == "exact"
                 else:
                     out[key].append(after - sent_at)
+                    if key == "preview":
+                        out.setdefault(uuid, []).append(after - sent_at)
         return out, dropped
 
 
@@ -184,7 +187,7 @@ async def run_clients(config: dict, last_sent_cb, final_state) -> dict:
             next_reconnect += config["reconnect_every"]
             tasks.append(asyncio.create_task(reconnect(pool[rng.randrange(clients)])))
     await asyncio.gather(*tasks)
-    last_sent = max(t for c in pool for t, _ in c.sent)  # the last event (reconnect tasks may end later)
+    last_sent = max(t for c in pool for t, _, _ in c.sent)  # the last event (reconnect tasks may end later)
     last_sent_cb(last_sent)
     final = await final_state()
     await asyncio.sleep(0.5)
@@ -196,8 +199,8 @@ async def run_clients(config: dict, last_sent_cb, final_state) -> dict:
     dropped = 0
     for c in pool:
         lat, lost = c.latencies()
-        for key in latencies:
-            latencies[key] += lat[key]
+        for key in lat:
+            latencies[key] = latencies.get(key, []) + lat[key]
         dropped += lost
     errors = sorted({text for c in pool for _, text in c.updates if "error" in text.lower()})
     late = Client(port, config["metrics_uuid"], clients)  # a client that joins at the end gets the current state

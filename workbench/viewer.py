@@ -92,12 +92,19 @@ class ViewerApp:
         self._base_colors_value: np.ndarray | None = None
         self._base_colors_ref = None
         self._selected_view = 0
-        self._preview_latest = _LatestOnly(self._preview)
         self._recolor_latest = _LatestOnly(self._recolor)
+        # Previews run on their own thread, newest request wins: in viser's callback thread a preview that
+        # waits for the previous cloud to leave would hold up the next events themselves.
+        self._preview_cond = threading.Condition()
+        self._preview_args: tuple | None = None
+        self._previewing = False
+        self._exact_generation = 0  # newest generation whose exact cloud is shown: older previews must not cover it
         self._build_scene()
         self._build_gui()
         self._worker = threading.Thread(target=self._work, name="deepc-viewer-worker", daemon=True)
         self._worker.start()
+        self._previewer = threading.Thread(target=self._preview_loop, name="deepc-viewer-preview", daemon=True)
+        self._previewer.start()
         if session.has_maps:
             self.request(self.params())
 
@@ -208,11 +215,30 @@ class ViewerApp:
             self._generation += 1
             generation = self._generation
             self._last_request = time.monotonic()
-        self._preview_latest(params, generation)
+        with self._preview_cond:
+            self._preview_args = (params, generation)
+            self._preview_cond.notify()
         with self._cond:
             if generation == self._generation:  # else a newer request is queued instead
                 self._pending = params
                 self._cond.notify()
+
+    def _preview_loop(self) -> None:
+        while True:
+            with self._preview_cond:
+                while self._preview_args is None and not self._stopping:
+                    self._preview_cond.wait()
+                if self._stopping:
+                    return
+                args, self._preview_args = self._preview_args, None
+                self._previewing = True
+            try:
+                self._preview(*args)
+            except Exception as exc:  # the viewer must survive any one bad preview
+                self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
+            finally:
+                with self._preview_cond:
+                    self._previewing = False
 
     def _preview(self, params: ViewParams, generation: int) -> None:
         self._wait_for_delivery()
@@ -220,7 +246,7 @@ class ViewerApp:
             return  # a newer request came in: its own preview follows
         exact = self.session.cached_cloud(params)
         if exact is not None:  # computed before: show the exact result now rather than after the worker
-            self._show(exact, params, preview=False, scores=self.session.cached_scores(params))
+            self._show(exact, params, preview=False, scores=self.session.cached_scores(params), generation=generation)
             return
         base, own = self.session.nearest_base_cloud(params)
         if base is None:  # nothing to mask yet: say what is coming
@@ -231,7 +257,8 @@ class ViewerApp:
         if total > PREVIEW_MAX_POINTS:  # an even stride keeps the cloud's shape and density pattern
             keep = keep[np.linspace(0, total - 1, PREVIEW_MAX_POINTS).astype(np.int64)]
         colors = self._base_colors(base)[keep]
-        self._show(base.subset(keep), params, preview=True, count=total, colors=colors, stale_fusion=not own)
+        self._show(base.subset(keep), params, preview=True, count=total, colors=colors, stale_fusion=not own,
+                   generation=generation)
 
     def _base_colors(self, base) -> np.ndarray:
         """Colours of the whole base cloud, cached: previews only index them (the error colours need a
@@ -282,7 +309,7 @@ class ViewerApp:
                 if generation != self._generation:
                     continue  # a newer request is queued: skip the stale push
                 if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
-                    self._show(cloud, params, preview=False)
+                    self._show(cloud, params, preview=False, generation=generation)
                 scores = self.session.evaluate(params, cloud)
                 if generation == self._generation:
                     self.metrics.content = self._metrics_text(cloud, scores)
@@ -300,11 +327,17 @@ class ViewerApp:
         return f"**{len(cloud):,} points**  \n{describe(scores)}"
 
     def _show(self, cloud, params: ViewParams, preview: bool, count: int | None = None,
-              colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False) -> None:
+              colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
+              generation: int | None = None) -> None:
         if colors is None:  # outside the lock: the error colours take a nearest-GT query that previews must not wait on
             colors = self.session.colors(cloud, str(self.color_mode.value))
         points = np.asarray(cloud.xyz, np.float32)
         with self._state_lock:
+            if generation is not None:
+                if preview and generation <= self._exact_generation:
+                    return  # the exact result of this or a newer request is already shown
+                if not preview:
+                    self._exact_generation = max(self._exact_generation, generation)
             with self.server.atomic():
                 if self.cloud_handle is None:
                     self.cloud_handle = self.server.scene.add_point_cloud(
@@ -391,8 +424,9 @@ class ViewerApp:
         """Block until no recomputation is pending or running (for tests and benchmarks)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            with self._cond:
-                if self._pending is None and self._done_generation == self._generation:
+            with self._cond, self._preview_cond:
+                if (self._pending is None and self._done_generation == self._generation
+                        and self._preview_args is None and not self._previewing):
                     return True
             time.sleep(0.02)
         return False
@@ -401,7 +435,10 @@ class ViewerApp:
         with self._cond:
             self._stopping = True
             self._cond.notify_all()
+        with self._preview_cond:
+            self._preview_cond.notify_all()
         self._worker.join(timeout=10)
+        self._previewer.join(timeout=10)
         self.server.stop()
 
 
