@@ -41,15 +41,18 @@ def main() -> None:
     parser.add_argument("--run", type=_pair, action="append", required=True, metavar="NAME=RUN_DIR")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "confidence_auc.json")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch's default)")
+    parser.add_argument("--refined", action="store_true",
+                        help="score on the runs' refined maps (RUN/refined/, labels against the refined depth): "
+                             "the second network's task in --pipeline full")
     args = parser.parse_args()
 
     models = {name: load_weights(path) for name, path in args.variant}
     runs = {}
     for name, run in args.run:
         t = time.perf_counter()
-        runs[name] = load_run(run)
+        runs[name] = load_run(run, refined=args.refined)
         print(f"{name}: {len(runs[name])} views, labels in {time.perf_counter() - t:.0f} s", flush=True)
-    table: dict = {"variants": {}, "runs": {name: str(path) for name, path in args.run}}
+    table: dict = {"variants": {}, "runs": {name: str(path) for name, path in args.run}, "refined_maps": args.refined}
     for vname, model in models.items():
         trained_on = set(model.meta.get("train_data", []))
         row = {"weights": str(dict(args.variant)[vname]), "fusion": model.fusion,
