@@ -40,6 +40,7 @@ from scipy import ndimage
 from table2_filters import score_cells
 
 from engine.confidence.options import ConfidenceOptions
+from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS
 from engine.consistency import compute_counter_maps
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
@@ -198,9 +199,9 @@ def run(run_dir: Path, out_dir: Path, proxy: str | None, solver: str, reuse: boo
 def run_networks(run_dir: Path, session, weights: Path, refined_weights: Path | None) -> dict:
     """Table 3 as ``--pipeline fast`` and ``full`` compute it, on a finished vanilla run: network-1
     confidence, ``refine_run`` (cached in RUN/refined/ with a stamp), the refined maps' counter maps and
-    their confidence from the second network (``refined_weights``; default: network 1 again)."""
+    their confidence from the second network (``refined_weights``; default: the shipped second network)."""
     scene, data = session.scene, session.data
-    refined_weights = refined_weights or weights
+    refined_weights = refined_weights or DEFAULT_REFINED_WEIGHTS
     confidences = _network_confidence(scene, [d.depth for d in data], [d.normal for d in data],
                                       [d.counter for d in data], weights)
     done = refine_run(run_dir, weights=weights, log=lambda line: print("  " + line, flush=True))
@@ -286,7 +287,7 @@ def main() -> None:
                         help="network-1 weights: confidence and refinement as the pipeline computes them "
                              "(refine_run, cached in RUN_DIR/refined/)")
     parser.add_argument("--refined-weights", type=Path, default=None,
-                        help="second network, for the refined maps' confidence (default: --weights)")
+                        help="second network, for the refined maps' confidence (default: the shipped deepc_refined.pt)")
     parser.add_argument("--proxy-confidence", choices=("counter",), default=None)
     parser.add_argument("--solver", choices=("fast", "adam"), default="fast")
     parser.add_argument("--reuse", action="store_true", help="read refined maps from --out instead of refining")

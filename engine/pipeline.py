@@ -92,11 +92,11 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline in ("fast", "full"):
         # Loaded (and checked) before PatchMatch and kept in memory: bad weights fail at once, and a weights
         # file moved or overwritten while PatchMatch runs cannot end a long run at its last stage.
-        from engine.confidence.weights import DEFAULT_WEIGHTS, load_weights
+        from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS, load_weights
         model = load_weights(options.confidence.weights or None)
         weights_sha256 = file_sha256(options.confidence.weights or DEFAULT_WEIGHTS)  # for the refined maps' stamp
-        refined_model = load_weights(options.confidence.refined_weights) if options.confidence.refined_weights \
-            else model
+        if options.pipeline == "full":
+            refined_model = load_weights(options.confidence.refined_weights or DEFAULT_REFINED_WEIGHTS)
 
     views = patchmatch_views(scene)
     t = time.perf_counter()

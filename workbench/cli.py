@@ -92,8 +92,9 @@ def run_options_from_args(args: argparse.Namespace):
     stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
     if options.pipeline in ("fast", "full"):  # bad weights fail before PatchMatch
         _check_weights(Path(options.confidence.weights or _default_weights()))
-        if options.pipeline == "full" and options.confidence.refined_weights:
-            _check_weights(Path(options.confidence.refined_weights))
+        if options.pipeline == "full":
+            from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS
+            _check_weights(Path(options.confidence.refined_weights or DEFAULT_REFINED_WEIGHTS))
     return scene_options, options, stream_options
 
 

@@ -18,7 +18,7 @@ class ConfidenceOptions(Options):
     weights: str = option("", "weights file (default: the shipped engine/confidence/weights/deepc_middle.pt)",
                           metavar="FILE")
     refined_weights: str = option("", "weights for the confidence of refined maps (full pipeline; default: the "
-                                  "same weights as --weights until a network trained on refined maps ships)",
+                                  "shipped engine/confidence/weights/deepc_refined.pt, trained on refined maps)",
                                   metavar="FILE")
     tile: int = option(512, "largest tile side for inference, multiple of 16 (bounds memory; 512 is also the "
                        "fastest on 2 cores)", metavar="PX")

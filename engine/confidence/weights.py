@@ -22,6 +22,8 @@ from engine.io.atomic import atomic_write_bytes
 FORMAT = "deepc-confidence-weights"
 VERSION = 1
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "deepc_middle.pt"
+# the second network (SPEC.md §6.6b): confidence of refined maps in --pipeline full
+DEFAULT_REFINED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "deepc_refined.pt"
 
 
 def save_weights(path: str | Path, model: ConfidenceNet, meta: dict[str, Any] | None = None,
