@@ -116,7 +116,9 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
     if options.pipeline in ("fast", "full"):
         t = time.perf_counter()
-        confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model)
+        raw_confidence: list[np.ndarray] = []
+        confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model,
+                                                          raw=raw_confidence)
         for view, c in zip(scene.views, confidence, strict=True):
             check_interrupt()
             write_map(out_dir, "confidence", view.name, c)
@@ -129,7 +131,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
     if options.pipeline == "full":
         t = time.perf_counter()
-        refined = refinement_stage(scene, maps, confidence, options.refinement)
+        refined = refinement_stage(scene, maps, refinement_confidence(confidence, raw_confidence, options.refinement),
+                                   options.refinement)
         seconds["refinement"] = time.perf_counter() - t
         t = time.perf_counter()
         # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering; all are
@@ -199,10 +202,12 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 
 
 def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarray],
-                     options: ConfidenceOptions, model: Any = None) -> list[np.ndarray]:
+                     options: ConfidenceOptions, model: Any = None,
+                     raw: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4); ``model``: a loaded
-    :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now)."""
-    from engine.confidence.inference import predict_confidence, torch_threads
+    :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now). ``raw``, when
+    given, also receives each view's confidence before the back-facing rule (``zero_backfacing``)."""
+    from engine.confidence.inference import facing_away, predict_confidence, torch_threads
     from engine.confidence.inputs import network_inputs
     from engine.confidence.weights import load_weights
 
@@ -213,9 +218,21 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
         for view, m, k in zip(scene.views, maps, counter, strict=True):
             check_interrupt()
             x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
-            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16, options.zero_backfacing)
-            out.append(np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32))
+            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16)
+            c = np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32)
+            if raw is not None:
+                raw.append(c.copy())
+            if options.zero_backfacing:
+                c[facing_away(x)] = 0.0
+            out.append(c)
     return out
+
+
+def refinement_confidence(confidence: list[np.ndarray], raw: list[np.ndarray],
+                          options: RefinementOptions) -> list[np.ndarray]:
+    """The data-term weights of the refinement: the network's confidence before the back-facing rule unless
+    ``options.backfacing_rule`` (see there)."""
+    return confidence if options.backfacing_rule else raw
 
 
 def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],

@@ -45,6 +45,10 @@ class RefinementOptions(Options):
     refined_conf_tau: float = option(0.05, "full pipeline: keep refined pixels whose confidence (second network) "
                                      "is at least this", metavar="TAU")
     sky_filter: bool = option(True, "full pipeline: drop sky and far-plane pixels of refined maps (SPEC §8)")
+    backfacing_rule: bool = option(False, "weight the data term by the confidence after confidence.zero_backfacing "
+                                   "(off: before it; zeroing those pixels left whole grazing planes without data and "
+                                   "the regulariser carried the neighbouring planes onto them: fountain_p11 view 0 "
+                                   "within 5 % 81.9 vs 90.7, planar normals 72.8 vs 10.1 degrees)")
     hole_init: str = option("nearest", "initial depth of pixels without data: nearest valid depth "
                             "(converges faster) or the far plane (official code)", choices=HOLE_INITS)
 

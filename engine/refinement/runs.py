@@ -141,6 +141,7 @@ def refine_run(run_dir: str | Path, weights: str | Path | None = None, options=N
         compute_counter_maps,
         confidence_stage,
         patchmatch_views,
+        refinement_confidence,
         refinement_stage,
     )
 
@@ -177,7 +178,9 @@ def refine_run(run_dir: str | Path, weights: str | Path | None = None, options=N
     seconds: dict[str, float] = {}
     t = time.perf_counter()
     model = model if model is not None else load_weights(weights)
-    confidence = confidence_stage(scene, maps, counter, options.confidence, model)
+    raw: list[np.ndarray] = []
+    confidence = refinement_confidence(confidence_stage(scene, maps, counter, options.confidence, model, raw=raw),
+                                       raw, options.refinement)
     seconds["confidence"] = time.perf_counter() - t
 
     t = last = time.perf_counter()
