@@ -214,6 +214,8 @@ class PointIndex:
 
     def __init__(self, points: np.ndarray, what: str = "ground truth"):
         self.points = np.asarray(_as_points(points, what), np.float64)
+        if len(self.points) == 0:
+            raise DeepCError(f"the {what} has no points: nothing to evaluate against")
         self.order = _spatial_order(self.points)
         self.tree = cKDTree(self.points[self.order], balanced_tree=False, compact_nodes=False)
 
@@ -229,11 +231,7 @@ def _first_within(queries: np.ndarray | PointIndex, data: np.ndarray | PointInde
     out = np.full(len(queries), n_tol, np.int64)
     if len(queries) == 0 or len(data) == 0:
         return out
-    if isinstance(data, PointIndex):
-        tree = data.tree
-    else:
-        data = np.asarray(data, np.float64)
-        tree = cKDTree(data[_spatial_order(data)], balanced_tree=False, compact_nodes=False)
+    tree = (data if isinstance(data, PointIndex) else PointIndex(data, "data")).tree
     if isinstance(queries, PointIndex):
         queries, order = queries.points, queries.order
     else:
@@ -380,16 +378,15 @@ def evaluate_points(recon_xyz: np.ndarray, gt_xyz: np.ndarray | PointIndex,
     options = (options or EvaluationOptions()).validate()
     tol = options.sorted_tolerances()
     recon = _as_points(recon_xyz, "reconstruction")
-    gt_index = gt_xyz if isinstance(gt_xyz, PointIndex) else None
-    gt = gt_index.points if gt_index is not None else _as_points(gt_xyz, "ground truth")
-    if len(gt) == 0:
-        raise DeepCError("the ground truth has no points: nothing to evaluate against")
+    # one index serves both directions (its Morton order as queries, its tree as data)
+    gt_index = gt_xyz if isinstance(gt_xyz, PointIndex) else PointIndex(gt_xyz, "ground truth")
+    gt = gt_index.points
     n_tol = len(tol)
-    comp = _completeness(gt, _first_within(gt_index or gt, recon, tol), n_tol, options.voxel_size)
+    comp = _completeness(gt, _first_within(gt_index, recon, tol), n_tol, options.voxel_size)
     if len(recon) == 0:
         zeros = np.zeros(n_tol)
         return _result(tol, zeros, comp, 0, len(gt), zeros, _overlap_notes(zeros, comp, 0, tol))
-    first_ok = _first_within(recon, gt_index or gt, tol)
+    first_ok = _first_within(recon, gt_index, tol)
     not_acc = first_ok[:, None] > np.arange(n_tol)[None, :]
     if gt_views:
         margin = free_space_margin(recon, gt_views)

@@ -60,6 +60,15 @@ class ViewData:
     refined_counter: np.ndarray | None = None  # counter maps of the refined maps (older full runs: None)
     refined_confidence: np.ndarray | None = None  # confidence of the refined maps (second network)
 
+    def maps(self, pipeline: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """(depth, normal, confidence, counter) that ``pipeline`` filters and fuses: ``full`` takes the refined
+        maps with their own confidence and counter maps (the first network's for older full runs)."""
+        if pipeline != "full":
+            return self.depth, self.normal, self.confidence, self.counter
+        return (self.refined_depth, self.refined_normal,
+                self.confidence if self.refined_confidence is None else self.refined_confidence,
+                self.counter if self.refined_counter is None else self.refined_counter)
+
 
 class _LRU(OrderedDict):
     def __init__(self, size: int):
@@ -161,13 +170,7 @@ class ViewerSession:
     def _filter(self, params: ViewParams) -> list[tuple[np.ndarray, np.ndarray]]:
         out = []
         for d in self.data:
-            depth, normal, confidence, counter = d.depth, d.normal, d.confidence, d.counter
-            if params.pipeline == "full":  # the refined maps, filtered by their own confidence and counter
-                depth, normal = d.refined_depth, d.refined_normal
-                if d.refined_confidence is not None:
-                    confidence = d.refined_confidence
-                if d.refined_counter is not None:
-                    counter = d.refined_counter
+            depth, normal, confidence, counter = d.maps(params.pipeline)
             if params.pipeline != "vanilla" and params.conf_tau > 0:
                 depth, normal = filter_by_confidence(depth, normal, confidence, params.conf_tau)
             if params.mask_k > 0 and counter is not None:
@@ -179,8 +182,7 @@ class ViewerSession:
         """The exactly fused cloud for ``params`` (cached by filter and fusion options)."""
         def compute() -> FusedCloud:
             maps = self.filtered_maps(params)
-            confidence = [d.refined_confidence if params.pipeline == "full" and d.refined_confidence is not None
-                          else d.confidence for d in self.data] if self.has_confidence else None
+            confidence = [d.maps(params.pipeline)[2] for d in self.data] if self.has_confidence else None
             views = views_from_scene(self.scene, [m[0] for m in maps], [m[1] for m in maps], confidence,
                                      params.fusion.check_num_images)
             return fuse(views, params.fusion)

@@ -88,9 +88,7 @@ class ViewerApp:
         self.cloud = None
         self.cloud_params: ViewParams | None = None
         self._cloud_message_id = -1  # broadcast-buffer id of the last cloud push (see _wait_for_delivery)
-        self._base_colors_key: tuple | None = None
-        self._base_colors_value: np.ndarray | None = None
-        self._base_colors_ref = None
+        self._base_colors_cache: tuple | None = None  # (base cloud, colour mode, colours)
         self._selected_view = 0
         self._recolor_latest = _LatestOnly(self._recolor)
         # Previews run on their own thread, newest request wins: in viser's callback thread a preview that
@@ -264,12 +262,10 @@ class ViewerApp:
         """Colours of the whole base cloud, cached: previews only index them (the error colours need a
         nearest-GT query that takes longer than a preview may)."""
         mode = str(self.color_mode.value)
-        key = (id(base), mode)
-        if self._base_colors_key != key:
-            self._base_colors_value = self.session.colors(base, mode)
-            self._base_colors_key = key
-            self._base_colors_ref = base  # keeps id(base) from being reused while cached
-        return self._base_colors_value
+        cached = self._base_colors_cache
+        if cached is None or cached[0] is not base or cached[1] != mode:
+            cached = self._base_colors_cache = (base, mode, self.session.colors(base, mode))
+        return cached[2]
 
     def _wait_for_delivery(self) -> None:
         """Block until every connected client has taken the last cloud push off the broadcast buffer.
