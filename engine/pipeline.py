@@ -116,7 +116,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
     if options.pipeline in ("fast", "full"):
         t = time.perf_counter()
-        raw_confidence: list[np.ndarray] = []
+        raw_confidence: list[np.ndarray] | None = [] if options.pipeline == "full" else None  # refinement's
         confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model,
                                                           raw=raw_confidence)
         for view, c in zip(scene.views, confidence, strict=True):
@@ -221,7 +221,7 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
             c = predict_confidence(model, x, options.tile, options.overlap, options.bf16)
             c = np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32)
             if raw is not None:
-                raw.append(c.copy())
+                raw.append(c.copy() if options.zero_backfacing else c)
             if options.zero_backfacing:
                 c[facing_away(x)] = 0.0
             out.append(c)
