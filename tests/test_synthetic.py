@@ -112,6 +112,24 @@ def test_random_scene_knobs_are_validated():
     assert all(t.kind == "weak" for t in s.textures)
 
 
+def test_training_recipes_hard_family():
+    """Seeds from HARD_SEED_START draw large, often weakly textured objects; earlier seeds keep the scenes
+    the cached training runs were made from (the sphere_radius knob draws from the same random stream)."""
+    from engine.synthetic.dataset import HARD_SEED_START, training_recipe
+    from engine.synthetic.raycast import Sphere
+
+    old = training_recipe(1003)
+    spheres = [(round(p.radius, 4), t.kind) for p, t in zip(old.primitives, old.textures, strict=True)
+               if isinstance(p, Sphere)]
+    assert spheres == [(0.588, "weak"), (0.391, "noise")]  # the held-out scene that motivated the family
+    hard = [training_recipe(HARD_SEED_START + i) for i in range(8)]
+    radii = [p.radius for r in hard for p in r.primitives if isinstance(p, Sphere)]
+    assert all(any(isinstance(p, Sphere) for p in r.primitives) for r in hard)
+    assert min(radii) >= 0.45 and max(radii) > 0.8
+    weak = np.mean([t.kind == "weak" for r in hard for t in r.textures])
+    assert weak > 0.3  # the default family has 0.15
+
+
 # --- ground truth ------------------------------------------------------------------------------
 
 def test_gt_depth_is_multiview_consistent(tiny):

@@ -173,6 +173,7 @@ class RandomSceneKnobs(Options):
     jitter: Range = option((0.0, 1.0), "hand-held pose jitter (0 = perfect arc)")
     n_boxes: Range = option((1, 4), "number of boxes")
     n_spheres: Range = option((0, 3), "number of spheres")
+    sphere_radius: Range = option((0.2, 0.6), "sphere radius (metres)")
     n_poles: Range = option((0, 4), "number of thin vertical poles")
     n_slanted: Range = option((0, 2), "number of slanted rectangles")
     wall_prob: float = option(0.8, "probability of a back wall")
@@ -255,7 +256,7 @@ def random_scene(seed: int, **knobs) -> SceneRecipe:
         xy, half = spot(), rng.uniform(0.15, 0.7, 3)
         prims.append(Box((xy[0], xy[1], half[2]), tuple(half), rot_z(rng.uniform(0, 90))))
     for _ in range(_draw(rng, k.n_spheres)):
-        xy, r = spot(), float(rng.uniform(0.2, 0.6))
+        xy, r = spot(), float(_draw(rng, k.sphere_radius))
         prims.append(Sphere((xy[0], xy[1], r * rng.uniform(0.7, 1.5)), r))
     for _ in range(_draw(rng, k.n_poles)):
         xy = spot(2.5)
