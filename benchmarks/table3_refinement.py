@@ -19,10 +19,11 @@ on counter maps recomputed on the refined maps (SPEC.md §11 item 31).
 Rows (F1 / completeness / accuracy at 2 cm and 5 cm, fused with COLMAP-style fusion):
     ours                          vanilla maps, preset deepc (20°)
     ours + conf 0.05 (fast)       vanilla maps filtered at c >= 0.05, preset deepc
-    ours refined                  refined maps, preset refined (5°)
+    ours refined                  refined maps, preset refined (10°, 2 pixels; fusion.py says why)
     ours refined, 20° fusion      refined maps, preset deepc (separates the map change from the preset)
     ours refined + conf 0.05      refined maps filtered at c_refined >= 0.05, preset refined
     full: ... + sky filter        as above, then SPEC.md §8 (sky mask + far plane)
+    full, paper's 5° preset       the same maps, preset refined_paper (5°, 3 pixels: SPEC.md §7.3)
 Plus depth metrics (vanilla vs refined, against GT depth) and the mean / median angle between
 estimated normals and normals derived from GT depth over planar regions (GT normals within a 7x7
 window agree to a mean resultant length >= 0.999, about 2.5°), time and iterations per scale.
@@ -234,7 +235,8 @@ def table_rows(scene, data, selected, keep, confidences, refined_d, refined_n, r
             score(scene, "ours refined", refined_d, refined_n, "refined"),
             score(scene, "ours refined, 20° fusion", refined_d, refined_n, "deepc"),
             score(scene, "ours refined + conf 0.05", [x[0] for x in ref_conf], [x[1] for x in ref_conf], "refined"),
-            score(scene, "full (+ sky filter)", full_d, full_n, "refined")]
+            score(scene, "full (+ sky filter)", full_d, full_n, "refined"),
+            score(scene, "full, paper's 5° preset", full_d, full_n, "refined_paper")]
 
     depth = {"vanilla": pooled_depth_metrics(scene, vanilla_d, selected),
              "refined": pooled_depth_metrics(scene, refined_d, selected),
@@ -259,10 +261,10 @@ def table_rows(scene, data, selected, keep, confidences, refined_d, refined_n, r
 
 def print_table(t: dict) -> None:
     print(f"\n{t['scene']} ({t['size']}), confidence: {t['confidence']}; percent at 2 cm | 5 cm")
-    print(f"{'method':<26} {'preset':<8} {'F1':>6} {'compl.':>7} {'acc.':>6} | {'F1':>6} {'compl.':>7} {'acc.':>6} "
+    print(f"{'method':<26} {'preset':<13} {'F1':>6} {'compl.':>7} {'acc.':>6} | {'F1':>6} {'compl.':>7} {'acc.':>6} "
           f"{'points':>9}")
     for r in t["rows"]:
-        print(f"{r['method']:<26} {r['preset']:<8} {score_cells(r)} {r['points']:>9,}")
+        print(f"{r['method']:<26} {r['preset']:<13} {score_cells(r)} {r['points']:>9,}")
     print(f"\n{'depth maps':<26} {'valid %':>8} {'<1 %':>7} {'<5 %':>7} {'abs_rel':>8}")
     for name, m in t["depth"].items():
         print(f"{name:<26} {m['valid_fraction']:>8.2f} {m['within_1pct']:>7.2f} {m['within_5pct']:>7.2f} "

@@ -76,8 +76,15 @@ FUSION_PRESETS: dict[str, FusionOptions] = {
     # DeepC on ETH3D low-res and Tanks and Temples: normal threshold quartered, 3 supporting views.
     "deepc_lowres": FusionOptions(max_reproj_error=1.0, max_depth_error=0.01, max_normal_error=5.0,
                                   min_num_pixels=4),
-    # DeepC refined maps (high-res).
-    "refined": FusionOptions(max_reproj_error=1.0, max_depth_error=0.01, max_normal_error=5.0, min_num_pixels=3),
+    # DeepC refined maps as SPEC.md §7.3 writes them: the paper's 5 deg, 3 pixels (the pixel count is [rec]).
+    "refined_paper": FusionOptions(max_reproj_error=1.0, max_depth_error=0.01, max_normal_error=5.0,
+                                   min_num_pixels=3),
+    # Refined maps as --pipeline full fuses them: chosen on the four held-out synthetic scenes
+    # (benchmarks/refined_fusion_sweep.py): a second pixel suffices, since the second network and the
+    # depth/reprojection checks already test consistency (3 -> 2 px: F1 at 2 cm +3.7 to +7.9 points), and
+    # 10 deg beats 5 deg on all four (+0.4 to +1.5): our refined normals at these resolutions are noisier
+    # than the paper's (planar-normal error 5.5 deg mean on fountain_p11 768), so 5 deg splits true surfaces.
+    "refined": FusionOptions(max_reproj_error=1.0, max_depth_error=0.01, max_normal_error=10.0, min_num_pixels=2),
 }
 
 

@@ -159,7 +159,8 @@ def test_presets_and_options():
     assert (FUSION_PRESETS["colmap"].max_reproj_error, FUSION_PRESETS["colmap"].min_num_pixels) == (2.0, 5)
     assert FUSION_PRESETS["acmm"].max_normal_error == 10.0 and FUSION_PRESETS["acmm"].min_num_pixels == 3
     assert FUSION_PRESETS["deepc_lowres"].max_normal_error == 5.0 and FUSION_PRESETS["deepc_lowres"].min_num_pixels == 4
-    assert FUSION_PRESETS["refined"].max_normal_error == 5.0
+    paper = FUSION_PRESETS["refined_paper"]
+    assert (paper.max_normal_error, paper.min_num_pixels) == (5.0, 3)
     for bad in (dict(max_reproj_error=-1), dict(min_num_pixels=20, max_num_pixels=10), dict(max_traversal_depth=0),
                 dict(max_normal_error=200.0)):
         with pytest.raises(OptionsError):

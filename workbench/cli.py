@@ -258,7 +258,8 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
     fusion_group = parser.add_argument_group("fusion")
     fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default=None,
                               help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels; "
-                                   "refined = 5° for --pipeline full); the flags below override single values")
+                                   "refined = 10°, 2 pixels for --pipeline full; refined_paper = the paper's 5°); "
+                                   "the flags below override single values")
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
                                                          "min_num_pixels"])
     parser.add_argument("--weights", metavar="FILE", default=None,
