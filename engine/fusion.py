@@ -210,11 +210,9 @@ def _pack(views: list[FusionView], options: FusionOptions):
         ov_lists.append(lst[:options.check_num_images])
         ov_ptr[i + 1] = ov_ptr[i] + len(ov_lists[-1])
     ov_idx = np.array([j for lst in ov_lists for j in lst], np.int64)
-    # Depth and normal side by side (16-byte records): a pop reads both with one cache miss.
-    dn = np.empty((len(depth), 4), np.float32)
-    dn[:, 0] = depth
-    dn[:, 1:] = normal
-    return dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx
+    # Depth apart from the normals: the ~10 push-time depth lookups per fused pixel read only this array
+    # (4 bytes a pixel: 17 MB for 11 views at 768x512, within a 32 MB L3), a pop adds one normal read.
+    return depth, normal, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx
 
 
 # --------------------------------------------------------------------------------------------
@@ -251,11 +249,11 @@ def _median(buf: np.ndarray, n: int, scratch: np.ndarray) -> float:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx,
+def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx,
                  max_reproj_sq, max_depth_err, min_cos, min_px, max_px, max_trav):
     """COLMAP's traversal with two equivalent reorganisations for speed (memory traffic dominates):
 
-    - ``depth`` is a private copy whose sign marks consumed pixels (d < 0), so one read answers
+    - ``dep`` is a private copy of the depths whose sign marks consumed pixels (d < 0), so one read answers
       "valid and not consumed" (consumption is permanent and depths never change sign otherwise);
     - the depth and reprojection checks against the seed depend only on (seed, pixel), so they are
       done before pushing, using the seed's projection into every view computed once per seed;
@@ -263,13 +261,13 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
       test and the normal check stay at pop time, so the accepted sequence is COLMAP's.
     """
     n_views = len(widths)
-    total = dn.shape[0]
+    total = dep.shape[0]
     n_valid = 0
     for i in range(total):
-        if dn[i, 0] > 0.0:
+        if dep[i] > 0.0:
             n_valid += 1
         else:
-            dn[i, 0] = 0.0  # NaN / negative -> invalid
+            dep[i] = 0.0  # NaN / negative -> invalid
     cap = n_valid // max(min_px, 1) + 1
     out_xyz = np.empty((cap, 3), np.float64)
     out_nrm = np.empty((cap, 3), np.float32)
@@ -312,7 +310,7 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
         H = heights[img]
         base = offsets[img]
         for p0 in range(base, base + W * H):
-            if dn[p0, 0] <= 0.0:
+            if dep[p0] <= 0.0:
                 continue
             # ---- Fuse(seed) ----
             seed_id += 1
@@ -332,12 +330,12 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
                 k = st_img[sp]
                 pidx = st_pix[sp]
                 lvl = st_lvl[sp]
-                d = dn[pidx, 0]
+                d = dep[pidx]
                 if d <= 0.0:
                     continue  # consumed meanwhile (or invalid)
-                n0 = dn[pidx, 1]
-                n1 = dn[pidx, 2]
-                n2 = dn[pidx, 3]
+                n0 = nrm[pidx, 0]
+                n1 = nrm[pidx, 1]
+                n2 = nrm[pidx, 2]
                 wnx = Rt[k, 0, 0] * n0 + Rt[k, 0, 1] * n1 + Rt[k, 0, 2] * n2
                 wny = Rt[k, 1, 0] * n0 + Rt[k, 1, 1] * n1 + Rt[k, 1, 2] * n2
                 wnz = Rt[k, 2, 0] * n0 + Rt[k, 2, 1] * n1 + Rt[k, 2, 2] * n2
@@ -353,7 +351,7 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
                 x = Rt[k, 0, 0] * cx_ + Rt[k, 0, 1] * cy_ + Rt[k, 0, 2] * cz_
                 y = Rt[k, 1, 0] * cx_ + Rt[k, 1, 1] * cy_ + Rt[k, 1, 2] * cz_
                 z = Rt[k, 2, 0] * cx_ + Rt[k, 2, 1] * cy_ + Rt[k, 2, 2] * cz_
-                dn[pidx, 0] = -d  # consumed
+                dep[pidx] = -d  # consumed
                 bx[n] = x
                 by[n] = y
                 bz[n] = z
@@ -401,7 +399,7 @@ def _fuse_kernel(dn, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_
                     if nc < 0 or nr < 0 or nc >= widths[j] or nr >= heights[j]:
                         continue
                     q = offsets[j] + nr * widths[j] + nc
-                    dq = dn[q, 0]
+                    dq = dep[q]
                     if dq <= 0.0:
                         continue  # invalid or consumed: it would be skipped at pop time
                     # Checks against the seed point (COLMAP does them at pop time; same outcome).

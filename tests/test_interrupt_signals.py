@@ -32,6 +32,15 @@ def _spin_count(seconds: float) -> int:
     return int(seconds / max(per, 1e-10))
 
 
+@pytest.fixture(autouse=True)
+def _sigint_default():
+    """Python's own SIGINT handler for each test: a suite started as a background job (``cmd &``) inherits
+    SIGINT ignored, which deferred_interrupts rightly leaves alone (test_ignored_signal_stays_ignored)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def test_signal_waits_for_check_and_handlers_come_back():
     before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
     with deferred_interrupts():
