@@ -211,7 +211,8 @@ def _pack(views: list[FusionView], options: FusionOptions):
         ov_ptr[i + 1] = ov_ptr[i] + len(ov_lists[-1])
     ov_idx = np.array([j for lst in ov_lists for j in lst], np.int64)
     # Depth apart from the normals: the ~10 push-time depth lookups per fused pixel read only this array
-    # (4 bytes a pixel: 17 MB for 11 views at 768x512, within a 32 MB L3), a pop adds one normal read.
+    # (4 bytes a pixel, 17 MB for 11 views at 768x512), a pop adds one normal read. Measured against
+    # 16-byte depth+normal records: best of 5 1.28 vs 1.31 s on fountain_p11 768 (small, but not slower).
     return depth, normal, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx
 
 
@@ -398,15 +399,16 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
                     nr = _round_half_away(fr)
                     if nc < 0 or nr < 0 or nc >= widths[j] or nr >= heights[j]:
                         continue
-                    q = offsets[j] + nr * widths[j] + nc
-                    dq = dep[q]
-                    if dq <= 0.0:
-                        continue  # invalid or consumed: it would be skipped at pop time
-                    # Checks against the seed point (COLMAP does them at pop time; same outcome).
+                    # Checks against the seed point (COLMAP does them at pop time; same outcome). The
+                    # reprojection check needs no memory read, so it goes before the depth lookup.
                     du = seed_u[j] - nc
                     dv = seed_v[j] - nr
                     if du * du + dv * dv > max_reproj_sq:
                         continue
+                    q = offsets[j] + nr * widths[j] + nc
+                    dq = dep[q]
+                    if dq <= 0.0:
+                        continue  # invalid or consumed: it would be skipped at pop time
                     if abs((seed_w[j] - dq) / dq) > max_depth_err:
                         continue
                     st_img[sp] = j
