@@ -22,6 +22,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from patchmatch_error_regions import within_by_region
 
 from engine.fusion import depth_normals
 from engine.io.images import to_gray
@@ -110,20 +111,7 @@ def main() -> None:
     masks = region_masks(scene, args.view, gt, floor)
     checks = {name: photo_check(scene, args.run_dir, args.view, m, args.samples, args.sources, rng)
               for name, m in masks.items()}
-    counts = {name: [0, 0] for name in ("ground", "other", "all")}
-    for v in scene.views:
-        g = scene.gt_depth(v.index)
-        d = read_map(args.run_dir, "depth", v.name)
-        if g is None or d is None:
-            continue
-        ok = (g > 0) & (d > 0) & (np.abs(d - g) <= 0.01 * g)
-        for name, m in {**region_masks(scene, v.index, g, floor), "all": g > 0}.items():
-            counts[name][0] += int(m.sum())
-            counts[name][1] += int((ok & m).sum())
-    total = counts["all"][0]
-    within = {name: {"share_pct": 100 * n / total, "within_1pct": 100 * k / max(n, 1)}
-              for name, (n, k) in counts.items()}
-
+    within = within_by_region(scene, args.run_dir, lambda index, g: region_masks(scene, index, g, floor))
     print(f"{scene.name}: ground normal (world) {np.round(floor, 3).tolist()}; view {scene.views[args.view].name}, "
           f"sources {checks['other']['sources']}")
     print(f"{'region':<8} " + " ".join(f"{s:>+7.1%}" for s in SCALES) + f" {'run':>7}  median rel. error of the run")

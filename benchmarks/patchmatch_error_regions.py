@@ -26,8 +26,6 @@ from scipy import ndimage
 from engine.io.outputs import read_map, write_json
 from workbench.session import ViewerSession
 
-REGIONS = ("edge", "unseen", "rest")
-
 
 def unseen_mask(scene, index: int, gt: np.ndarray) -> np.ndarray:
     """(H, W) GT pixels of view ``index`` that no other view of the scene observes."""
@@ -60,30 +58,38 @@ def edge_mask(gt: np.ndarray, edge_px: int) -> np.ndarray:
     return ndimage.binary_dilation(grad > 0.2, iterations=max(edge_px, 1))
 
 
-def regions(run_dir: Path, edge_px: int, refined: bool) -> dict:
-    session = ViewerSession.open(run_dir)
-    scene = session.scene
-    counts = {r: np.zeros(3, np.int64) for r in (*REGIONS, "all")}  # pixels, within 1 %, within 5 %
+def within_by_region(scene, run_dir: Path, masks_of_view, maps: str = "depth") -> dict[str, dict]:
+    """Per region, pooled over the views: share of the GT pixels, within 1 % / 5 % and the 1 % misses as points
+    of the total. ``masks_of_view(index, gt)`` gives {region: (H, W) bool}; "all" (every GT pixel) is added."""
+    counts: dict[str, np.ndarray] = {}  # pixels, within 1 %, within 5 %
     for v in scene.views:
         gt = scene.gt_depth(v.index)
-        depth = read_map(run_dir, "refined_depth" if refined else "depth", v.name)
+        depth = read_map(run_dir, maps, v.name)
         if gt is None or depth is None:
             continue
         has = gt > 0
         err = np.abs(depth - gt)
         w1 = has & (depth > 0) & (err <= 0.01 * gt)
         w5 = has & (depth > 0) & (err <= 0.05 * gt)
-        unseen = unseen_mask(scene, v.index, gt)
-        edge = edge_mask(gt, edge_px) & has & ~unseen
-        masks = {"edge": edge, "unseen": unseen, "rest": has & ~unseen & ~edge, "all": has}
-        for name, m in masks.items():
+        for name, m in {**masks_of_view(v.index, gt), "all": has}.items():
+            counts.setdefault(name, np.zeros(3, np.int64))
             counts[name] += [int(m.sum()), int((w1 & m).sum()), int((w5 & m).sum())]
-    total = max(int(counts["all"][0]), 1)
-    table = {}
-    for name, (n, n1, n5) in counts.items():
-        table[name] = {"share_pct": 100 * n / total, "within_1pct": 100 * n1 / max(n, 1),
-                       "within_5pct": 100 * n5 / max(n, 1), "misses_1pct_points": 100 * (n - n1) / total,
-                       "pixels": int(n)}
+    total = max(int(counts["all"][0]), 1) if counts else 1
+    return {name: {"share_pct": 100 * n / total, "within_1pct": 100 * n1 / max(n, 1),
+                   "within_5pct": 100 * n5 / max(n, 1), "misses_1pct_points": 100 * (n - n1) / total,
+                   "pixels": int(n)} for name, (n, n1, n5) in counts.items()}
+
+
+def regions(run_dir: Path, edge_px: int, refined: bool) -> dict:
+    scene = ViewerSession.open(run_dir).scene
+
+    def masks(index: int, gt: np.ndarray) -> dict[str, np.ndarray]:
+        has = gt > 0
+        unseen = unseen_mask(scene, index, gt)
+        edge = edge_mask(gt, edge_px) & has & ~unseen
+        return {"edge": edge, "unseen": unseen, "rest": has & ~unseen & ~edge}
+
+    table = within_by_region(scene, run_dir, masks, "refined_depth" if refined else "depth")
     size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
     return {"scene": scene.name, "size": size, "run": str(run_dir), "maps": "refined" if refined else "stereo",
             "edge_px": edge_px, "regions": table}

@@ -15,31 +15,18 @@ import argparse
 import itertools
 from pathlib import Path
 
-from table3_refinement import _network_confidence
+from table3_refinement import _network_confidence, fuse_and_score
 
 from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS
-from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
-from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
+from engine.fusion import FUSION_PRESETS
 from engine.io.outputs import read_map, write_json
-from engine.pipeline import evaluate_cloud
 from engine.refinement.views import sky_filter_views
 from workbench.session import ViewerSession
 
 
 def _floats(text: str) -> list[float]:
     return [float(x) for x in text.split(",") if x]
-
-
-def score(scene, depths, normals, options) -> dict:
-    cloud = fuse(views_from_scene(scene, depths, normals, None, options.check_num_images), options)
-    result = evaluate_cloud(scene, cloud, EvaluationOptions(tolerances=(0.02, 0.05)))
-    row = {"points": len(cloud)}
-    for tol in (0.02, 0.05):
-        at = result.at(tol)
-        row.update({f"f1@{tol}": at["f1"], f"completeness@{tol}": at["completeness"],
-                    f"accuracy@{tol}": at["accuracy"]})
-    return row
 
 
 def sweep(run_dir: Path, tau: float, angles, min_pixels, reproj) -> dict:
@@ -56,7 +43,7 @@ def sweep(run_dir: Path, tau: float, angles, min_pixels, reproj) -> dict:
                                 DEFAULT_REFINED_WEIGHTS)
     fast = [filter_by_confidence(d.depth, d.normal, c, 0.05) for d, c in zip(data, conf1, strict=True)]
     rows = [{"maps": "fast (vanilla, conf 0.05)", "preset": "deepc", **FUSION_PRESETS["deepc"].to_dict(),
-             **score(scene, [x[0] for x in fast], [x[1] for x in fast], FUSION_PRESETS["deepc"])}]
+             **fuse_and_score(scene, [x[0] for x in fast], [x[1] for x in fast], FUSION_PRESETS["deepc"])}]
     kept = [filter_by_confidence(r[0], r[1], c, tau) for r, c in zip(refined, conf2, strict=True)]
     full_d, full_n, _ = sky_filter_views(scene, [x[0] for x in kept], [x[1] for x in kept],
                                          [d.depth for d in data], conf1)
@@ -64,7 +51,7 @@ def sweep(run_dir: Path, tau: float, angles, min_pixels, reproj) -> dict:
         options = FUSION_PRESETS["refined"].replace(max_normal_error=angle, min_num_pixels=int(min_px),
                                                     max_reproj_error=rep)
         rows.append({"maps": f"full (refined, conf {tau}, sky)", "preset": "custom", **options.to_dict(),
-                     **score(scene, full_d, full_n, options)})
+                     **fuse_and_score(scene, full_d, full_n, options)})
         r = rows[-1]
         print(f"  {scene.name:<14} {angle:>4.0f}° min_px {int(min_px)} reproj {rep:.1f}: F1 {r['f1@0.02']:6.2f} "
               f"compl. {r['completeness@0.02']:6.2f} acc. {r['accuracy@0.02']:6.2f} | 5 cm F1 {r['f1@0.05']:6.2f}"

@@ -84,12 +84,16 @@ def angle_errors(normal: np.ndarray, gt_normal: np.ndarray, mask: np.ndarray) ->
 
 
 def score(scene, name: str, depths, normals, preset: str) -> dict:
+    return {"method": name, "preset": preset, **fuse_and_score(scene, depths, normals, FUSION_PRESETS[preset])}
+
+
+def fuse_and_score(scene, depths, normals, options) -> dict:
+    """Fuse the maps with ``options`` and score the cloud against the scene's GT at TOLERANCES."""
     t = time.perf_counter()
-    options = FUSION_PRESETS[preset]
     cloud = fuse(views_from_scene(scene, depths, normals, None, options.check_num_images), options)
     result = evaluate_cloud(scene, cloud, EvaluationOptions(tolerances=TOLERANCES))
-    row = {"method": name, "preset": preset, "points": len(cloud),
-           "pixels": int(sum(int((d > 0).sum()) for d in depths)), "seconds": time.perf_counter() - t}
+    row = {"points": len(cloud), "pixels": int(sum(int((d > 0).sum()) for d in depths)),
+           "seconds": time.perf_counter() - t}
     for tol in TOLERANCES:
         at = result.at(tol)
         row.update({f"f1@{tol}": at["f1"], f"completeness@{tol}": at["completeness"],
