@@ -137,9 +137,11 @@ def test_mean_confidence_and_rgb():
 def test_median_kernel_matches_numpy():
     rng = np.random.default_rng(3)
     scratch = np.empty(200)
-    for n in (1, 2, 3, 4, 7, 48, 49, 50, 200):
+    for n in (1, 2, 3, 4, 7, 8, 31, 32, 33, 48, 49, 50, 200):
         buf = rng.normal(size=200)
         assert _median(buf, n, scratch) == pytest.approx(float(np.median(buf[:n])), abs=0)
+        ties = rng.integers(0, 4, size=200).astype(np.float64)  # colours: many equal values (rank path)
+        assert _median(ties, n, scratch) == float(np.median(ties[:n]))
 
 
 def test_depth_normals_of_plane():
