@@ -150,10 +150,20 @@ class FusedCloud:
 # Packing views into flat arrays for the kernel.
 
 def _rgb_uint8(rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) colours in [0, 1] (or uint8) -> uint8, rounding halves up; the reference of _to_uint8."""
     rgb = np.asarray(rgb)
     if rgb.dtype == np.uint8:
         return rgb
     return np.clip(np.floor(np.asarray(rgb, np.float64) * 255.0 + 0.5), 0, 255).astype(np.uint8)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _to_uint8(src: np.ndarray, dst: np.ndarray) -> None:
+    # _rgb_uint8 in one pass: the numpy expression makes four float64 temporaries (26 of 40 ms of
+    # packing 11 views at 768x512). NaN maps to 0 as in numpy's clip-then-cast on this platform.
+    for i in numba.prange(src.shape[0]):
+        v = np.floor(np.float64(src[i]) * 255.0 + 0.5)
+        dst[i] = 0 if not v > 0.0 else (255 if v > 255.0 else np.uint8(v))
 
 
 def _check_view(i: int, v: FusionView, n_views: int) -> None:
@@ -181,7 +191,15 @@ def _pack(views: list[FusionView], options: FusionOptions):
     # A private copy: the kernel marks consumed pixels by negating their depth.
     depth = np.concatenate([np.asarray(v.depth, np.float32).ravel() for v in views])
     normal = np.concatenate([np.asarray(v.normal, np.float32).reshape(-1, 3) for v in views])
-    rgb = np.concatenate([_rgb_uint8(v.rgb).reshape(-1, 3) for v in views])
+    rgb = np.empty((int(offsets[-1]), 3), np.uint8)
+    for v, a, b in zip(views, offsets[:-1], offsets[1:], strict=True):
+        colours = np.asarray(v.rgb)
+        if colours.dtype == np.uint8:
+            rgb[a:b] = colours.reshape(-1, 3)
+        else:
+            if colours.dtype not in (np.float32, np.float64):
+                colours = colours.astype(np.float64)
+            _to_uint8(np.ascontiguousarray(colours).ravel(), rgb[a:b].reshape(-1))
     if all(v.confidence is None for v in views):
         conf = np.full(1, np.nan, np.float32)  # the kernel reads no confidence then
     else:

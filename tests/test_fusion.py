@@ -16,6 +16,8 @@ from engine.fusion import (
     FusionOptions,
     FusionView,
     _median,
+    _rgb_uint8,
+    _to_uint8,
     colmap_reference_fusion,
     depth_normals,
     fuse,
@@ -142,6 +144,18 @@ def test_median_kernel_matches_numpy():
         assert _median(buf, n, scratch) == pytest.approx(float(np.median(buf[:n])), abs=0)
         ties = rng.integers(0, 4, size=200).astype(np.float64)  # colours: many equal values (rank path)
         assert _median(ties, n, scratch) == float(np.median(ties[:n]))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_colour_kernel_matches_numpy(dtype):
+    rng = np.random.default_rng(5)
+    # halves of 1/255 steps, values out of [0, 1] and NaN are where a rounding slip would show
+    rgb = np.concatenate([rng.uniform(-0.1, 1.1, 3000), (np.arange(256) + 0.5) / 255, np.arange(256) / 255,
+                          [np.nan, np.inf, -np.inf]]).astype(dtype)
+    out = np.empty(rgb.size, np.uint8)
+    _to_uint8(rgb, out)
+    with np.errstate(invalid="ignore"):
+        np.testing.assert_array_equal(out, _rgb_uint8(rgb))
 
 
 def test_depth_normals_of_plane():
