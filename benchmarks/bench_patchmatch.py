@@ -1,6 +1,6 @@
 """PatchMatch engine benchmark: NCC throughput, time per view and iteration, compile time, threads, memory.
 
-    .venv/bin/python benchmarks/bench_patchmatch.py [--sizes 320x240,768x512] [--sources 4,10]
+    .venv/bin/python benchmarks/bench_patchmatch.py [--sizes 320x240,768x512] [--sources 4,5,10]
         [--json benchmarks/results/bench_patchmatch.json] [--quick]
 
 Scenes are the analytic textured planes of ``tests/pm_synthetic.py`` rendered at each size.
@@ -112,7 +112,7 @@ def compile_times() -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="320x240,768x512")
-    ap.add_argument("--sources", default="4,10")
+    ap.add_argument("--sources", default="4,5,10")
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "bench_patchmatch.json"))
     ap.add_argument("--quick", action="store_true", help="320x240 and 4 sources only, no compile timing")
     args = ap.parse_args()
