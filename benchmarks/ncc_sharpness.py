@@ -17,7 +17,6 @@ network's held-out scenes; weak-texture ground and piecewise-constant checker te
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -27,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.outputs import read_metrics, write_json  # noqa: E402
 
 CONFIGS: dict[str, dict[str, float]] = {
     "default": {},
@@ -53,8 +52,11 @@ def run(scene: Path, config: str, work: Path) -> dict:
         for key, value in CONFIGS[config].items():
             cmd += ["--set", f"patchmatch.{key}={value}"]
         env = dict(os.environ, PYTHONPATH=str(ROOT))
-        subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    metrics = json.loads((out / "metrics.json").read_text())
+        proc = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        if proc.returncode != 0:
+            lines = proc.stderr.strip().splitlines() or ["(no message)"]
+            raise SystemExit(f"{scene} ({config}): deepc run failed: {lines[-1]}")
+    metrics = read_metrics(out)
     tol = metrics["eval"]["tolerances"]
     f1 = dict(zip(tol, metrics["eval"]["f1"], strict=True))
     return {"within_1pct": metrics["depth"]["within_1pct"], "within_5pct": metrics["depth"]["within_5pct"],

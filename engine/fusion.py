@@ -157,11 +157,11 @@ def _rgb_uint8(rgb: np.ndarray) -> np.ndarray:
     return np.clip(np.floor(np.asarray(rgb, np.float64) * 255.0 + 0.5), 0, 255).astype(np.uint8)
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def _to_uint8(src: np.ndarray, dst: np.ndarray) -> None:
     # _rgb_uint8 in one pass: the numpy expression makes four float64 temporaries (26 of 40 ms of
     # packing 11 views at 768x512). NaN maps to 0 as in numpy's clip-then-cast on this platform.
-    for i in numba.prange(src.shape[0]):
+    for i in range(src.shape[0]):
         v = np.floor(np.float64(src[i]) * 255.0 + 0.5)
         dst[i] = 0 if not v > 0.0 else (255 if v > 255.0 else np.uint8(v))
 
