@@ -20,7 +20,15 @@ from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
-from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene, write_fused_ply
+from engine.fusion import (
+    DEFAULT_PRESET,
+    FUSION_PRESETS,
+    FusedCloud,
+    FusionOptions,
+    fuse,
+    views_from_scene,
+    write_fused_ply,
+)
 from engine.interrupt import check_interrupt
 from engine.io.outputs import write_map, write_metrics
 from engine.io.ply import read_points
@@ -46,7 +54,7 @@ class PipelineOptions(Options):
     confidence: ConfidenceOptions = option(ConfidenceOptions(), "confidence network and filtering (fast, full)",
                                            cli=False)
     refinement: RefinementOptions = option(RefinementOptions(), "confidence-guided refinement (full)", cli=False)
-    fusion: FusionOptions = option(FUSION_PRESETS["deepc"], "fusion options", cli=False)
+    fusion: FusionOptions = option(FUSION_PRESETS[DEFAULT_PRESET], "fusion options", cli=False)
     evaluation: EvaluationOptions = option(EvaluationOptions(), "evaluation options", cli=False)
 
     def validate(self) -> PipelineOptions:

@@ -18,7 +18,7 @@ from engine.confidence.network import ConfidenceNet
 from engine.confidence.training import TrainOptions, ValidationSet, train
 from engine.confidence.weights import save_weights
 from engine.errors import DeepCError
-from engine.fusion import FUSION_PRESETS
+from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS
 
 REPO = Path(__file__).resolve().parent.parent
 TINY = REPO / "sample_scenes" / "tiny"
@@ -126,7 +126,7 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
     assert result.returncode == 0, result.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["pipeline"] == "full" and metrics["seconds"]["refinement"] > 0
-    assert metrics["options"]["fusion"] == FUSION_PRESETS["refined"].to_dict()  # the refined preset by default
+    assert metrics["options"]["fusion"] == FUSION_PRESETS[DEFAULT_PRESET].to_dict()  # same default as vanilla
     # refinement fills holes: every GT pixel has a refined estimate, while PatchMatch's own maps stay as they were
     assert metrics["refined_depth"]["valid_fraction"] > 99.0
     assert metrics["refined_depth"]["within_5pct"] >= metrics["depth"]["within_5pct"] - 5.0

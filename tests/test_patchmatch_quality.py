@@ -16,18 +16,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from engine.evaluation import EvaluationOptions
+from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, fuse, views_from_scene
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import patchmatch_views
+from engine.pipeline import PipelineOptions, evaluate_cloud, patchmatch_views
 from engine.scene import load_scene
 
 TINY = Path(__file__).resolve().parent.parent / "sample_scenes" / "tiny"
 
 
 @pytest.fixture(scope="module")
-def pooled() -> dict[str, float]:
+def tiny_maps():
     scene = load_scene(TINY)
-    views = patchmatch_views(scene)
-    maps = run_patchmatch(views, PatchMatchOptions())
+    return scene, run_patchmatch(patchmatch_views(scene), PatchMatchOptions())
+
+
+@pytest.fixture(scope="module")
+def pooled(tiny_maps) -> dict[str, float]:
+    scene, maps = tiny_maps
     n_gt = n_both = n1 = n5 = 0
     for i, m in enumerate(maps):
         gt = scene.gt_depth(i).astype(np.float64)
@@ -53,3 +59,19 @@ def test_tiny_regression_floor(pooled) -> None:
 def test_tiny_issue_target(pooled) -> None:
     assert pooled["valid_fraction"] >= 95.0, pooled
     assert pooled["within_1pct"] >= 90.0, pooled
+
+
+def test_default_fusion_keeps_the_maps_density(tiny_maps) -> None:
+    """The default preset (half-pixel clusters, 2 pixels) against the paper's 1 px / 3 pixels on the same
+    maps: about twice the points, F1 at 2 cm 68.5 against 47.6 (completeness 55 against 32) with accuracy
+    within a point or two. A user would see a sparser, worse-scoring cloud if the default slid back."""
+    scene, maps = tiny_maps
+    assert PipelineOptions().fusion == FUSION_PRESETS[DEFAULT_PRESET]
+    views = views_from_scene(scene, [m.depth for m in maps], [m.normal for m in maps])
+    options = EvaluationOptions(tolerances=(0.02,))
+    dense, paper = fuse(views, FUSION_PRESETS[DEFAULT_PRESET]), fuse(views, FUSION_PRESETS["deepc"])
+    r_dense, r_paper = evaluate_cloud(scene, dense, options), evaluate_cloud(scene, paper, options)
+    assert len(dense) > 1.6 * len(paper), (len(dense), len(paper))
+    assert r_dense.f1[0] > r_paper.f1[0] + 10.0, (r_dense.f1, r_paper.f1)
+    assert r_dense.completeness[0] > r_paper.completeness[0] + 10.0, (r_dense.completeness, r_paper.completeness)
+    assert r_dense.accuracy[0] > r_paper.accuracy[0] - 3.0, (r_dense.accuracy, r_paper.accuracy)

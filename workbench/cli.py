@@ -66,7 +66,7 @@ SET_SECTIONS = ("patchmatch", "confidence", "refinement", "fusion", "stream")
 def run_options_from_args(args: argparse.Namespace):
     """(SceneOptions, PipelineOptions, StreamOptions) from the flags of :func:`add_run_option_flags`;
     shared by ``deepc run`` and the entries of a regression suite."""
-    from engine.fusion import FUSION_PRESETS, FusionOptions
+    from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
     from engine.patchmatch import PatchMatchOptions
     from engine.pipeline import PipelineOptions
     from workbench.stream import StreamOptions
@@ -78,7 +78,7 @@ def run_options_from_args(args: argparse.Namespace):
     scene_options = options_from_args(SceneOptions, args)
     patchmatch = options_from_args(PatchMatchOptions, args,
                                    **section_overrides(args.set, "patchmatch", PatchMatchOptions))
-    preset = args.fusion_preset or ("refined" if args.pipeline == "full" else "deepc")
+    preset = args.fusion_preset or DEFAULT_PRESET
     fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[preset],
                                **section_overrides(args.set, "fusion", FusionOptions))
     from engine.confidence.options import ConfidenceOptions
@@ -254,11 +254,12 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
     add_options_flags(parser.add_argument_group("scene"), SceneOptions)
     from engine.patchmatch import PatchMatchOptions
     add_options_flags(parser.add_argument_group("patchmatch"), PatchMatchOptions, only=RUN_PATCHMATCH_FLAGS)
-    from engine.fusion import FUSION_PRESETS, FusionOptions
+    from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
     fusion_group = parser.add_argument_group("fusion")
     fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default=None,
-                              help="fusion thresholds of SPEC §7.3 (default: deepc = 1 px, 1%%, 20°, 3 pixels; "
-                                   "refined = 10°, 2 pixels for --pipeline full; refined_paper = the paper's 5°); "
+                              help=f"fusion thresholds (default: {DEFAULT_PRESET} = 0.5 px, 1%%, 20°, 2 pixels, "
+                                   "every pipeline; SPEC §7.3's: deepc = the paper's 1 px, 1%%, 20°, 3 pixels, "
+                                   "refined_paper = its 5° for refined maps, colmap, acmm, deepc_lowres); "
                                    "the flags below override single values")
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
                                                          "min_num_pixels"])

@@ -21,7 +21,7 @@ import numpy as np
 from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
-from engine.fusion import FusedCloud, FusionOptions, fuse, views_from_scene
+from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.outputs import read_map, read_metrics
 from engine.io.ply import read_points
 from engine.scene import Scene, SceneOptions, load_scene
@@ -37,7 +37,7 @@ class ViewParams:
     pipeline: str = "vanilla"
     conf_tau: float = 0.05
     mask_k: int = 0  # 0 = no counter filter
-    fusion: FusionOptions = dataclasses.field(default_factory=FusionOptions)
+    fusion: FusionOptions = dataclasses.field(default_factory=lambda: FUSION_PRESETS[DEFAULT_PRESET])
 
     def filter_key(self) -> tuple:
         tau = self.conf_tau if self.pipeline != "vanilla" else 0.0

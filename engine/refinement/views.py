@@ -3,7 +3,7 @@
     refined = refine_views(scene, depths, normals, confidences, options)         # SPEC.md §6
     (confidence of the refined maps, filter c >= 0.05)                          # SPEC.md §6.6b
     depths, normals = sky_filter_views(scene, depths, normals, vanilla_depths, vanilla_confidences)  # §8
-    fuse(..., FUSION_PRESETS["refined"])                                         # SPEC.md §7 (10°, see fusion.py)
+    fuse(..., FUSION_PRESETS[DEFAULT_PRESET])                                    # SPEC.md §7 (see fusion.py)
 
 A view with nothing to refine from (:class:`NoDataError`) is reported through ``warnings`` and comes
 back as None; callers write an all-zero map for it, so it contributes nothing to fusion.
