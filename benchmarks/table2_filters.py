@@ -1,13 +1,13 @@
 """Filtering before fusion, with the structure of the paper's Table 2 (ours; mask1; mask2; conf τ).
 
     .venv/bin/python benchmarks/table2_filters.py RUN_DIR [RUN_DIR ...] [--out benchmarks/results/table2.json]
-        [--weights engine/confidence/weights/deepc_middle.pt]
+        [--weights engine/confidence/weights/deepc_middle.pt] [--preset deepc]
 
 Each RUN_DIR is the output folder of ``deepc run`` (stereo depth/normal/counter maps and metrics.json,
 which names the scene). For each variant the maps are filtered, fused with the Table 2 setting (preset
-``deepc``: 1 px, 1 %, 20°, 2 supporting views) and scored against the scene's GT points with the
-unobserved-space rule (GT depth maps). Confidence rows appear when the run has confidence maps, or
-when ``--weights`` predicts them for a vanilla run (as ``--pipeline fast`` would).
+``deepc``: 1 px, 1 %, 20°, 2 supporting views; ``--preset`` picks another, e.g. the default ``dense``) and
+scored against the scene's GT points with the unobserved-space rule (GT depth maps). Confidence rows appear
+when the run has confidence maps, or when ``--weights`` predicts them for a vanilla run (as ``--pipeline fast`` would).
 F1, completeness and accuracy in percent at 2 cm and 5 cm.
 """
 
@@ -37,12 +37,12 @@ def variants(session: ViewerSession, confidence: list | None = None) -> list[tup
     return rows
 
 
-def score_run(run_dir: Path, weights: Path | None = None) -> dict:
+def score_run(run_dir: Path, weights: Path | None = None, preset: str = "deepc") -> dict:
     session = ViewerSession.open(run_dir)
     scene = session.scene
     if not scene.has_gt_points:
         raise SystemExit(f"{run_dir}: scene {scene.name} has no GT points")
-    options = FUSION_PRESETS["deepc"]
+    options = FUSION_PRESETS[preset]
     confidence = None
     if weights is not None:  # predict the confidence of a vanilla run with these weights (as --pipeline fast does)
         from engine.confidence.options import ConfidenceOptions
@@ -72,7 +72,7 @@ def score_run(run_dir: Path, weights: Path | None = None) -> dict:
                         f"accuracy@{tol}": at["accuracy"]})
         rows.append(row)
     size = f"{scene.views[0].camera.width}x{scene.views[0].camera.height}"
-    return {"scene": scene.name, "size": size, "run": str(run_dir), "rows": rows,
+    return {"scene": scene.name, "size": size, "run": str(run_dir), "preset": preset, "rows": rows,
             "weights": None if weights is None else str(weights)}
 
 
@@ -83,7 +83,8 @@ def score_cells(row: dict) -> str:
 
 
 def print_table(table: dict) -> None:
-    print(f"\n{table['scene']} ({table['size']}), fusion preset deepc; percent at 2 cm | 5 cm")
+    print(f"\n{table['scene']} ({table['size']}), fusion preset {table.get('preset', 'deepc')}; "
+          "percent at 2 cm | 5 cm")
     print(f"{'method':<18} {'F1':>6} {'compl.':>7} {'acc.':>6} | {'F1':>6} {'compl.':>7} {'acc.':>6} "
           f"{'points':>9} {'pixels kept':>12}")
     for r in table["rows"]:
@@ -97,8 +98,10 @@ def main() -> None:
     parser.add_argument("--weights", type=Path, default=None,
                         help="predict confidence maps with these weights (for vanilla runs; default: use the "
                              "run's own confidence maps when it has them)")
+    parser.add_argument("--preset", choices=sorted(FUSION_PRESETS), default="deepc",
+                        help="fusion preset (default: deepc, the paper's Table 2 setting)")
     args = parser.parse_args()
-    tables = [score_run(run, args.weights) for run in args.runs]
+    tables = [score_run(run, args.weights, args.preset) for run in args.runs]
     for table in tables:
         print_table(table)
     write_json(args.out, tables)
