@@ -33,6 +33,24 @@ def test_gui_changes_recompute_and_update_the_metrics(app):
     assert app.cloud_handle.colors.shape == (len(app.cloud), 3)
 
 
+def test_fusion_preset_dropdown_sets_the_sliders_and_follows_them(app):
+    assert app.preset.value == "dense"  # the pipelines' default, what `deepc run` fused with
+    assert app.wait_idle(60)
+    dense = len(app.cloud)
+    app.preset.value = "deepc"  # the paper's thresholds
+    assert (app.reproj.value, app.depth_err.value, app.normal_err.value, app.min_views.value) == (1.0, 0.01, 20.0, 3)
+    assert app.wait_idle(60)
+    assert len(app.cloud) < dense  # 1 px clusters merge several pixels per view: a sparser cloud
+    app.min_views.value = 4  # a slider moved by hand: no preset has these values
+    assert app.preset.value == "custom"
+    app.min_views.value = 3
+    assert app.preset.value == "deepc"
+    app.preset.value = "dense"
+    assert (app.reproj.value, app.min_views.value) == (0.5, 2)
+    assert app.wait_idle(60)
+    assert len(app.cloud) == dense
+
+
 def test_exports_stay_inside_the_output_folder(app, fake_run):
     path = app.export_ply("../../escape attempt")
     assert path.parent == fake_run / "exports" and path.name == "escape_attempt.ply"

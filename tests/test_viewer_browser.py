@@ -64,6 +64,21 @@ def test_cloud_renders_and_the_confidence_slider_updates_points_and_metrics(brow
         page.close()
 
 
+def test_choosing_the_paper_fusion_preset_in_the_browser(browser_context, app):
+    page = _open(browser_context, app)
+    try:
+        page.get_by_text("points").first.wait_for()
+        dense = len(app.cloud)
+        page.locator(f'[id="{app.preset._impl.uuid}"]').click()
+        page.get_by_role("option", name="deepc", exact=True).click()
+        wait_for(lambda: app.reproj.value == 1.0 and app.min_views.value == 3 and app.cloud_params is not None
+                 and app.cloud_params.fusion.max_reproj_error == 1.0 and app.wait_idle(1))
+        assert len(app.cloud) < dense
+        page.get_by_text(f"{len(app.cloud):,} points").wait_for()
+    finally:
+        page.close()
+
+
 def test_clicking_a_camera_shows_its_maps(browser_context, app):
     page = _open(browser_context, app)
     try:

@@ -11,6 +11,7 @@ share one session. Binds 127.0.0.1 unless told otherwise.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import threading
 import time
@@ -21,6 +22,7 @@ import numpy as np
 import viser
 from viser.transforms import SO3
 
+from engine.fusion import FUSION_PRESETS, FusionOptions
 from engine.io.ply import write_ply
 from workbench.session import COLOR_MODES, ViewerSession, ViewParams, describe
 from workbench.stream import subsample
@@ -30,6 +32,19 @@ PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
 EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user who never lets go)
+CUSTOM = "custom"  # the fusion preset dropdown's entry for slider values no preset has
+
+
+def preset_of(fusion: FusionOptions) -> str:
+    """Name of the preset whose four slider thresholds ``fusion`` has, else ``CUSTOM``."""
+    for name in sorted(FUSION_PRESETS):
+        p = FUSION_PRESETS[name]
+        if (math.isclose(p.max_reproj_error, fusion.max_reproj_error, abs_tol=1e-9)
+                and math.isclose(p.max_depth_error, fusion.max_depth_error, abs_tol=1e-9)
+                and math.isclose(p.max_normal_error, fusion.max_normal_error, abs_tol=1e-9)
+                and p.min_num_pixels == fusion.min_num_pixels):
+            return name
+    return CUSTOM
 
 
 def safe_file_name(text: str, suffix: str) -> str:
@@ -161,6 +176,10 @@ class ViewerApp:
                                          hint="keep pixels with ≥ k consistent source views (0 = off)")
         with gui.add_folder("Fusion"):
             f = defaults.fusion
+            self.preset = gui.add_dropdown("Preset", options=(*sorted(FUSION_PRESETS), CUSTOM),
+                                           initial_value=preset_of(f),
+                                           hint="named thresholds (dense = the default; deepc = the paper's); "
+                                                "moving a slider makes it custom")
             self.reproj = gui.add_slider("Reprojection error (px)", min=0.25, max=4.0, step=0.25,
                                          initial_value=f.max_reproj_error)
             self.depth_err = gui.add_slider("Depth error (rel.)", min=0.001, max=0.05, step=0.001,
@@ -189,13 +208,43 @@ class ViewerApp:
                 self.view_images[kind] = gui.add_image(subsample(image, 320), label=kind, format="jpeg")
         self.select_view(0)
 
-        for handle in (self.pipeline, self.conf_tau, self.mask_k, self.reproj, self.depth_err, self.normal_err,
-                       self.min_views):
+        self._applying_preset = False
+        for handle in (self.pipeline, self.conf_tau, self.mask_k):
             handle.on_update(lambda _event: self.request(self.params()))
+        for handle in (self.reproj, self.depth_err, self.normal_err, self.min_views):
+            handle.on_update(lambda _event: self._fusion_slider_moved())
+        self.preset.on_update(lambda _event: self._apply_preset())
         self.color_mode.on_update(lambda _event: self._recolor_latest())
         self.point_size.on_update(lambda _event: self._set_point_size())
         self.export_button.on_click(lambda _event: self.export_ply())
         self.rrd_button.on_click(lambda _event: self.save_rrd())
+
+    def _apply_preset(self) -> None:
+        """Set the four fusion sliders to the chosen preset; one recomputation, not four."""
+        if self._applying_preset or self.preset.value == CUSTOM:
+            return
+        f = FUSION_PRESETS[str(self.preset.value)]
+        self._applying_preset = True
+        try:
+            self.reproj.value = f.max_reproj_error
+            self.depth_err.value = f.max_depth_error
+            self.normal_err.value = f.max_normal_error
+            self.min_views.value = f.min_num_pixels
+        finally:
+            self._applying_preset = False
+        self.request(self.params())
+
+    def _fusion_slider_moved(self) -> None:
+        if self._applying_preset:
+            return
+        name = preset_of(self.params().fusion)
+        if self.preset.value != name:
+            self._applying_preset = True  # the dropdown only names the sliders' state here
+            try:
+                self.preset.value = name
+            finally:
+                self._applying_preset = False
+        self.request(self.params())
 
     def params(self) -> ViewParams:
         fusion = ViewParams().fusion.replace(
