@@ -32,8 +32,9 @@ TOLERANCES = (0.01, 0.02, 0.05)
 TAU = 0.05
 
 
-def pipeline_maps(scene, run_dir: Path) -> dict[str, tuple[list, list]]:
-    """{pipeline: (depth maps, normal maps)} as the pipelines hand them to fusion."""
+def pipeline_maps(scene, run_dir: Path, full_tau: float = TAU) -> dict[str, tuple[list, list]]:
+    """{pipeline: (depth maps, normal maps)} as the pipelines hand them to fusion; ``full`` only when the run
+    has refined maps, its second-network threshold is ``full_tau``."""
     names = [v.name for v in scene.views]
     depth = [read_map(run_dir, "depth", n) for n in names]
     normal = [read_map(run_dir, "normal", n) for n in names]
@@ -47,7 +48,8 @@ def pipeline_maps(scene, run_dir: Path) -> dict[str, tuple[list, list]]:
                for kind in ("refined_depth", "refined_normal", "refined_counter")]
     if all(m is not None for maps in refined for m in maps):
         conf2 = _network_confidence(scene, *refined, DEFAULT_REFINED_WEIGHTS)
-        kept = [filter_by_confidence(d, n, c, TAU) for d, n, c in zip(refined[0], refined[1], conf2, strict=True)]
+        kept = [filter_by_confidence(d, n, c, full_tau)
+                for d, n, c in zip(refined[0], refined[1], conf2, strict=True)]
         full_d, full_n, _ = sky_filter_views(scene, [k[0] for k in kept], [k[1] for k in kept], depth, conf)
         out["full"] = (full_d, full_n)
     return out

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.fusion import depth_normals, read_fused_ply
@@ -83,13 +84,7 @@ def register_similarity(moving: np.ndarray, fixed: np.ndarray, normal: np.ndarra
         r = np.einsum("ij,ij->i", n, q - p)
         x, *_ = np.linalg.lstsq(a, r, rcond=None)
         w, dt, sigma = x[:3], x[3:6], x[6]
-        theta = np.linalg.norm(w)
-        if theta > 0:
-            k = w / theta
-            kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-            dR = np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
-        else:
-            dR = np.eye(3)
+        dR = Rotation.from_rotvec(w).as_matrix()
         # new map: (1 + sigma) dR (s R m + t) + dt
         s, R, t = s * (1 + sigma), dR @ R, (1 + sigma) * dR @ t + dt
         radius = max(3.0 * float(np.median(np.abs(r))), 0.005)
@@ -118,7 +113,7 @@ def main() -> None:
 
     out["sparse_vs_gt"] = view_bias(scene, sparse, scene.gt_depth)
     s, R, t, fit = register_similarity(sparse, gt_points, gt_normals)
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+    angle = float(np.degrees(Rotation.from_matrix(R).magnitude()))
     out["similarity"] = {"scale": s, "rotation_deg": angle, "translation_m": t.tolist(), **fit}
     moved = s * sparse @ R.T + t
     # moved points lie on the GT surface if the similarity explains the bias: seen through the cameras,

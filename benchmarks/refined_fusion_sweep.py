@@ -15,14 +15,12 @@ import argparse
 import itertools
 from pathlib import Path
 
-from table3_refinement import _network_confidence, fuse_and_score
+from fusion_presets import pipeline_maps
+from table3_refinement import fuse_and_score
 
-from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS
-from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS
-from engine.io.outputs import read_map, write_json
-from engine.refinement.views import sky_filter_views
-from workbench.session import ViewerSession
+from engine.io.outputs import read_metrics, write_json
+from engine.scene import SceneOptions, load_scene
 
 
 def _floats(text: str) -> list[float]:
@@ -30,23 +28,14 @@ def _floats(text: str) -> list[float]:
 
 
 def sweep(run_dir: Path, tau: float, angles, min_pixels, reproj) -> dict:
-    session = ViewerSession.open(run_dir)
-    scene, data = session.scene, session.data
-    names = [v.name for v in scene.views]
-    conf1 = _network_confidence(scene, [d.depth for d in data], [d.normal for d in data],
-                                [d.counter for d in data], DEFAULT_WEIGHTS)
-    refined = [(read_map(run_dir, "refined_depth", n), read_map(run_dir, "refined_normal", n),
-                read_map(run_dir, "refined_counter", n)) for n in names]
-    if any(m is None for r in refined for m in r):
+    metrics = read_metrics(run_dir)
+    scene = load_scene(metrics["scene_path"], SceneOptions.from_dict(metrics["options"]["scene"]))
+    maps = pipeline_maps(scene, run_dir, full_tau=tau)
+    if "full" not in maps:
         raise SystemExit(f"{run_dir}: refined maps missing; run refine_run / table3_refinement.py --weights first")
-    conf2 = _network_confidence(scene, [r[0] for r in refined], [r[1] for r in refined], [r[2] for r in refined],
-                                DEFAULT_REFINED_WEIGHTS)
-    fast = [filter_by_confidence(d.depth, d.normal, c, 0.05) for d, c in zip(data, conf1, strict=True)]
     rows = [{"maps": "fast (vanilla, conf 0.05)", "preset": "deepc", **FUSION_PRESETS["deepc"].to_dict(),
-             **fuse_and_score(scene, [x[0] for x in fast], [x[1] for x in fast], FUSION_PRESETS["deepc"])}]
-    kept = [filter_by_confidence(r[0], r[1], c, tau) for r, c in zip(refined, conf2, strict=True)]
-    full_d, full_n, _ = sky_filter_views(scene, [x[0] for x in kept], [x[1] for x in kept],
-                                         [d.depth for d in data], conf1)
+             **fuse_and_score(scene, *maps["fast"], FUSION_PRESETS["deepc"])}]
+    full_d, full_n = maps["full"]
     for angle, min_px, rep in itertools.product(angles, min_pixels, reproj):
         options = FUSION_PRESETS["refined"].replace(max_normal_error=angle, min_num_pixels=int(min_px),
                                                     max_reproj_error=rep)

@@ -63,8 +63,9 @@ def test_tiny_issue_target(pooled) -> None:
 
 def test_default_fusion_keeps_the_maps_density(tiny_maps) -> None:
     """The default preset (half-pixel clusters, 2 pixels) against the paper's 1 px / 3 pixels on the same
-    maps: about twice the points, F1 at 2 cm 68.5 against 47.6 (completeness 55 against 32) with accuracy
-    within a point or two. A user would see a sparser, worse-scoring cloud if the default slid back."""
+    maps; measured here: 22,707 against 10,600 points, F1 at 2 cm 67.8 against 47.2 (completeness 54.8
+    against 32.0), accuracy 88.9 against 89.8. A user would see a sparser, worse-scoring cloud if the
+    default slid back."""
     scene, maps = tiny_maps
     assert PipelineOptions().fusion == FUSION_PRESETS[DEFAULT_PRESET]
     views = views_from_scene(scene, [m.depth for m in maps], [m.normal for m in maps])
