@@ -83,7 +83,8 @@ def test_kernel_matches_reference_on_noisy_maps(seed):
     rng = np.random.default_rng(seed)
     views[1].confidence = rng.random((18, 24)).astype(np.float32)
     for opts in (FusionOptions(), FUSION_PRESETS["colmap"], FusionOptions(min_num_pixels=1, max_traversal_depth=2),
-                 FusionOptions(max_num_pixels=4, min_num_pixels=2)):
+                 FusionOptions(max_num_pixels=4, min_num_pixels=2), FUSION_PRESETS["pixels"],
+                 FusionOptions(point_per_pixel=True, max_num_pixels=3, min_num_pixels=1)):
         _assert_same(fuse(views, opts), fuse_reference(views, opts))
 
 
@@ -115,6 +116,35 @@ def test_plane_points_and_normals_exact():
     assert set(np.unique(cloud.source_view)) <= {0, 1, 2}
     again = fuse(views, FUSION_PRESETS["deepc"])  # deterministic
     np.testing.assert_array_equal(cloud.xyz, again.xyz)
+
+
+def test_point_per_pixel_keeps_the_clusters_pixels():
+    """Per-pixel emission keeps exactly the pixels of the clusters the median mode keeps, each at its own
+    back-projected position with its own normal, colour and view; cluster attributes are shared."""
+    views, nrm, offset = _plane_views(n=3, noise=0.002, seed=3, drop=0.1)
+    views[2].confidence = np.full(views[2].depth.shape, 0.5, np.float32)
+    merged = fuse(views, FUSION_PRESETS["deepc"])
+    pixels = fuse(views, FUSION_PRESETS["deepc"].replace(point_per_pixel=True))
+    assert len(pixels) == int(merged.num_pixels.sum()) > 2 * len(merged)
+    # every point is some view's pixel, exactly: its own depth along its own ray
+    for i, v in enumerate(views):
+        own = pixels.xyz[pixels.source_view == i]
+        world = v.camera.backproject(v.depth)[v.depth > 0]
+        dist, _ = cKDTree(world).query(own)
+        assert len(own) > 0 and dist.max() < 1e-9
+        colours = v.rgb[v.depth > 0]
+        _, idx = cKDTree(world).query(own)
+        np.testing.assert_array_equal(pixels.rgb[pixels.source_view == i], colours[idx])
+    # a cluster's points share its counts; the per-pixel cloud has all the views' samples, not one per cluster
+    assert set(np.unique(pixels.num_pixels)) == set(np.unique(merged.num_pixels))
+    assert np.abs(np.linalg.norm(pixels.normal, axis=1) - 1).max() < 1e-5
+    conf = pixels.mean_confidence
+    np.testing.assert_allclose(conf[pixels.source_view == 2], 0.5)  # the cluster's mean over view 2's pixels
+    assert np.all(np.isnan(conf) | np.isclose(conf, 0.5))
+    # masking by num_pixels is still exactly a higher min_num_pixels
+    strict = fuse(views, FUSION_PRESETS["deepc"].replace(point_per_pixel=True, min_num_pixels=3))
+    loose = fuse(views, FUSION_PRESETS["deepc"].replace(point_per_pixel=True, min_num_pixels=1))
+    np.testing.assert_array_equal(loose.subset(loose.num_pixels >= 3).xyz, strict.xyz)
 
 
 def test_min_num_pixels_and_single_view():
@@ -169,6 +199,7 @@ def test_depth_normals_of_plane():
 
 def test_presets_and_options():
     assert FusionOptions().to_dict() == FUSION_PRESETS["deepc"].to_dict()
+    assert FUSION_PRESETS["pixels"] == FUSION_PRESETS["deepc"].replace(min_num_pixels=2, point_per_pixel=True)
     d = FusionOptions()
     assert (d.max_reproj_error, d.max_depth_error, d.max_normal_error, d.min_num_pixels, d.max_num_pixels,
             d.max_traversal_depth, d.check_num_images) == (1.0, 0.01, 20.0, 3, 10000, 100, 50)

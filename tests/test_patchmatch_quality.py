@@ -62,17 +62,22 @@ def test_tiny_issue_target(pooled) -> None:
 
 
 def test_default_fusion_keeps_the_maps_density(tiny_maps) -> None:
-    """The default preset (half-pixel clusters, 2 pixels) against the paper's 1 px / 3 pixels on the same
-    maps; measured here: 22,707 against 10,600 points, F1 at 2 cm 67.8 against 47.2 (completeness 54.8
-    against 32.0), accuracy 88.9 against 89.8. A user would see a sparser, worse-scoring cloud if the
-    default slid back."""
+    """The default preset (every pixel of a kept cluster its own point) against the median-point presets
+    on the same maps: `dense` (half-pixel clusters, 2 pixels) and the paper's `deepc` (1 px, 3 pixels).
+    Measured here: 81,293 points against 22,707 (dense) and 10,600 (deepc); F1 at 2 cm 75.2 against 67.8
+    and 47.2 (completeness 64.7, 54.8, 32.0); accuracy 89.6, 88.9, 89.8. A user would see a sparser,
+    worse-scoring cloud if the default slid back."""
     scene, maps = tiny_maps
     assert PipelineOptions().fusion == FUSION_PRESETS[DEFAULT_PRESET]
     views = views_from_scene(scene, [m.depth for m in maps], [m.normal for m in maps])
     options = EvaluationOptions(tolerances=(0.02,))
-    dense, paper = fuse(views, FUSION_PRESETS[DEFAULT_PRESET]), fuse(views, FUSION_PRESETS["deepc"])
-    r_dense, r_paper = evaluate_cloud(scene, dense, options), evaluate_cloud(scene, paper, options)
+    clouds = {name: fuse(views, FUSION_PRESETS[name]) for name in (DEFAULT_PRESET, "dense", "deepc")}
+    scores = {name: evaluate_cloud(scene, cloud, options) for name, cloud in clouds.items()}
+    default, dense, paper = (clouds[n] for n in (DEFAULT_PRESET, "dense", "deepc"))
+    r_default, r_dense, r_paper = (scores[n] for n in (DEFAULT_PRESET, "dense", "deepc"))
     assert len(dense) > 1.6 * len(paper), (len(dense), len(paper))
+    assert len(default) > 3 * len(dense), (len(default), len(dense))
     assert r_dense.f1[0] > r_paper.f1[0] + 10.0, (r_dense.f1, r_paper.f1)
-    assert r_dense.completeness[0] > r_paper.completeness[0] + 10.0, (r_dense.completeness, r_paper.completeness)
-    assert r_dense.accuracy[0] > r_paper.accuracy[0] - 3.0, (r_dense.accuracy, r_paper.accuracy)
+    assert r_default.f1[0] > r_dense.f1[0] + 4.0, (r_default.f1, r_dense.f1)
+    assert r_default.completeness[0] > r_dense.completeness[0] + 5.0, (r_default.completeness, r_dense.completeness)
+    assert r_default.accuracy[0] > min(r_dense.accuracy[0], r_paper.accuracy[0]) - 2.0, (r_default.accuracy,)

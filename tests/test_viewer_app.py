@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from conftest import running_viewer
@@ -34,21 +36,51 @@ def test_gui_changes_recompute_and_update_the_metrics(app):
 
 
 def test_fusion_preset_dropdown_sets_the_sliders_and_follows_them(app):
-    assert app.preset.value == "dense"  # the pipelines' default, what `deepc run` fused with
+    assert app.preset.value == "pixels"  # the pipelines' default, what `deepc run` fused with
+    assert app.per_pixel.value is True
     assert app.wait_idle(60)
-    dense = len(app.cloud)
-    app.preset.value = "deepc"  # the paper's thresholds
+    default = len(app.cloud)
+    app.preset.value = "deepc"  # the paper's thresholds, one median point per cluster
     assert (app.reproj.value, app.depth_err.value, app.normal_err.value, app.min_views.value) == (1.0, 0.01, 20.0, 3)
+    assert app.per_pixel.value is False
     assert app.wait_idle(60)
-    assert len(app.cloud) < dense  # 1 px clusters merge several pixels per view: a sparser cloud
+    paper = len(app.cloud)
+    assert paper < default / 2  # clusters of several pixels become one point each
     app.min_views.value = 4  # a slider moved by hand: no preset has these values
     assert app.preset.value == "custom"
     app.min_views.value = 3
     assert app.preset.value == "deepc"
-    app.preset.value = "dense"
-    assert (app.reproj.value, app.min_views.value) == (0.5, 2)
+    app.per_pixel.value = True  # the checkbox counts as well
+    assert app.preset.value == "custom"
     assert app.wait_idle(60)
-    assert len(app.cloud) == dense
+    assert len(app.cloud) >= 3 * paper  # the same clusters of >= 3 pixels, every pixel a point
+    app.preset.value = "dense"
+    assert (app.reproj.value, app.min_views.value, app.per_pixel.value) == (0.5, 2, False)
+    app.preset.value = "pixels"
+    assert (app.reproj.value, app.min_views.value, app.per_pixel.value) == (1.0, 2, True)
+    assert app.wait_idle(60)
+    assert len(app.cloud) == default
+
+
+def test_large_clouds_are_drawn_thinned_but_scored_and_exported_whole(app, monkeypatch):
+    import workbench.viewer as viewer_module
+
+    assert app.wait_idle(60)
+    total = len(app.cloud)
+    monkeypatch.setattr(viewer_module, "DISPLAY_MAX_POINTS", total // 4)
+    app.color_mode.value = "views"  # a redraw of the same exact cloud
+    assert app.wait_idle(60)
+    deadline = time.monotonic() + 30
+    while app.cloud_handle.points.shape[0] != total // 4 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert app.cloud_handle.points.shape == (total // 4, 3)
+    assert app.cloud_handle.colors.shape == (total // 4, 3)
+    assert len(app.cloud) == total and f"**{total:,} points** ({total // 4:,} drawn)" in app.metrics.content
+    np.testing.assert_array_equal(app.cloud_handle.points[[0, -1]], np.float32(app.cloud.xyz[[0, -1]]))
+    assert len(read_ply(app.export_ply("whole"))["x"]) == total
+    monkeypatch.undo()
+    app.color_mode.value = "rgb"
+    assert app.wait_idle(60)
 
 
 def test_exports_stay_inside_the_output_folder(app, fake_run):

@@ -68,12 +68,12 @@ def test_choosing_the_paper_fusion_preset_in_the_browser(browser_context, app):
     page = _open(browser_context, app)
     try:
         page.get_by_text("points").first.wait_for()
-        dense = len(app.cloud)
+        default = len(app.cloud)
         page.locator(f'[id="{app.preset._impl.uuid}"]').click()
         page.get_by_role("option", name="deepc", exact=True).click()
-        wait_for(lambda: app.reproj.value == 1.0 and app.min_views.value == 3 and app.cloud_params is not None
-                 and app.cloud_params.fusion.max_reproj_error == 1.0 and app.wait_idle(1))
-        assert len(app.cloud) < dense
+        wait_for(lambda: app.min_views.value == 3 and not app.per_pixel.value and app.cloud_params is not None
+                 and app.cloud_params.fusion.min_num_pixels == 3 and app.wait_idle(1))
+        assert len(app.cloud) < default
         page.get_by_text(f"{len(app.cloud):,} points").wait_for()
     finally:
         page.close()

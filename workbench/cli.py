@@ -257,12 +257,13 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
     from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
     fusion_group = parser.add_argument_group("fusion")
     fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default=None,
-                              help=f"fusion thresholds (default: {DEFAULT_PRESET} = 0.5 px, 1%%, 20°, 2 pixels, "
-                                   "every pipeline; SPEC §7.3's: deepc = the paper's 1 px, 1%%, 20°, 3 pixels, "
+                              help=f"fusion thresholds (default: {DEFAULT_PRESET} = 1 px, 1%%, 20°, 2 pixels, "
+                                   "every kept pixel its own point, every pipeline; dense = 0.5 px, one median "
+                                   "point per cluster; SPEC §7.3's: deepc = the paper's 1 px, 1%%, 20°, 3 pixels, "
                                    "refined_paper = its 5° for refined maps, colmap, acmm, deepc_lowres); "
                                    "the flags below override single values")
     add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
-                                                         "min_num_pixels"])
+                                                         "min_num_pixels", "point_per_pixel"])
     parser.add_argument("--weights", metavar="FILE", default=None,
                         help="confidence-network weights for --pipeline fast and full (default: the shipped "
                              "engine/confidence/weights/deepc_middle.pt); the filter threshold is "

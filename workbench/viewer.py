@@ -28,21 +28,34 @@ from workbench.session import COLOR_MODES, ViewerSession, ViewParams, describe
 from workbench.stream import subsample
 
 THUMBNAIL = 160  # longest side of the images sent with the frustums
-PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows in full
+PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows
+# The exact cloud is scored and exported in full but drawn with at most this many points (an even stride):
+# the per-pixel default gives 3 M points at 768 px, 45 MB a push, which no browser tab takes interactively.
+DISPLAY_MAX_POINTS = 1_000_000
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
 EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user who never lets go)
 CUSTOM = "custom"  # the fusion preset dropdown's entry for slider values no preset has
 
 
+def _even_stride(total: int, count: int) -> np.ndarray:
+    """(count,) int64 indices spread evenly over range(total): the cloud's shape and density pattern stay."""
+    return np.linspace(0, total - 1, count).astype(np.int64)
+
+
+def _shown_note(total: int) -> str:
+    return f" ({DISPLAY_MAX_POINTS:,} drawn)" if total > DISPLAY_MAX_POINTS else ""
+
+
 def preset_of(fusion: FusionOptions) -> str:
-    """Name of the preset whose four slider thresholds ``fusion`` has, else ``CUSTOM``."""
+    """Name of the preset whose four slider thresholds and point mode ``fusion`` has, else ``CUSTOM``."""
     for name in sorted(FUSION_PRESETS):
         p = FUSION_PRESETS[name]
         if (math.isclose(p.max_reproj_error, fusion.max_reproj_error, abs_tol=1e-9)
                 and math.isclose(p.max_depth_error, fusion.max_depth_error, abs_tol=1e-9)
                 and math.isclose(p.max_normal_error, fusion.max_normal_error, abs_tol=1e-9)
-                and p.min_num_pixels == fusion.min_num_pixels):
+                and p.min_num_pixels == fusion.min_num_pixels
+                and p.point_per_pixel == fusion.point_per_pixel):
             return name
     return CUSTOM
 
@@ -178,8 +191,8 @@ class ViewerApp:
             f = defaults.fusion
             self.preset = gui.add_dropdown("Preset", options=(*sorted(FUSION_PRESETS), CUSTOM),
                                            initial_value=preset_of(f),
-                                           hint="named thresholds (dense = the default; deepc = the paper's); "
-                                                "moving a slider makes it custom")
+                                           hint="named thresholds (pixels = the default; deepc = the paper's); "
+                                                "moving a control makes it custom")
             self.reproj = gui.add_slider("Reprojection error (px)", min=0.25, max=4.0, step=0.25,
                                          initial_value=f.max_reproj_error)
             self.depth_err = gui.add_slider("Depth error (rel.)", min=0.001, max=0.05, step=0.001,
@@ -188,6 +201,9 @@ class ViewerApp:
                                              initial_value=f.max_normal_error)
             self.min_views = gui.add_slider("Min views", min=1, max=10, step=1, initial_value=f.min_num_pixels,
                                             hint="fewest fused pixels per point, the seed included")
+            self.per_pixel = gui.add_checkbox("Point per pixel", initial_value=f.point_per_pixel,
+                                              hint="every pixel of a kept cluster is a point (else the cluster's "
+                                                   "median is one point)")
         with gui.add_folder("Display"):
             self.point_size = gui.add_slider("Point size", min=self.default_point_size / 10,
                                              max=self.default_point_size * 10, step=self.default_point_size / 10,
@@ -211,7 +227,7 @@ class ViewerApp:
         self._applying_preset = False
         for handle in (self.pipeline, self.conf_tau, self.mask_k):
             handle.on_update(lambda _event: self.request(self.params()))
-        for handle in (self.reproj, self.depth_err, self.normal_err, self.min_views):
+        for handle in (self.reproj, self.depth_err, self.normal_err, self.min_views, self.per_pixel):
             handle.on_update(lambda _event: self._fusion_slider_moved())
         self.preset.on_update(lambda _event: self._apply_preset())
         self.color_mode.on_update(lambda _event: self._recolor_latest())
@@ -220,7 +236,7 @@ class ViewerApp:
         self.rrd_button.on_click(lambda _event: self.save_rrd())
 
     def _apply_preset(self) -> None:
-        """Set the four fusion sliders to the chosen preset; one recomputation, not four."""
+        """Set the fusion controls to the chosen preset; one recomputation, not five."""
         if self._applying_preset or self.preset.value == CUSTOM:
             return
         f = FUSION_PRESETS[str(self.preset.value)]
@@ -230,6 +246,7 @@ class ViewerApp:
             self.depth_err.value = f.max_depth_error
             self.normal_err.value = f.max_normal_error
             self.min_views.value = f.min_num_pixels
+            self.per_pixel.value = f.point_per_pixel
         finally:
             self._applying_preset = False
         self.request(self.params())
@@ -249,7 +266,8 @@ class ViewerApp:
     def params(self) -> ViewParams:
         fusion = ViewParams().fusion.replace(
             max_reproj_error=float(self.reproj.value), max_depth_error=float(self.depth_err.value),
-            max_normal_error=float(self.normal_err.value), min_num_pixels=int(self.min_views.value))
+            max_normal_error=float(self.normal_err.value), min_num_pixels=int(self.min_views.value),
+            point_per_pixel=bool(self.per_pixel.value))
         return ViewParams(pipeline=str(self.pipeline.value), conf_tau=float(self.conf_tau.value),
                           mask_k=int(self.mask_k.value), fusion=fusion)
 
@@ -301,8 +319,8 @@ class ViewerApp:
             return
         keep = np.flatnonzero(ViewerSession.preview_mask(base, params))
         total = len(keep)
-        if total > PREVIEW_MAX_POINTS:  # an even stride keeps the cloud's shape and density pattern
-            keep = keep[np.linspace(0, total - 1, PREVIEW_MAX_POINTS).astype(np.int64)]
+        if total > PREVIEW_MAX_POINTS:
+            keep = keep[_even_stride(total, PREVIEW_MAX_POINTS)]
         colors = self._base_colors(base)[keep]
         self._show(base.subset(keep), params, preview=True, count=total, colors=colors, stale_fusion=not own,
                    generation=generation)
@@ -369,14 +387,19 @@ class ViewerApp:
             shown = "" if total == len(cloud) else f", {len(cloud):,} shown"
             fusion = ", previous fusion thresholds" if stale_fusion else ""
             return f"**{total:,} points** (preview{shown}{fusion})  \nexact result follows…"
-        return f"**{len(cloud):,} points**  \n{describe(scores)}"
+        return f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \n{describe(scores)}"
 
     def _show(self, cloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
               generation: int | None = None) -> None:
+        drawn = cloud
+        if not preview and len(cloud) > DISPLAY_MAX_POINTS:
+            keep = _even_stride(len(cloud), DISPLAY_MAX_POINTS)
+            drawn = cloud.subset(keep)
+            colors = None if colors is None else colors[keep]
         if colors is None:  # outside the lock: the error colours take a nearest-GT query that previews must not wait on
-            colors = self.session.colors(cloud, str(self.color_mode.value))
-        points = np.asarray(cloud.xyz, np.float32)
+            colors = self.session.colors(drawn, str(self.color_mode.value))
+        points = np.asarray(drawn.xyz, np.float32)
         with self._state_lock:
             if generation is not None:
                 if preview and generation <= self._exact_generation:
@@ -397,7 +420,7 @@ class ViewerApp:
                 elif scores is not None or not self.session.has_gt:
                     self.metrics.content = self._metrics_text(cloud, scores)
                 else:
-                    self.metrics.content = f"**{len(cloud):,} points**  \nscoring…"
+                    self.metrics.content = f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \nscoring…"
                 self._cloud_message_id = self.server._websock_server.get_message_buffer().message_counter - 1
             self.cloud, self.cloud_params = cloud, params
 
