@@ -36,16 +36,16 @@ def test_gui_changes_recompute_and_update_the_metrics(app):
 
 
 def test_fusion_preset_dropdown_sets_the_sliders_and_follows_them(app):
-    assert app.preset.value == "pixels"  # the pipelines' default, what `deepc run` fused with
-    assert app.per_pixel.value is True
+    assert app.preset.value == "dense"  # the viewer starts with median points (lighter to tune)
+    assert app.per_pixel.value is False
     assert app.wait_idle(60)
-    default = len(app.cloud)
-    app.preset.value = "deepc"  # the paper's thresholds, one median point per cluster
+    dense = len(app.cloud)
+    app.preset.value = "deepc"  # the paper's thresholds
     assert (app.reproj.value, app.depth_err.value, app.normal_err.value, app.min_views.value) == (1.0, 0.01, 20.0, 3)
     assert app.per_pixel.value is False
     assert app.wait_idle(60)
     paper = len(app.cloud)
-    assert paper < default / 2  # clusters of several pixels become one point each
+    assert paper < dense  # 1 px clusters merge several pixels per view: a sparser cloud
     app.min_views.value = 4  # a slider moved by hand: no preset has these values
     assert app.preset.value == "custom"
     app.min_views.value = 3
@@ -54,12 +54,14 @@ def test_fusion_preset_dropdown_sets_the_sliders_and_follows_them(app):
     assert app.preset.value == "custom"
     assert app.wait_idle(60)
     assert len(app.cloud) >= 3 * paper  # the same clusters of >= 3 pixels, every pixel a point
-    app.preset.value = "dense"
-    assert (app.reproj.value, app.min_views.value, app.per_pixel.value) == (0.5, 2, False)
-    app.preset.value = "pixels"
+    app.preset.value = "pixels"  # what `deepc run` fused with
     assert (app.reproj.value, app.min_views.value, app.per_pixel.value) == (1.0, 2, True)
     assert app.wait_idle(60)
-    assert len(app.cloud) == default
+    assert len(app.cloud) > 2 * dense
+    app.preset.value = "dense"
+    assert (app.reproj.value, app.min_views.value, app.per_pixel.value) == (0.5, 2, False)
+    assert app.wait_idle(60)
+    assert len(app.cloud) == dense
 
 
 def test_large_clouds_are_drawn_thinned_but_scored_and_exported_whole(app, monkeypatch):

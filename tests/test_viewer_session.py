@@ -64,6 +64,23 @@ def test_a_fusion_change_reuses_the_filtered_maps(session):
     assert len(session.cloud(stricter)) < len(session.cloud(params))
 
 
+def test_exact_clouds_are_cached_within_a_byte_budget(session, monkeypatch):
+    import workbench.session as session_module
+
+    params = ViewParams()
+    cloud = session.cloud(params)
+    size = session_module._nbytes(cloud)
+    assert size >= cloud.xyz.nbytes + cloud.normal.nbytes + cloud.rgb.nbytes > 0
+    cache = session_module._LRU(8, max_bytes=int(2.5 * size))
+    for i in range(4):  # four clouds of the same size: only the two newest fit
+        cache.put(i, cloud)
+    assert list(cache) == [2, 3]
+    cache = session_module._LRU(8, max_bytes=1)
+    cache.put("only", cloud)  # the newest entry stays even when it alone exceeds the budget
+    assert list(cache) == ["only"]
+    assert session._clouds.max_bytes == session_module.CLOUD_CACHE_BYTES
+
+
 def test_min_views_preview_is_exact(session):
     params = ViewParams(pipeline="vanilla")
     base = session.base_cloud(params)

@@ -21,13 +21,20 @@ import numpy as np
 from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
-from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
+from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.outputs import read_map, read_metrics
 from engine.io.ply import read_points
 from engine.scene import Scene, SceneOptions, load_scene
 
 COLOR_MODES = ("rgb", "confidence", "views", "error")
 REPORT_TOLERANCE = 0.02  # the paper's and ETH3D's headline tolerance (model units: metres)
+
+
+# The viewer starts in `dense` (one median point per cluster), not in the pipelines' per-pixel default:
+# per-pixel clouds are 3-4x larger, and under five tabs at 50 events per second they doubled the preview
+# latency (p50 45 -> 113 ms) and pushed the last exact result past 2 s (benchmarks/bench_viewer_load.py).
+# The preset dropdown switches to `pixels`, the cloud `deepc run` wrote.
+VIEWER_DEFAULT_PRESET = "dense"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +44,7 @@ class ViewParams:
     pipeline: str = "vanilla"
     conf_tau: float = 0.05
     mask_k: int = 0  # 0 = no counter filter
-    fusion: FusionOptions = dataclasses.field(default_factory=lambda: FUSION_PRESETS[DEFAULT_PRESET])
+    fusion: FusionOptions = dataclasses.field(default_factory=lambda: FUSION_PRESETS[VIEWER_DEFAULT_PRESET])
 
     def filter_key(self) -> tuple:
         tau = self.conf_tau if self.pipeline != "vanilla" else 0.0
@@ -70,16 +77,37 @@ class ViewData:
                 self.counter if self.refined_counter is None else self.refined_counter)
 
 
+# Exact clouds are bounded by bytes as well as by count: a per-pixel cloud of 11 views at 768 px is
+# about 190 MB, so eight of them would hold 1.5 GB for recomputations that take a second or two.
+CLOUD_CACHE_BYTES = 512 * 2**20
+
+
+def _nbytes(value) -> int:
+    """Bytes of the numpy arrays a cached value holds directly or in its dataclass fields."""
+    if isinstance(value, np.ndarray):
+        return value.nbytes
+    if dataclasses.is_dataclass(value):
+        return sum(_nbytes(getattr(value, f.name)) for f in dataclasses.fields(value))
+    return 0
+
+
 class _LRU(OrderedDict):
-    def __init__(self, size: int):
+    """Least-recently-stored cache of at most ``size`` entries and, with ``max_bytes``, at most that many
+    bytes of arrays (the newest entry is always kept)."""
+
+    def __init__(self, size: int, max_bytes: int | None = None):
         super().__init__()
         self.size = size
+        self.max_bytes = max_bytes
 
     def put(self, key, value):
         self[key] = value
         self.move_to_end(key)
         while len(self) > self.size:
             self.popitem(last=False)
+        if self.max_bytes is not None:
+            while len(self) > 1 and sum(_nbytes(v) for v in self.values()) > self.max_bytes:
+                self.popitem(last=False)
 
 
 class ViewerSession:
@@ -92,7 +120,7 @@ class ViewerSession:
         self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
-        self._clouds = _LRU(8)
+        self._clouds = _LRU(8, CLOUD_CACHE_BYTES)
         self._base_clouds = _LRU(2)  # kept apart so exact clouds never evict what previews need
         self._evals = _LRU(16)
         self._gt_points: np.ndarray | None = None

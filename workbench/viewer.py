@@ -30,7 +30,8 @@ from workbench.stream import subsample
 THUMBNAIL = 160  # longest side of the images sent with the frustums
 PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows
 # The exact cloud is scored and exported in full but drawn with at most this many points (an even stride):
-# the per-pixel default gives 3 M points at 768 px, 45 MB a push, which no browser tab takes interactively.
+# the per-pixel default gives 3 M points at 768 px (45 MB a push); under five tabs at 50 events per second
+# even 600 k points a push slowed previews 2x, while 500 k points still show every surface densely.
 DISPLAY_MAX_POINTS = 1_000_000
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
@@ -191,8 +192,9 @@ class ViewerApp:
             f = defaults.fusion
             self.preset = gui.add_dropdown("Preset", options=(*sorted(FUSION_PRESETS), CUSTOM),
                                            initial_value=preset_of(f),
-                                           hint="named thresholds (pixels = the default; deepc = the paper's); "
-                                                "moving a control makes it custom")
+                                           hint="named thresholds (pixels = what deepc run fuses with; dense = "
+                                                "one median point per cluster, lighter to tune; deepc = the "
+                                                "paper's); moving a control makes it custom")
             self.reproj = gui.add_slider("Reprojection error (px)", min=0.25, max=4.0, step=0.25,
                                          initial_value=f.max_reproj_error)
             self.depth_err = gui.add_slider("Depth error (rel.)", min=0.001, max=0.05, step=0.001,
