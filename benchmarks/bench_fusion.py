@@ -84,16 +84,13 @@ def main(argv=None) -> int:
         ours = fuse(views, opts)
         times.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
-    merged_times = []
-    if opts.point_per_pixel:
+    per_pixel, merged_times = None, []
+    if opts.point_per_pixel:  # the clouds are compared in median mode, the mode COLMAP has
+        per_pixel = ours
         for _ in range(args.repeats):
             t0 = time.perf_counter()
-            merged = fuse(views, merged_opts)
+            ours = fuse(views, merged_opts)
             merged_times.append(time.perf_counter() - t0)
-    else:
-        merged = ours
-    per_pixel = ours if opts.point_per_pixel else None
-    ours = merged
 
     with tempfile.TemporaryDirectory() as tmp:
         write_colmap_workspace(scene, views, tmp)

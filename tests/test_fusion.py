@@ -130,11 +130,9 @@ def test_point_per_pixel_keeps_the_clusters_pixels():
     for i, v in enumerate(views):
         own = pixels.xyz[pixels.source_view == i]
         world = v.camera.backproject(v.depth)[v.depth > 0]
-        dist, _ = cKDTree(world).query(own)
+        dist, idx = cKDTree(world).query(own)
         assert len(own) > 0 and dist.max() < 1e-9
-        colours = v.rgb[v.depth > 0]
-        _, idx = cKDTree(world).query(own)
-        np.testing.assert_array_equal(pixels.rgb[pixels.source_view == i], colours[idx])
+        np.testing.assert_array_equal(pixels.rgb[pixels.source_view == i], v.rgb[v.depth > 0][idx])
     # a cluster's points share its counts; the per-pixel cloud has all the views' samples, not one per cluster
     assert set(np.unique(pixels.num_pixels)) == set(np.unique(merged.num_pixels))
     assert np.abs(np.linalg.norm(pixels.normal, axis=1) - 1).max() < 1e-5

@@ -30,8 +30,7 @@ from workbench.stream import subsample
 THUMBNAIL = 160  # longest side of the images sent with the frustums
 PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows
 # The exact cloud is scored and exported in full but drawn with at most this many points (an even stride):
-# the per-pixel default gives 3 M points at 768 px (45 MB a push); under five tabs at 50 events per second
-# even 600 k points a push slowed previews 2x, while 500 k points still show every surface densely.
+# a per-pixel cloud of fountain_p11 at 768 px has 3.4 M points, 50 MB a push to every tab.
 DISPLAY_MAX_POINTS = 1_000_000
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
@@ -48,15 +47,16 @@ def _shown_note(total: int) -> str:
     return f" ({DISPLAY_MAX_POINTS:,} drawn)" if total > DISPLAY_MAX_POINTS else ""
 
 
+# The FusionOptions fields the Fusion panel controls, each with the type its widget's value converts to.
+FUSION_CONTROLS = {"max_reproj_error": float, "max_depth_error": float, "max_normal_error": float,
+                   "min_num_pixels": int, "point_per_pixel": bool}
+
+
 def preset_of(fusion: FusionOptions) -> str:
-    """Name of the preset whose four slider thresholds and point mode ``fusion`` has, else ``CUSTOM``."""
+    """Name of the preset whose controlled fields (``FUSION_CONTROLS``) ``fusion`` has, else ``CUSTOM``."""
     for name in sorted(FUSION_PRESETS):
         p = FUSION_PRESETS[name]
-        if (math.isclose(p.max_reproj_error, fusion.max_reproj_error, abs_tol=1e-9)
-                and math.isclose(p.max_depth_error, fusion.max_depth_error, abs_tol=1e-9)
-                and math.isclose(p.max_normal_error, fusion.max_normal_error, abs_tol=1e-9)
-                and p.min_num_pixels == fusion.min_num_pixels
-                and p.point_per_pixel == fusion.point_per_pixel):
+        if all(math.isclose(getattr(p, field), getattr(fusion, field), abs_tol=1e-9) for field in FUSION_CONTROLS):
             return name
     return CUSTOM
 
@@ -206,6 +206,8 @@ class ViewerApp:
             self.per_pixel = gui.add_checkbox("Point per pixel", initial_value=f.point_per_pixel,
                                               hint="every pixel of a kept cluster is a point (else the cluster's "
                                                    "median is one point)")
+            self._fusion_handles = dict(zip(FUSION_CONTROLS, (self.reproj, self.depth_err, self.normal_err,
+                                                              self.min_views, self.per_pixel), strict=True))
         with gui.add_folder("Display"):
             self.point_size = gui.add_slider("Point size", min=self.default_point_size / 10,
                                              max=self.default_point_size * 10, step=self.default_point_size / 10,
@@ -229,7 +231,7 @@ class ViewerApp:
         self._applying_preset = False
         for handle in (self.pipeline, self.conf_tau, self.mask_k):
             handle.on_update(lambda _event: self.request(self.params()))
-        for handle in (self.reproj, self.depth_err, self.normal_err, self.min_views, self.per_pixel):
+        for handle in self._fusion_handles.values():
             handle.on_update(lambda _event: self._fusion_slider_moved())
         self.preset.on_update(lambda _event: self._apply_preset())
         self.color_mode.on_update(lambda _event: self._recolor_latest())
@@ -244,11 +246,8 @@ class ViewerApp:
         f = FUSION_PRESETS[str(self.preset.value)]
         self._applying_preset = True
         try:
-            self.reproj.value = f.max_reproj_error
-            self.depth_err.value = f.max_depth_error
-            self.normal_err.value = f.max_normal_error
-            self.min_views.value = f.min_num_pixels
-            self.per_pixel.value = f.point_per_pixel
+            for field, handle in self._fusion_handles.items():
+                handle.value = getattr(f, field)
         finally:
             self._applying_preset = False
         self.request(self.params())
@@ -266,10 +265,8 @@ class ViewerApp:
         self.request(self.params())
 
     def params(self) -> ViewParams:
-        fusion = ViewParams().fusion.replace(
-            max_reproj_error=float(self.reproj.value), max_depth_error=float(self.depth_err.value),
-            max_normal_error=float(self.normal_err.value), min_num_pixels=int(self.min_views.value),
-            point_per_pixel=bool(self.per_pixel.value))
+        fusion = ViewParams().fusion.replace(**{field: FUSION_CONTROLS[field](handle.value)
+                                                for field, handle in self._fusion_handles.items()})
         return ViewParams(pipeline=str(self.pipeline.value), conf_tau=float(self.conf_tau.value),
                           mask_k=int(self.mask_k.value), fusion=fusion)
 
