@@ -12,7 +12,8 @@ Cases, all on view 0 of the scene at one level (``--size`` = longest side, 0 = t
 - ``random``: init cost + 3 red-black iterations from the random initialisation (first photometric pass);
 - ``converged``: 3 untimed iterations first, then a new pass (init cost + 2 iterations) from that state, as
   in geometric passes and finer levels (neighbours mostly unchanged between iterations);
-- ``converged_geom``: the same with the geometric term (source depth maps: constant mid-range depth).
+- ``converged_geom``: the same with the geometric term; the source depth maps are the scene's ground
+  truth where it has one (as in a real geometric pass: most depths agree), else a constant mid-range depth.
 """
 
 from __future__ import annotations
@@ -45,12 +46,15 @@ from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.rng import stream_key
 scene, size, threads, reps, T, pre, geom = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), \
     int(sys.argv[5]), int(sys.argv[6]), sys.argv[7] == "1"
-views = patchmatch_views(load_scene(scene, SceneOptions(max_image_size=size, num_source_views=5)))
+sc = load_scene(scene, SceneOptions(max_image_size=size, num_source_views=5))
+views = patchmatch_views(sc)
 v = views[0]
 opts = PatchMatchOptions(schedule="acmm", seed=0)
 src = v.source_views
-depths = [np.full(views[j].image_gray.shape, 0.5 * (v.depth_min + v.depth_max), np.float32) for j in src] \
-    if geom else None
+def source_depth(j):
+    gt = sc.gt_depth(j) if sc.has_gt_depth else None
+    return gt if gt is not None else np.full(views[j].image_gray.shape, 0.5 * (v.depth_min + v.depth_max), np.float32)
+depths = [source_depth(j) for j in src] if geom else None
 ctx = build_context(v.image_gray, v.camera, [views[j].image_gray for j in src], [views[j].camera for j in src], opts,
                     depths)
 pat, region = sampling_pattern(opts.pattern)

@@ -101,16 +101,26 @@ def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, 
     if not ok:
         return BIG
     limit = threshold * vsum
+    # ``partial`` bounds the sum from below: the terms of the views evaluated so far plus, in geometric
+    # passes, the geometric parts of all others. Those need no image window (about a third of the cost
+    # of a photometric term) and alone reject most hypotheses with a wrong depth.
     partial = 0.0
+    if geom:
+        for i in range(n_sel):
+            j = order[i]
+            g = lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+            terms[j] = g
+            partial += v[j] * g
+        if partial * (1.0 - EXIT_MARGIN) >= limit:
+            return BIG
     for i in range(n_sel):
         j = order[i]
         cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2,
                                 min_var)
+        partial += v[j] * cost
         if geom:
-            cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
-        t = v[j] * cost
-        terms[j] = t
-        partial += t
+            cost += terms[j]
+        terms[j] = v[j] * cost
         if partial * (1.0 - EXIT_MARGIN) >= limit:
             return BIG
     acc = 0.0
@@ -120,6 +130,17 @@ def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, 
     if acc >= limit:
         return BIG
     return acc / vsum
+
+
+@njit(cache=True, _nrt=False)
+def photometric_part_below(row, v, vsum, threshold):
+    """False when Σ_j v_j row_j alone proves that the full cost Σ_j v_j (row_j + λ g_j) / Σ_j v_j is
+    >= ``threshold`` (same margin as :func:`aggregated_cost`'s early exit)."""
+    photo = 0.0
+    for j in range(v.shape[0]):
+        if v[j] > 0.0:
+            photo += v[j] * row[j]
+    return photo * (1.0 - EXIT_MARGIN) < threshold * vsum
 
 
 @njit(cache=True, _nrt=False)
@@ -166,6 +187,8 @@ def row_cost(row, A, b, B, c, sizes, sdepth, x, y, z, v, vsum, geom, lam, gmax, 
     """:func:`aggregated_cost` of a hypothesis whose photometric costs ``row`` (N,) over all views are
     known (its plane exists): the same terms summed in the same order, BIG when >= ``threshold``."""
     limit = threshold * vsum
+    if geom and not photometric_part_below(row, v, vsum, threshold):
+        return BIG  # the geometric terms only add
     acc = 0.0
     for j in range(v.shape[0]):
         if v[j] > 0.0:
@@ -376,6 +399,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
             won = False
             # candidates with a full cost row: aggregate from M
             for k in range(n_vs):
+                if geom and not photometric_part_below(M[k], v, vsum, best):
+                    continue  # the geometric terms only add
                 acc = 0.0
                 for j in range(n_views):
                     if v[j] > 0.0:
