@@ -52,7 +52,7 @@ v = views[0]
 opts = PatchMatchOptions(schedule="acmm", seed=0)
 src = v.source_views
 def source_depth(j):
-    gt = sc.gt_depth(j) if sc.has_gt_depth else None
+    gt = sc.gt_depth(j)
     return gt if gt is not None else np.full(views[j].image_gray.shape, 0.5 * (v.depth_min + v.depth_max), np.float32)
 depths = [source_depth(j) for j in src] if geom else None
 ctx = build_context(v.image_gray, v.camera, [views[j].image_gray for j in src], [views[j].camera for j in src], opts,

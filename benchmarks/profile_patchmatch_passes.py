@@ -1,7 +1,7 @@
 """Where a whole PatchMatch run spends its time: seconds per level, pass and red-black iteration.
 
     .venv/bin/python benchmarks/profile_patchmatch_passes.py [SCENE] [--size 768] [--schedule acmm]
-        [--set window=7 ...] [--json benchmarks/results/profile_patchmatch_passes.json]
+        [--set patchmatch.window=7 ...] [--json benchmarks/results/profile_patchmatch_passes.json]
 
 Runs ``run_patchmatch`` over all views of the scene (5 source views) and sums ``IterationEvent.seconds``
 (the two half-steps of one iteration, all views) per (level, pass) and per iteration. What the events
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import sys
 import time
 from pathlib import Path
@@ -25,9 +24,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from engine.io.outputs import write_json  # noqa: E402
+from engine.metrics import depth_metrics  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, run_patchmatch  # noqa: E402
 from engine.pipeline import patchmatch_views  # noqa: E402
 from engine.scene import SceneOptions, load_scene  # noqa: E402
+from workbench.flags import section_overrides  # noqa: E402
 
 
 class _Timer:
@@ -41,28 +42,11 @@ class _Timer:
 
 
 def _pooled_depth(scene, maps) -> dict[str, float] | None:
-    if not scene.has_gt_depth:
+    """Depth metrics pooled over every view with GT (engine.metrics.depth_metrics), or None."""
+    pairs = [(m.depth.ravel(), gt.ravel()) for i, m in enumerate(maps) if (gt := scene.gt_depth(i)) is not None]
+    if not pairs:
         return None
-    n_both = n1 = n5 = 0
-    for i, m in enumerate(maps):
-        gt = scene.gt_depth(i)
-        if gt is None:
-            continue
-        gt = gt.astype(np.float64)
-        both = np.isfinite(gt) & (gt > 0) & (m.depth > 0)
-        rel = np.abs(m.depth[both] - gt[both]) / gt[both]
-        n_both += int(both.sum())
-        n1 += int((rel < 0.01).sum())
-        n5 += int((rel < 0.05).sum())
-    return {"within_1pct": 100.0 * n1 / max(n_both, 1), "within_5pct": 100.0 * n5 / max(n_both, 1)}
-
-
-def _parse_sets(items: list[str]) -> dict:
-    out = {}
-    for item in items:
-        name, _, value = item.partition("=")
-        out[name] = json.loads(value) if value[:1] in "0123456789-[{tf" else value
-    return out
+    return depth_metrics(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]))
 
 
 def main() -> None:
@@ -70,14 +54,15 @@ def main() -> None:
     ap.add_argument("scene", nargs="?", default="/work/shared/data/fountain_p11")
     ap.add_argument("--size", type=int, default=768, help="longest image side (0 = the scene's size)")
     ap.add_argument("--schedule", default="acmm")
-    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="another PatchMatchOptions field, e.g. window=7 (repeatable)")
+    ap.add_argument("--set", action="append", default=[], metavar="patchmatch.NAME=VALUE",
+                    help="another PatchMatchOptions field as in `deepc run --set`, e.g. patchmatch.window=7")
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "profile_patchmatch_passes.json"))
     args = ap.parse_args()
     scene = load_scene(args.scene, SceneOptions(max_image_size=args.size, num_source_views=5) if args.size
                        else SceneOptions(num_source_views=5))
     views = patchmatch_views(scene)
-    options = PatchMatchOptions(schedule=args.schedule, **_parse_sets(args.set)).validate()
+    overrides = section_overrides(args.set, "patchmatch", PatchMatchOptions)
+    options = PatchMatchOptions(schedule=args.schedule, **overrides).validate()
     # compile (or load from the cache) every kernel on a small copy first, outside the timing
     small = patchmatch_views(load_scene(args.scene, SceneOptions(max_image_size=96, num_source_views=5)))
     run_patchmatch(small, options.replace(iterations=1, levels=1))
@@ -98,7 +83,7 @@ def main() -> None:
         print(f"pooled depth: within 1 % {depth['within_1pct']:.1f} %, within 5 % {depth['within_5pct']:.1f} %")
     write_json(args.json, {
         "scene": args.scene, "size": list(views[0].image_gray.shape[::-1]), "views": len(views),
-        "options": {"schedule": args.schedule, **_parse_sets(args.set)},
+        "options": {"schedule": args.schedule, **overrides},
         "total_seconds": total, "iteration_seconds": in_iterations, "outside_iterations": total - in_iterations,
         "by_pass": [{"level": k[0], "pass_index": k[1], "seconds": v} for k, v in sorted(timer.by_pass.items())],
         "by_iteration": [{"level": k[0], "pass_index": k[1], "iteration": k[2], "seconds": v}

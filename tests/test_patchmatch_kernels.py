@@ -275,7 +275,8 @@ def test_view_order_is_heaviest_first_over_positive_weights() -> None:
 
 @pytest.mark.parametrize("geometric", [False, True])
 def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bool) -> None:
-    """Heaviest-view-first evaluation with early exit and the cached-row path give exactly the value of
+    """Heaviest-view-first evaluation with early exit (in geometric passes first on the geometric terms
+    alone), the cached-row path and the current-hypothesis path give exactly the value of
     Σ_j v_j (m_j + λ g_j) summed in view order (BIG when that reaches the threshold), which is what
     every earlier engine computed: regression baselines depend on it."""
     opts = PatchMatchOptions()
@@ -284,7 +285,7 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
     n_src = ctx.num_sources
     lam, gmax, min_var = opts.geom_lambda, opts.geom_max, opts.min_var
     order, terms = np.empty(n_src, np.int64), np.empty(n_src, np.float64)
-    exits = 0
+    exits = geometric_exits = 0
     for _ in range(150):
         x, y = int(rng.integers(0, 16)), int(rng.integers(0, 14))
         rp = ray(ctx.kinv, x, y)
@@ -300,16 +301,19 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
         row = np.array([K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, j,
                                            ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], ctx.ox,
                                            ctx.oy, x, y, m0, m1, m2, min_var) for j in range(n_src)])
-        acc = 0.0
+        acc = geom_only = 0.0
         for j in range(n_src):
             if v[j] > 0:
                 cost = row[j]
                 if geometric:
-                    cost += lam * K.geometric_cost(ctx.A, ctx.b, ctx.B, ctx.c, ctx.sizes, ctx.sdepth, j, x, y, z, gmax)
+                    g = lam * K.geometric_cost(ctx.A, ctx.b, ctx.B, ctx.c, ctx.sizes, ctx.sdepth, j, x, y, z, gmax)
+                    cost += g
+                    geom_only += v[j] * g
                 acc += v[j] * cost
         threshold = float(rng.uniform(0.2, 1.5)) if rng.random() < 0.8 else acc / vsum  # also the exact tie
         want = K.BIG if acc >= threshold * vsum else acc / vsum
         exits += want == K.BIG
+        geometric_exits += geom_only >= threshold * vsum  # rejected before any image window is sampled
         n_sel = K.view_order(v, order)
         got = K.aggregated_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth,
                                 ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], ctx.ox, ctx.oy,
@@ -326,6 +330,7 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
             == acc / vsum
         assert np.array_equal(known[v > 0], row[v > 0])  # evaluated views were added to the cache
     assert 10 < exits < 140
+    assert (geometric_exits > 5) == geometric, geometric_exits  # the geometric-only bound was exercised
 
 
 @pytest.mark.parametrize("geometric,combos", [(False, "acmm5"), (True, "all8")])
