@@ -77,7 +77,7 @@ def reprojection_check(A, b, B, c, sizes, sdepth, j, x, y, z):
 
 @njit(cache=True, parallel=True)
 def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdepth, kinv, wgt, wa, mu_a, var_a, ox,
-                   oy, min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
+                   oy, wset, ns, min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
     """Fill ``out`` (H, W) uint8 with the number of consistent source views (module doc)."""
     h, w = Z.shape
     n_views = A.shape[0]
@@ -94,6 +94,9 @@ def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdept
             m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
             if not ok:
                 continue
+            ws = wset[y, x]
+            oxp = ox[ws, :ns[ws]]
+            oyp = oy[ws, :ns[ws]]
             px = z * rp[0]
             py = z * rp[1]
             pz = z * rp[2]
@@ -116,7 +119,7 @@ def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdept
                 if check_facing and nx * bx + ny * by + nz * bz <= 0.0:
                     continue
                 cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x], mu_a[y, x],
-                                        var_a[y, x], ox, oy, x, y, m0, m1, m2, min_var)
+                                        var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var)
                 if cost > max_cost:
                     continue
                 count += 1
@@ -156,7 +159,8 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
         counter_kernel(np.ascontiguousarray(m.depth, np.float32), np.ascontiguousarray(m.normal, np.float32),
                        ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.centers,
                        ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy,
-                       float(ncc_options.min_var), float(options.reproj_px), 1.0 - float(options.ncc_min),
+                       ctx.wset, ctx.ns, float(ncc_options.min_var), float(options.reproj_px),
+                       1.0 - float(options.ncc_min),
                        math.cos(math.radians(options.tri_angle_min_deg)), bool(options.check_facing),
                        float(options.rel_depth or 0.0), int(options.cap), counter)
         out.append(counter)

@@ -6,7 +6,9 @@ about 92 %, valid 100 %. The remaining errors sit in bands of a few pixels along
 (the 11x11 window straddles two surfaces on 160x120 images) and in the strips of the outer views
 that no source view sees; see the engineering notes. The target is kept as a strict xfail: it fails
 the suite as soon as the target is met (remove the marker then), and a regression floor guards what
-is reached now.
+is reached now. The optional fine window (``fine_window=5``) reaches 89.6 % with the default schedule but
+lowers fused F1 on weakly textured held-out scenes, so it is not the default
+(benchmarks/results/fine_window.json).
 """
 
 from __future__ import annotations
@@ -59,6 +61,28 @@ def test_tiny_regression_floor(pooled) -> None:
 def test_tiny_issue_target(pooled) -> None:
     assert pooled["valid_fraction"] >= 95.0, pooled
     assert pooled["within_1pct"] >= 90.0, pooled
+
+
+def _pooled_within_1pct(scene, maps) -> float:
+    n1 = n = 0
+    for i, m in enumerate(maps):
+        gt = scene.gt_depth(i).astype(np.float64)
+        both = np.isfinite(gt) & (gt > 0) & (m.depth > 0)
+        n1 += int((np.abs(m.depth[both] - gt[both]) < 0.01 * gt[both]).sum())
+        n += int(both.sum())
+    return 100.0 * n1 / n
+
+
+def test_fine_window_sharpens_occlusion_edges(tiny_maps) -> None:
+    """The per-pixel fine window against the 11 px window alone, one level, ACMM schedule (measured: 90.2
+    against 82.4 % within 1 %, fine window at 93 % of the pixels): the large window's foreground fattening
+    along tiny's occlusion edges is what it removes."""
+    scene = tiny_maps[0]
+    views = patchmatch_views(scene)
+    base = dict(levels=1, schedule="acmm")
+    off = _pooled_within_1pct(scene, run_patchmatch(views, PatchMatchOptions(**base)))
+    fine = _pooled_within_1pct(scene, run_patchmatch(views, PatchMatchOptions(fine_window=5, **base)))
+    assert fine >= 88.0 and fine >= off + 5.0, (fine, off)
 
 
 def test_default_fusion_keeps_the_maps_density(tiny_maps) -> None:

@@ -16,8 +16,13 @@ from engine.patchmatch.options import PatchMatchOptions
 class ViewContext:
     """Reference-side NCC terms, padded source images and ref->source geometry.
 
-    Shapes: kinv (9,); wgt, wa (H, W, S) f32; mu_a, var_a (H, W) f32; offs (S, 2) i32;
-    src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; sizes (N, 2) i32 (W, H); ox, oy (S,) f32 offsets;
+    Every pixel matches with one of up to two windows (the window set ``wset`` (H, W) u8 picks it: 0 = the
+    standard window, 1 = the fine window, see ``PatchMatchOptions.fine_window``); window set s has
+    ``ns[s]`` samples, offsets ``offs_sets[s][:ns[s]]`` and float copies ``ox[s, :ns[s]]``, ``oy[s, :ns[s]]``.
+    Shapes: kinv (9,); wgt, wa (H, W, S) f32 (S = max(ns), a pixel's weights in its first ns entries, zeros
+    after); mu_a, var_a (H, W) f32; offs (S0, 2) i32 the standard window's offsets; wset (H, W) u8;
+    ns (n_sets,) i64; ox, oy (n_sets, S) f32; offs_sets: list of (ns, 2) i32;
+    src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; sizes (N, 2) i32 (W, H);
     A, B (N, 9), b, c, centers (N, 3) f64;
     sdepth (N, Hm, Wm) f32 source depth maps (zeros of shape (N, 1, 1) when not needed).
     """
@@ -39,6 +44,19 @@ class ViewContext:
     ox: np.ndarray
     oy: np.ndarray
     flat: np.ndarray
+    wset: np.ndarray
+    ns: np.ndarray
+    offs_sets: list[np.ndarray]
+
+    def offsets_at(self, x: int, y: int) -> tuple[np.ndarray, np.ndarray]:
+        """The (S,) f32 offsets ``ox``, ``oy`` that reference pixel (x, y) matches with."""
+        s = int(self.wset[y, x])
+        n = int(self.ns[s])
+        return self.ox[s, :n], self.oy[s, :n]
+
+    def samples_per_cost(self) -> np.ndarray:
+        """(H, W) i64 weighted samples one photometric cost takes at each pixel."""
+        return self.ns[self.wset]
 
     @property
     def stride(self) -> int:
@@ -62,8 +80,7 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
                   options: PatchMatchOptions, src_depths: list[np.ndarray] | None = None) -> ViewContext:
     """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1])."""
     offs = window_offsets_2d(options.window_offsets())
-    wgt, wa, mu_a, var_a = bilateral_moments(ref_img, offs, options.ncc_weighting, options.sigma_spatial,
-                                             weighting_sigma(options))
+    wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options)
     src, sizes = pad_sources(src_imgs)
     geo = relative_geometry(ref_cam, src_cams)
     if src_depths is None:
@@ -72,6 +89,47 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
         sdepth = np.zeros((len(src_imgs), src.shape[1] - 1, src.shape[2] - 1), np.float32)
         for j, d in enumerate(src_depths):
             sdepth[j, : d.shape[0], : d.shape[1]] = d
+    s_max = wgt.shape[2]
+    ns = np.array([len(o) for o in offs_sets], np.int64)
+    ox = np.zeros((len(offs_sets), s_max), np.float32)
+    oy = np.zeros((len(offs_sets), s_max), np.float32)
+    for i, o in enumerate(offs_sets):
+        ox[i, : len(o)] = o[:, 0]
+        oy[i, : len(o)] = o[:, 1]
     return ViewContext(geo["kinv"], wgt, wa, mu_a, var_a, offs, src, sizes, geo["A"], geo["b"], geo["B"],
-                       geo["c"], geo["centers"], sdepth, offs[:, 0].astype(np.float32), offs[:, 1].astype(np.float32),
-                       src.reshape(-1))
+                       geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns, offs_sets)
+
+
+def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                         np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Reference-side NCC terms with the per-pixel window choice.
+
+    A pixel takes the fine window when the intensity variance under the fine window's spatial weights
+    and the standard colour sigma reaches ``fine_min_var``: there the small window holds enough texture
+    for a stable NCC and no longer straddles depth edges the way the large one does (foreground
+    fattening); weakly textured pixels keep the large window.
+    Returns wgt, wa (H, W, S) f32, mu_a, var_a (H, W) f32, wset (H, W) u8 and the offset sets.
+    """
+    offs = window_offsets_2d(options.window_offsets())
+    sigma_c = weighting_sigma(options)
+    wgt, wa, mu_a, var_a = bilateral_moments(ref_img, offs, options.ncc_weighting, options.sigma_spatial, sigma_c)
+    h, w = ref_img.shape
+    if not options.fine_window:
+        return wgt, wa, mu_a, var_a, np.zeros((h, w), np.uint8), [offs]
+    offs_f = window_offsets_2d(options.fine_window_offsets())
+    var_test = bilateral_moments(ref_img, offs_f, options.ncc_weighting, options.fine_sigma_spatial, sigma_c)[3]
+    fine = var_test >= np.float32(options.fine_min_var)
+    fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
+    wgt_f, wa_f, mu_f, var_f = bilateral_moments(ref_img, offs_f, options.ncc_weighting, options.fine_sigma_spatial,
+                                                 fine_c)
+    s0, s1 = len(offs), len(offs_f)
+    if s1 > s0:
+        pad = np.zeros((h, w, s1 - s0), np.float32)
+        wgt, wa = np.concatenate([wgt, pad], axis=2), np.concatenate([wa, pad], axis=2)
+    wgt[fine] = 0.0
+    wa[fine] = 0.0
+    wgt[fine, :s1] = wgt_f[fine]
+    wa[fine, :s1] = wa_f[fine]
+    mu_a[fine] = mu_f[fine]
+    var_a[fine] = var_f[fine]
+    return wgt, wa, mu_a, var_a, fine.astype(np.uint8), [offs, offs_f]

@@ -216,7 +216,7 @@ def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, c
     P = state.P if cache else np.empty((1, 1, 1))
     K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
                        ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
-                       ctx.oy, fp, ip)
+                       ctx.oy, ctx.wset, ctx.ns, fp, ip)
 
 
 def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
@@ -226,7 +226,7 @@ def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pa
     rows = _caches(state, ctx, int(ip[K.I_K_VS]), False)
     K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.RK, state.RC, state.RN, rows, cpre,
                        ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv,
-                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, pat, region, key, fp, ip)
+                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, fp, ip)
 
 
 def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,

@@ -7,7 +7,9 @@ per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a half-ste
 Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments``):
     ref context : kinv (9,), wgt/wa (H, W, S) f32, mu_a/var_a (H, W) f32
     sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
-                  sizes (N, 2) i32 (W, H), ox/oy (S,) f32 window offsets,
+                  sizes (N, 2) i32 (W, H), ox/oy (S,) f32 window offsets of the pixel (per-pixel kernels
+                  take the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64 and wset (H, W) u8 and
+                  pass each pixel its own, see ``context.ViewContext``),
                   A (N, 9), b (N, 3), B (N, 9), c (N, 3) f64, sdepth (N, Hm, Wm) f32 (geometric passes)
     fp          : float64 parameters, indices F_* below
     ip          : int64 parameters, indices I_* below
@@ -222,7 +224,7 @@ def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
 
 @njit(cache=True, parallel=True)
 def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa, mu_a,
-                     var_a, ox, oy, fp, ip):
+                     var_a, ox, oy, wset, ns, fp, ip):
     """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
 
     k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
@@ -242,6 +244,9 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
         for x in range(w):
             z = Z[y, x]
             rp = ray(kinv, x, y)
+            ws = wset[y, x]
+            oxp = ox[ws, :ns[ws]]
+            oyp = oy[ws, :ns[ws]]
             nx = Nrm[y, x, 0]
             ny = Nrm[y, x, 1]
             nz = Nrm[y, x, 2]
@@ -250,7 +255,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
             for j in range(n_views):
                 if ok and z > 0.0:
                     costs[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x],
-                                                mu_a[y, x], var_a[y, x], ox, oy, x, y, m0, m1, m2, min_var)
+                                                mu_a[y, x], var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var)
                     if store:
                         P[y, x, j] = costs[j]
                 else:
@@ -288,7 +293,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
 
 @njit(cache=True, parallel=True)
 def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth,
-                     kinv, wgt, wa, mu_a, var_a, ox, oy, pat, region, key, fp, ip):
+                     kinv, wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip):
     """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7).
 
     P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
@@ -336,6 +341,9 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
             wa_p = wa[y, x]
             mu = mu_a[y, x]
             var = var_a[y, x]
+            ws = wset[y, x]
+            oxp = ox[ws, :ns[ws]]
+            oyp = oy[ws, :ns[ws]]
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
                                        reg_cost, reg_idx, cand_z, cand_n, cand_c)
             n_vs = min(n_cand, k_vs)
@@ -351,7 +359,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                 m0, m1, m2, ok = plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
                 for j in range(n_views):
                     if ok:
-                        M[k, j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy,
+                        M[k, j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, oxp, oyp,
                                                    x, y, m0, m1, m2, min_var)
                     else:
                         M[k, j] = 2.0
@@ -370,7 +378,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                     if ok:
                         if math.isnan(known[j]):
                             known[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var,
-                                                        ox, oy, x, y, m0, m1, m2, min_var)
+                                                        oxp, oyp, x, y, m0, m1, m2, min_var)
                         tmp[j] = known[j]
                     else:
                         tmp[j] = 2.0
@@ -385,7 +393,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                     else:
                         v[j] = 0.0
             # current hypothesis, full cost (the baseline all others must beat)
-            c_cur = current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy,
+            c_cur = current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, oxp, oyp,
                                  x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, known)
             n_sel = view_order(v, order)
             if c_cur >= BIG:
@@ -424,7 +432,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                                     best)
                 else:
                     cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var,
-                                           ox, oy, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
+                                           oxp, oyp, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
                                            vsum, order, n_sel, terms, geom, lam, gmax, min_var, best)
                 if cost < best:
                     best = cost
@@ -495,8 +503,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                 zi = hz[i]
                 if not (zi >= zmin and zi <= zmax):
                     continue
-                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox,
-                                       oy, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, order, n_sel, terms,
+                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, oxp,
+                                       oyp, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, order, n_sel, terms,
                                        geom, lam, gmax, min_var, best)
                 if cost < best:
                     best = cost

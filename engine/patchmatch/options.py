@@ -30,6 +30,17 @@ class PatchMatchOptions(Options):
     # --- matching cost (§2.3)
     window: int = option(11, "matching window size (odd, pixels)")
     window_step: int = option(2, "sampling step inside the window (2 = ACMM's 36 samples)")
+    fine_window: int = option(0, "small dense window (odd, e.g. 5) used instead of `window` at pixels whose "
+                              "texture fills it; 0 = off, one window everywhere (SPEC). Sharper depth edges on "
+                              "strongly textured surfaces, but noisier normals: fused F1 can drop on weakly "
+                              "textured scenes (benchmarks/results/fine_window.json)")
+    fine_window_step: int = option(1, "sampling step inside the fine window")
+    fine_sigma_spatial: float = option(1.5, "bilateral spatial sigma of the fine window (pixels)")
+    fine_sigma_color: float = option(0.05, "bilateral colour sigma of the fine window ('colmap' weighting, "
+                                     "intensities in [0,1]; 'acmm' weighting keeps acmm_sigma_color)")
+    fine_min_var: float = option(1e-3, "a pixel uses the fine window when the intensity variance under the "
+                                 "fine window's spatial weights and sigma_color reaches this (intensities "
+                                 "in [0,1]; image noise of 1 grey level is 1.5e-5)")
     ncc_weighting: str = option("colmap", "bilateral weights: 'colmap' (squared Gaussian, sigma_color on "
                                 "[0,1]) or 'acmm' (non-squared, acmm_sigma_color on 0-255)", choices=WEIGHTINGS)
     sigma_spatial: float = option(5.0, "bilateral spatial sigma (pixels)")
@@ -96,7 +107,13 @@ class PatchMatchOptions(Options):
         check(self.window >= 3 and self.window % 2 == 1, "window", self.window, "must be odd and >= 3")
         check(1 <= self.window_step <= self.window // 2, "window_step", self.window_step,
               "must be in 1..window//2")
-        for name in ("sigma_spatial", "sigma_color", "acmm_sigma_color", "beta", "beta_fallback",
+        check(self.fine_window == 0 or (self.fine_window >= 3 and self.fine_window % 2 == 1), "fine_window",
+              self.fine_window, "must be 0 (off) or odd and >= 3")
+        check(1 <= self.fine_window_step <= max(1, self.fine_window // 2), "fine_window_step",
+              self.fine_window_step, "must be in 1..fine_window//2")
+        check(self.fine_min_var >= 0, "fine_min_var", self.fine_min_var, "must be >= 0")
+        for name in ("sigma_spatial", "sigma_color", "acmm_sigma_color", "fine_sigma_spatial", "fine_sigma_color",
+                     "beta", "beta_fallback",
                      "alpha", "jbu_sigma_spatial", "jbu_sigma_range"):
             check(getattr(self, name) > 0, name, getattr(self, name), "must be > 0")
         check(self.min_var >= 0, "min_var", self.min_var, "must be >= 0")
@@ -133,3 +150,8 @@ class PatchMatchOptions(Options):
         """1-D sample offsets of the matching window, e.g. [-5, -3, -1, 1, 3, 5]."""
         r = self.window // 2
         return list(range(-r, r + 1, self.window_step))
+
+    def fine_window_offsets(self) -> list[int]:
+        """1-D sample offsets of the fine window (empty when it is off), e.g. [-2, -1, 0, 1, 2]."""
+        r = self.fine_window // 2
+        return list(range(-r, r + 1, self.fine_window_step)) if self.fine_window else []

@@ -69,6 +69,25 @@ def ncc_cost_ref(ref_img: np.ndarray, src_img: np.ndarray, H: np.ndarray, x: int
     return float(min(max(1.0 - cov / math.sqrt(var_a * var_b), 0.0), 2.0))
 
 
+def window_choice_ref(img: np.ndarray, x: int, y: int, options) -> tuple[np.ndarray, float, float]:
+    """Offsets (S, 2), spatial and colour sigma of the window reference pixel (x, y) matches with: the fine
+    window when the intensity variance under its spatial weights and the standard colour sigma reaches
+    ``options.fine_min_var``, else the standard window (PatchMatchOptions.fine_window)."""
+    colmap = options.ncc_weighting == "colmap"
+    sigma_c = options.sigma_color if colmap else options.acmm_sigma_color
+    std = options.window_offsets()
+    standard = np.array([(dx, dy) for dy in std for dx in std]), options.sigma_spatial, sigma_c
+    if not options.fine_window:
+        return standard
+    f1 = options.fine_window_offsets()
+    fine = np.array([(dx, dy) for dy in f1 for dx in f1])
+    wts, a = bilateral_weights_ref(img, x, y, fine, options.ncc_weighting, options.fine_sigma_spatial, sigma_c)
+    mu = float((wts * a).sum())
+    if float((wts * a * a).sum()) - mu * mu < options.fine_min_var:
+        return standard
+    return fine, options.fine_sigma_spatial, options.fine_sigma_color if colmap else sigma_c
+
+
 # ----------------------------------------------------------------------------- geometry (§2.2, §2.9)
 
 
@@ -244,10 +263,8 @@ class RefProblem:
         self.src_cams = src_cams
         self.src_depths = src_depths
         self.o = options
-        offs1 = options.window_offsets()
-        self.offsets = np.array([(dx, dy) for dy in offs1 for dx in offs1])
         self.Ki = np.linalg.inv(ref_cam.K_idx)
-        self.sigma_c = options.sigma_color if options.ncc_weighting == "colmap" else options.acmm_sigma_color
+        self._windows: dict[tuple[int, int], tuple[np.ndarray, float, float]] = {}
 
     def ray(self, x: int, y: int) -> np.ndarray:
         return self.Ki @ np.array([x, y, 1.0])
@@ -257,8 +274,11 @@ class RefProblem:
             return 2.0
         c, s = self.ref_cam, self.src_cams[j]
         H = homography_ref(c.K_idx, c.R, c.t, s.K_idx, s.R, s.t, x, y, z, n)
-        return ncc_cost_ref(self.ref_img, self.src_imgs[j], H, x, y, self.offsets, self.o.ncc_weighting,
-                            self.o.sigma_spatial, self.sigma_c, self.o.min_var)
+        if (x, y) not in self._windows:
+            self._windows[x, y] = window_choice_ref(self.ref_img, x, y, self.o)
+        offsets, sigma_s, sigma_c = self._windows[x, y]
+        return ncc_cost_ref(self.ref_img, self.src_imgs[j], H, x, y, offsets, self.o.ncc_weighting, sigma_s, sigma_c,
+                            self.o.min_var)
 
     def geometric(self, x: int, y: int, z: float, j: int) -> float:
         c, s = self.ref_cam, self.src_cams[j]
