@@ -8,6 +8,7 @@ import numpy as np
 import pycolmap
 import pytest
 from PIL import Image
+from scipy.spatial import cKDTree
 
 from engine.camera import Camera
 from engine.errors import OptionsError
@@ -262,9 +263,18 @@ def test_committed_tiny_matches_regeneration(tiny_written):
     for image_id, im in ra.images.items():
         np.testing.assert_allclose(im.cam_from_world().matrix(), rb.images[image_id].cam_from_world().matrix(),
                                    atol=1e-9)
-    pa = read_points(committed / "ground_truth" / "points.ply")
-    pb = read_points(tiny_written / "ground_truth" / "points.ply")
-    assert abs(len(pa) - len(pb)) <= 0.001 * len(pa)
+    pa = read_points(committed / "ground_truth" / "points.ply").astype(np.float64)
+    pb = read_points(tiny_written / "ground_truth" / "points.ply").astype(np.float64)
+    # The point COUNT is ill-conditioned: walls and the ground lie exactly on voxel boundaries (y = 2.1 m =
+    # 84 voxels, z = 0), so a last-bit difference in ray casting between package versions moves a whole wall
+    # to the next voxel layer and the thinning keeps a different subset (54,263 vs 51,677 points with numpy
+    # 2.4.6 / numba 0.68.1). The SURFACES must not change: every point of either set lies within a voxel
+    # diagonal of the other set.
+    voxel = tiny_scene().gt_voxel
+    assert abs(len(pa) - len(pb)) <= 0.1 * len(pa)
+    for p, q in ((pa, pb), (pb, pa)):
+        dist = cKDTree(q).query(p)[0]
+        assert np.mean(dist <= voxel * np.sqrt(3)) >= 0.999, np.percentile(dist, [50, 99, 99.9])
 
 
 def test_committed_small_reads_back():
