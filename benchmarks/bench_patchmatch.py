@@ -75,7 +75,7 @@ def ncc_throughput(width: int, height: int, n_src: int, threads: int) -> dict:
         numba.set_num_threads(old)
     samples = int(n_src * ctx.samples_per_cost().sum())
     return {"size": f"{width}x{height}", "sources": n_src, "threads": threads, "samples": samples,
-            "fine_window_pixels": float(ctx.wset.mean()), "seconds": best, "samples_per_s": samples / best}
+            "seconds": best, "samples_per_s": samples / best}
 
 
 def iteration_time(width: int, height: int, n_src: int, threads: int) -> dict:

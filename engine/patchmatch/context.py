@@ -18,10 +18,10 @@ class ViewContext:
 
     Every pixel matches with one of up to two windows (the window set ``wset`` (H, W) u8 picks it: 0 = the
     standard window, 1 = the fine window, see ``PatchMatchOptions.fine_window``); window set s has
-    ``ns[s]`` samples, offsets ``offs_sets[s][:ns[s]]`` and float copies ``ox[s, :ns[s]]``, ``oy[s, :ns[s]]``.
+    ``ns[s]`` samples with offsets ``ox[s, :ns[s]]``, ``oy[s, :ns[s]]``.
     Shapes: kinv (9,); wgt, wa (H, W, S) f32 (S = max(ns), a pixel's weights in its first ns entries, zeros
     after); mu_a, var_a (H, W) f32; offs (S0, 2) i32 the standard window's offsets; wset (H, W) u8;
-    ns (n_sets,) i64; ox, oy (n_sets, S) f32; offs_sets: list of (ns, 2) i32;
+    ns (n_sets,) i64; ox, oy (n_sets, S) f32;
     src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; sizes (N, 2) i32 (W, H);
     A, B (N, 9), b, c, centers (N, 3) f64;
     sdepth (N, Hm, Wm) f32 source depth maps (zeros of shape (N, 1, 1) when not needed).
@@ -46,7 +46,6 @@ class ViewContext:
     flat: np.ndarray
     wset: np.ndarray
     ns: np.ndarray
-    offs_sets: list[np.ndarray]
 
     def offsets_at(self, x: int, y: int) -> tuple[np.ndarray, np.ndarray]:
         """The (S,) f32 offsets ``ox``, ``oy`` that reference pixel (x, y) matches with."""
@@ -79,8 +78,8 @@ def weighting_sigma(options: PatchMatchOptions) -> float:
 def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarray], src_cams: list[Camera],
                   options: PatchMatchOptions, src_depths: list[np.ndarray] | None = None) -> ViewContext:
     """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1])."""
-    offs = window_offsets_2d(options.window_offsets())
     wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options)
+    offs = offs_sets[0]
     src, sizes = pad_sources(src_imgs)
     geo = relative_geometry(ref_cam, src_cams)
     if src_depths is None:
@@ -97,7 +96,7 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
         ox[i, : len(o)] = o[:, 0]
         oy[i, : len(o)] = o[:, 1]
     return ViewContext(geo["kinv"], wgt, wa, mu_a, var_a, offs, src, sizes, geo["A"], geo["b"], geo["B"],
-                       geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns, offs_sets)
+                       geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns)
 
 
 def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -117,11 +116,12 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions) -> tuple[np
     if not options.fine_window:
         return wgt, wa, mu_a, var_a, np.zeros((h, w), np.uint8), [offs]
     offs_f = window_offsets_2d(options.fine_window_offsets())
-    var_test = bilateral_moments(ref_img, offs_f, options.ncc_weighting, options.fine_sigma_spatial, sigma_c)[3]
-    fine = var_test >= np.float32(options.fine_min_var)
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
     wgt_f, wa_f, mu_f, var_f = bilateral_moments(ref_img, offs_f, options.ncc_weighting, options.fine_sigma_spatial,
                                                  fine_c)
+    var_test = var_f if fine_c == sigma_c else bilateral_moments(ref_img, offs_f, options.ncc_weighting,
+                                                                 options.fine_sigma_spatial, sigma_c)[3]
+    fine = var_test >= np.float32(options.fine_min_var)
     s0, s1 = len(offs), len(offs_f)
     if s1 > s0:
         pad = np.zeros((h, w, s1 - s0), np.float32)

@@ -32,8 +32,8 @@ class PatchMatchOptions(Options):
     window_step: int = option(2, "sampling step inside the window (2 = ACMM's 36 samples)")
     fine_window: int = option(0, "small dense window (odd, e.g. 5) used instead of `window` at pixels whose "
                               "texture fills it; 0 = off, one window everywhere (SPEC). Sharper depth edges on "
-                              "strongly textured surfaces, but noisier normals: fused F1 can drop on weakly "
-                              "textured scenes (benchmarks/results/fine_window.json)")
+                              "strongly textured surfaces, but less precise depth inside large textured surfaces: "
+                              "fused F1 can drop (benchmarks/results/fine_window*.json)")
     fine_window_step: int = option(1, "sampling step inside the fine window")
     fine_sigma_spatial: float = option(1.5, "bilateral spatial sigma of the fine window (pixels)")
     fine_sigma_color: float = option(0.05, "bilateral colour sigma of the fine window ('colmap' weighting, "
