@@ -20,7 +20,7 @@ from numba import njit, prange
 
 from engine.interrupt import check_interrupt
 from engine.options import Options, check, option
-from engine.patchmatch.context import build_context
+from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.engine import PatchMatchView, ViewMaps
 from engine.patchmatch.geometry import plane_vector, ray
 from engine.patchmatch.kernels import photometric_cost
@@ -155,7 +155,8 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
             raise ValueError(f"view {i}: maps are {w}x{h} but the camera is {v.camera.width}x{v.camera.height}")
         ctx = build_context(np.asarray(v.image_gray, np.float32), v.camera,
                             [np.asarray(views[j].image_gray, np.float32) for j in src_idx],
-                            [views[j].camera for j in src_idx], ncc_options, [maps[j].depth for j in src_idx])
+                            [views[j].camera for j in src_idx], ncc_options, [maps[j].depth for j in src_idx],
+                            fine_window_region(m.depth, m.normal, v.camera, ncc_options))
         counter_kernel(np.ascontiguousarray(m.depth, np.float32), np.ascontiguousarray(m.normal, np.float32),
                        ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.centers,
                        ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy,

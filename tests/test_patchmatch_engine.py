@@ -62,7 +62,8 @@ def test_options_defaults_and_validation() -> None:
     assert PatchMatchOptions.from_dict(o.to_dict()) == o
     for bad in (dict(pattern="x"), dict(window=10), dict(k_update=4), dict(iterations=0), dict(levels=0),
                 dict(schedule="fast"), dict(num_threads=-1), dict(sigma_color=0.0), dict(fine_window=4),
-                dict(fine_window=1), dict(fine_window_step=3), dict(fine_sigma_color=0.0), dict(fine_min_var=-1.0)):
+                dict(fine_window=1), dict(fine_window_step=3), dict(fine_sigma_color=0.0), dict(fine_min_var=-1.0),
+                dict(fine_max_level=8), dict(fine_edge_radius=-1), dict(fine_edge_jump=0.0)):
         with pytest.raises(OptionsError):
             PatchMatchOptions(**bad).validate()
 

@@ -11,7 +11,7 @@ from engine.camera import Camera
 from engine.patchmatch import PatchMatchOptions
 from engine.patchmatch import kernels as K
 from engine.patchmatch import reference as ref
-from engine.patchmatch.context import build_context
+from engine.patchmatch.context import build_context, depth_edge_band, fine_window_region
 from engine.patchmatch.engine import _params, _State, half_step, init_cost
 from engine.patchmatch.geometry import perturb_normal, propagate_depth, random_normal, ray, relative_geometry
 from engine.patchmatch.ncc import bilateral_moments, ncc_cost, pad_sources, window_offsets_2d
@@ -147,6 +147,87 @@ def test_window_choice_matches_reference(weighting: str) -> None:
     assert not off.wset.any() and off.ns.tolist() == [n_std]
     np.testing.assert_array_equal(off.wgt, bilateral_moments(img, window_offsets_2d(opts.window_offsets()),
                                                              weighting, opts.sigma_spatial, sigma_c)[0])
+
+
+def _planes_map(cam: Camera, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (H, W) and camera-frame normals (H, W, 3) of a slanted background plane with a nearer
+    fronto-parallel box in front of it, a few holes, and normals jittered by about 1 degree."""
+    h, w = cam.height, cam.width
+    rays = cam.pixel_rays()
+    n_bg = np.array([0.0, -0.6, -0.8])
+    depth = 4.0 / -(rays @ n_bg)  # plane n·X = -4
+    normal = np.broadcast_to(n_bg, (h, w, 3)).copy()
+    box = (slice(6, 14), slice(8, 16))
+    depth[box] = 2.5
+    normal[box] = (0.0, 0.0, -1.0)
+    depth[rng.random((h, w)) < 0.02] = 0.0
+    normal += rng.normal(0, 0.02, normal.shape)
+    normal /= np.linalg.norm(normal, axis=2, keepdims=True)
+    return depth.astype(np.float32), normal.astype(np.float32)
+
+
+@pytest.mark.parametrize("radius", [0, 2])
+def test_depth_edge_band_matches_reference(radius: int) -> None:
+    rng = np.random.default_rng(5)
+    a, _ = _cameras()
+    depth, normal = _planes_map(a, rng)
+    noisy = depth * (1 + rng.normal(0, 0.01, depth.shape)).astype(np.float32)  # pairs on both sides of jump
+    kinv = np.linalg.inv(a.K_idx).ravel()
+    for d in (depth, noisy):
+        got = depth_edge_band(d, normal, kinv, 0.02, radius)
+        np.testing.assert_array_equal(got, ref.edge_band_ref(d, normal, a.K_idx, 0.02, radius))
+
+
+def test_depth_edge_band_finds_occlusions_not_slants() -> None:
+    """The steep background plane (depth changing ~2-3 % per pixel along columns) has no edges; the box
+    outline and the holes have, and the band widens them by the radius."""
+    a, _ = _cameras()
+    depth, normal = _planes_map(a, np.random.default_rng(5))
+    kinv = np.linalg.inv(a.K_idx).ravel()
+    step = np.abs(np.diff(depth, axis=0)) / np.maximum(depth[1:], 1e-6)
+    assert np.median(step[depth[1:] * depth[:-1] > 0]) > 0.02  # a plain depth-ratio test would flag it
+    edge = depth_edge_band(depth, normal, kinv, 0.02, 0)
+    holes = depth <= 0
+    near_hole = np.zeros_like(holes)
+    for dy, dx in ((0, 0), (0, 1), (0, -1), (1, 0), (-1, 0)):
+        near_hole |= np.roll(holes, (dy, dx), axis=(0, 1))
+    outline = np.zeros_like(holes)
+    outline[5:15, 7:17] = True
+    outline[7:13, 9:15] = False
+    assert not (edge & ~near_hole & ~outline).any()  # nothing on the planes themselves
+    assert (edge[outline & ~near_hole]).mean() > 0.4  # the box boundary is found
+    band = depth_edge_band(depth, normal, kinv, 0.02, 2)
+    assert band[edge].all() and band.sum() > 2 * edge.sum()
+    opts = PatchMatchOptions(fine_window=5, fine_edge_radius=2)
+    np.testing.assert_array_equal(fine_window_region(depth, normal, a, opts), band)
+    assert not fine_window_region(depth, normal, a, opts, random_start=True).any()
+    assert not fine_window_region(depth, normal, a, opts, level=1).any()  # fine_max_level 0
+    assert fine_window_region(depth, normal, a, opts.replace(fine_max_level=1), level=1).sum() == band.sum()
+    assert fine_window_region(depth, normal, a, PatchMatchOptions(fine_window=5)) is None
+    assert fine_window_region(depth, normal, a, PatchMatchOptions(fine_window=0), level=3) is None
+
+
+def test_window_choice_respects_the_allowed_region() -> None:
+    """With a fine-window region, exactly the pixels inside it that pass the variance test take the fine
+    window, with the same weights as without the region."""
+    rng = np.random.default_rng(12)
+    a, b = _cameras()
+    img = _mixed_texture(_smooth_noise(rng, 20, 24))
+    opts = PatchMatchOptions(fine_window=5)
+    allowed = np.zeros((20, 24), bool)
+    allowed[4:16, 6:20] = True
+    free = build_context(img, a, [img], [b], opts)
+    ctx = build_context(img, a, [img], [b], opts, fine_allowed=allowed)
+    np.testing.assert_array_equal(ctx.wset, free.wset * allowed)
+    assert ctx.wset.any() and (free.wset & ~allowed).any()
+    std = build_context(img, a, [img], [b], PatchMatchOptions())
+    for y in range(20):
+        for x in range(24):
+            offsets = ref.window_choice_ref(img.astype(np.float64), x, y, opts, bool(allowed[y, x]))[0]
+            assert len(offsets) == ctx.ns[ctx.wset[y, x]]
+            src = free if ctx.wset[y, x] else std
+            np.testing.assert_array_equal(ctx.wgt[y, x, : len(offsets)], src.wgt[y, x, : len(offsets)])
+            assert ctx.mu_a[y, x] == src.mu_a[y, x]
 
 
 def test_reprojection_error_matches_reference() -> None:

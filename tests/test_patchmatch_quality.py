@@ -6,9 +6,10 @@ about 92 %, valid 100 %. The remaining errors sit in bands of a few pixels along
 (the 11x11 window straddles two surfaces on 160x120 images) and in the strips of the outer views
 that no source view sees; see the engineering notes. The target is kept as a strict xfail: it fails
 the suite as soon as the target is met (remove the marker then), and a regression floor guards what
-is reached now. The optional fine window (``fine_window=5``) reaches 89.6 % with the default schedule but
-lowers fused F1 on weakly textured held-out scenes, so it is not the default
-(benchmarks/results/fine_window.json).
+is reached now. The optional fine window (``fine_window=5``) reaches about 90 % but lowers fused F1 on
+weakly textured held-out scenes; restricted to a band around depth discontinuities
+(``fine_edge_radius=5``) it keeps most of the gain at a much smaller F1 cost, but still does not reach
+90 % with the default (paper) schedule, so neither is the default (benchmarks/results/fine_window*.json).
 """
 
 from __future__ import annotations
@@ -58,16 +59,18 @@ def test_tiny_issue_target(pooled) -> None:
     assert pooled["within_1pct"] >= 90.0, pooled
 
 
-def test_fine_window_sharpens_occlusion_edges(tiny_maps) -> None:
-    """The per-pixel fine window against the 11 px window alone, one level, ACMM schedule (measured: 90.2
-    against 82.4 % within 1 %, fine window at 93 % of the pixels): the large window's foreground fattening
-    along tiny's occlusion edges is what it removes."""
+def test_fine_window_sharpens_occlusion_edges(tiny_maps, pooled) -> None:
+    """The per-pixel fine window against the 11 px window alone (the default maps, 80 % within 1 %), two
+    levels, ACMM schedule: everywhere its texture test passes (measured 90.2 %) and only within 5 px of the
+    depth discontinuities of each pass's starting map (fine_edge_radius=5, measured 89.7 %). The large
+    window's foreground fattening along tiny's occlusion edges is what both remove; the band keeps the
+    11 px window's precision inside surfaces away from edges (benchmarks/results/fine_window_edges.json)."""
     scene = tiny_maps[0]
     views = patchmatch_views(scene)
-    base = dict(levels=1, schedule="acmm")
-    off = _pooled(scene, run_patchmatch(views, PatchMatchOptions(**base)))["within_1pct"]
-    fine = _pooled(scene, run_patchmatch(views, PatchMatchOptions(fine_window=5, **base)))["within_1pct"]
-    assert fine >= 88.0 and fine >= off + 5.0, (fine, off)
+    base = dict(levels=2, schedule="acmm", fine_window=5)
+    for extra in ({}, {"fine_edge_radius": 5}):
+        fine = _pooled(scene, run_patchmatch(views, PatchMatchOptions(**base, **extra)))["within_1pct"]
+        assert fine >= 88.0 and fine >= pooled["within_1pct"] + 5.0, (extra, fine, pooled["within_1pct"])
 
 
 def test_default_fusion_keeps_the_maps_density(tiny_maps) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy import ndimage
 
 from engine.camera import Camera
 from engine.patchmatch.geometry import relative_geometry
@@ -76,9 +77,12 @@ def weighting_sigma(options: PatchMatchOptions) -> float:
 
 
 def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarray], src_cams: list[Camera],
-                  options: PatchMatchOptions, src_depths: list[np.ndarray] | None = None) -> ViewContext:
-    """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1])."""
-    wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options)
+                  options: PatchMatchOptions, src_depths: list[np.ndarray] | None = None,
+                  fine_allowed: np.ndarray | None = None) -> ViewContext:
+    """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1]).
+
+    ``fine_allowed`` (H, W) bool restricts the fine window to those pixels (None = no restriction)."""
+    wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options, fine_allowed)
     offs = offs_sets[0]
     src, sizes = pad_sources(src_imgs)
     geo = relative_geometry(ref_cam, src_cams)
@@ -99,8 +103,8 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
                        geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns)
 
 
-def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                         np.ndarray, np.ndarray, list[np.ndarray]]:
+def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """Reference-side NCC terms with the per-pixel window choice.
 
     A pixel takes the fine window when the intensity variance under the fine window's spatial weights
@@ -122,6 +126,8 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions) -> tuple[np
     var_test = var_f if fine_c == sigma_c else bilateral_moments(ref_img, offs_f, options.ncc_weighting,
                                                                  options.fine_sigma_spatial, sigma_c)[3]
     fine = var_test >= np.float32(options.fine_min_var)
+    if fine_allowed is not None:
+        fine &= fine_allowed
     s0, s1 = len(offs), len(offs_f)
     if s1 > s0:
         pad = np.zeros((h, w, s1 - s0), np.float32)
@@ -133,3 +139,65 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions) -> tuple[np
     mu_a[fine] = mu_f[fine]
     var_a[fine] = var_f[fine]
     return wgt, wa, mu_a, var_a, fine.astype(np.uint8), [offs, offs_f]
+
+
+def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, options: PatchMatchOptions,
+                       random_start: bool = False, level: int = 0) -> np.ndarray | None:
+    """(H, W) bool where matching may use the fine window, or None for no restriction.
+
+    Nowhere at levels coarser than ``fine_max_level``; up to it, None with ``fine_edge_radius`` 0, else the
+    band around the depth discontinuities of the map a pass starts from (or of the final map, for the
+    counter maps): occlusion edges are where the large window fattens the foreground, and only there does
+    the fine window repay its lower precision inside textured surfaces. A random start has no edges yet,
+    so its pass uses the standard window only. depth (H, W), normal (H, W, 3) camera frame."""
+    if not options.fine_window:
+        return None
+    if level > options.fine_max_level:
+        return np.zeros(depth.shape, bool)
+    if options.fine_edge_radius <= 0:
+        return None
+    if random_start:
+        return np.zeros(depth.shape, bool)
+    kinv = np.linalg.inv(camera.K_idx).ravel()
+    return depth_edge_band(depth, normal, kinv, options.fine_edge_jump, options.fine_edge_radius)
+
+
+def depth_edge_band(depth: np.ndarray, normal: np.ndarray, kinv: np.ndarray, jump: float, radius: int) -> np.ndarray:
+    """(H, W) bool: pixels within ``radius`` px (Chebyshev) of a depth discontinuity of a hypothesis map.
+
+    Neighbouring pixels p, q (4-neighbours) are a discontinuity when each one's plane predicts the other's
+    depth with a relative error above ``jump``, or when either has no valid hypothesis: a slanted plane
+    (depth changing fast from pixel to pixel) is not an edge, an occlusion boundary is.
+    depth (H, W) camera-frame depth, normal (H, W, 3) camera-frame unit normals, kinv (9,) K⁻¹ (index space).
+    """
+    h, w = depth.shape
+    z = depth.astype(np.float64)
+    n = normal.astype(np.float64)
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    k = np.asarray(kinv, np.float64).reshape(3, 3)
+    rays = np.stack([k[0, 0] * xs + k[0, 1] * ys + k[0, 2], k[1, 0] * xs + k[1, 1] * ys + k[1, 2],
+                     k[2, 0] * xs + k[2, 1] * ys + k[2, 2]], axis=-1)
+    n_dot_own = np.einsum("hwc,hwc->hw", n, rays)
+    edge = np.zeros((h, w), bool)
+    for axis in (0, 1):
+        a = (slice(None, -1), slice(None)) if axis == 0 else (slice(None), slice(None, -1))
+        b = (slice(1, None), slice(None)) if axis == 0 else (slice(None), slice(1, None))
+        pair = _discontinuous(z[a], z[b], n[a], n[b], n_dot_own[a], n_dot_own[b], rays[a], rays[b], jump)
+        edge[a] |= pair
+        edge[b] |= pair
+    if radius <= 0 or not edge.any():
+        return edge
+    return ndimage.binary_dilation(edge, structure=np.ones((2 * radius + 1, 2 * radius + 1), bool))
+
+
+def _discontinuous(zp, zq, n_p, n_q, np_rp, nq_rq, rp, rq, jump):
+    """Pairs (p, q) where neither plane predicts the other pixel's depth within ``jump`` (relative)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pred_q = zp * np_rp / np.einsum("...c,...c->...", n_p, rq)  # p's plane at q's ray
+        pred_p = zq * nq_rq / np.einsum("...c,...c->...", n_q, rp)
+        err_q = np.abs(pred_q - zq) / zq
+        err_p = np.abs(pred_p - zp) / zp
+    ok_q = (pred_q > 0) & (err_q <= jump)
+    ok_p = (pred_p > 0) & (err_p <= jump)
+    valid = (zp > 0) & (zq > 0)
+    return ~valid | ~(ok_q | ok_p)

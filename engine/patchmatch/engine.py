@@ -23,7 +23,7 @@ from engine.errors import DeepCError
 from engine.interrupt import check_interrupt
 from engine.observer import IterationEvent, readonly
 from engine.patchmatch import kernels as K
-from engine.patchmatch.context import ViewContext, build_context
+from engine.patchmatch.context import ViewContext, build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
@@ -362,7 +362,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                     step += n_iter if active[i] else 0
                 elif active[i]:
                     step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, kind,
-                                          detail, n_iter, options, pat, region, n_regions, on_iter, step, done)
+                                          detail, n_iter, options, pat, region, n_regions, on_iter, step, done,
+                                          random_start=coarsest and pass_index == 0)
                 if checkpoint is not None and saved is None:
                     checkpoint.save(level, pass_index, i, dataclasses.asdict(states[i]))
                 if progress is not None:
@@ -405,11 +406,12 @@ def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, i
 def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, kind: str, detail: bool, n_iter: int, options: PatchMatchOptions,
                    pat: np.ndarray, region: np.ndarray, n_regions: int, on_iter: Callable | None, step: int,
-                   done_before: int = 0) -> int:
+                   done_before: int = 0, random_start: bool = False) -> int:
     src_idx = list(v.source_views)
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
                         [cameras[j][level] for j in src_idx], options,
-                        [snapshot[j] for j in src_idx] if snapshot is not None else None)
+                        [snapshot[j] for j in src_idx] if snapshot is not None else None,
+                        fine_window_region(st.Z, st.N, cameras[i][level], options, random_start, level))
     zmin, zmax = float(v.depth_min), float(v.depth_max)
     fp, ip = _params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
     if detail:

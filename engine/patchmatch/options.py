@@ -33,7 +33,8 @@ class PatchMatchOptions(Options):
     fine_window: int = option(0, "small dense window (odd, e.g. 5) used instead of `window` at pixels whose "
                               "texture fills it; 0 = off, one window everywhere (SPEC). Sharper depth edges on "
                               "strongly textured surfaces, but less precise depth inside large textured surfaces: "
-                              "fused F1 can drop (benchmarks/results/fine_window*.json)")
+                              "fused F1 can drop unless fine_edge_radius keeps it near depth edges "
+                              "(benchmarks/results/fine_window*.json)")
     fine_window_step: int = option(1, "sampling step inside the fine window")
     fine_sigma_spatial: float = option(1.5, "bilateral spatial sigma of the fine window (pixels)")
     fine_sigma_color: float = option(0.05, "bilateral colour sigma of the fine window ('colmap' weighting, "
@@ -41,6 +42,13 @@ class PatchMatchOptions(Options):
     fine_min_var: float = option(1e-3, "a pixel uses the fine window when the intensity variance under the "
                                  "fine window's spatial weights and sigma_color reaches this (intensities "
                                  "in [0,1]; image noise of 1 grey level is 1.5e-5)")
+    fine_max_level: int = option(0, "with fine_window: coarsest pyramid level that uses it (0 = the finest level "
+                                 "only; coarser levels then match with the standard window alone)")
+    fine_edge_radius: int = option(0, "with fine_window: use it only within this many pixels (Chebyshev) of a depth "
+                                   "discontinuity of the map a pass starts from, never in the random-start pass; "
+                                   "0 = wherever the texture test allows")
+    fine_edge_jump: float = option(0.02, "a pair of neighbouring pixels is a depth discontinuity when each one's "
+                                   "plane predicts the other's depth with a relative error above this")
     ncc_weighting: str = option("colmap", "bilateral weights: 'colmap' (squared Gaussian, sigma_color on "
                                 "[0,1]) or 'acmm' (non-squared, acmm_sigma_color on 0-255)", choices=WEIGHTINGS)
     sigma_spatial: float = option(5.0, "bilateral spatial sigma (pixels)")
@@ -112,6 +120,9 @@ class PatchMatchOptions(Options):
         check(1 <= self.fine_window_step <= max(1, self.fine_window // 2), "fine_window_step",
               self.fine_window_step, "must be in 1..fine_window//2")
         check(self.fine_min_var >= 0, "fine_min_var", self.fine_min_var, "must be >= 0")
+        check(0 <= self.fine_max_level <= 7, "fine_max_level", self.fine_max_level, "must be in 0..7")
+        check(0 <= self.fine_edge_radius <= 32, "fine_edge_radius", self.fine_edge_radius, "must be in 0..32")
+        check(self.fine_edge_jump > 0, "fine_edge_jump", self.fine_edge_jump, "must be > 0")
         for name in ("sigma_spatial", "sigma_color", "acmm_sigma_color", "fine_sigma_spatial", "fine_sigma_color",
                      "beta", "beta_fallback",
                      "alpha", "jbu_sigma_spatial", "jbu_sigma_range"):

@@ -69,15 +69,17 @@ def ncc_cost_ref(ref_img: np.ndarray, src_img: np.ndarray, H: np.ndarray, x: int
     return float(min(max(1.0 - cov / math.sqrt(var_a * var_b), 0.0), 2.0))
 
 
-def window_choice_ref(img: np.ndarray, x: int, y: int, options) -> tuple[np.ndarray, float, float]:
+def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: bool = True
+                      ) -> tuple[np.ndarray, float, float]:
     """Offsets (S, 2), spatial and colour sigma of the window reference pixel (x, y) matches with: the fine
-    window when the intensity variance under its spatial weights and the standard colour sigma reaches
-    ``options.fine_min_var``, else the standard window (PatchMatchOptions.fine_window)."""
+    window when ``allowed`` (the pixel lies in the pass's fine-window region) and the intensity variance
+    under its spatial weights and the standard colour sigma reaches ``options.fine_min_var``, else the
+    standard window (PatchMatchOptions.fine_window)."""
     colmap = options.ncc_weighting == "colmap"
     sigma_c = options.sigma_color if colmap else options.acmm_sigma_color
     std = options.window_offsets()
     standard = np.array([(dx, dy) for dy in std for dx in std]), options.sigma_spatial, sigma_c
-    if not options.fine_window:
+    if not options.fine_window or not allowed:
         return standard
     f1 = options.fine_window_offsets()
     fine = np.array([(dx, dy) for dy in f1 for dx in f1])
@@ -86,6 +88,36 @@ def window_choice_ref(img: np.ndarray, x: int, y: int, options) -> tuple[np.ndar
     if float((wts * a * a).sum()) - mu * mu < options.fine_min_var:
         return standard
     return fine, options.fine_sigma_spatial, options.fine_sigma_color if colmap else sigma_c
+
+
+def edge_band_ref(depth: np.ndarray, normal: np.ndarray, K: np.ndarray, jump: float, radius: int) -> np.ndarray:
+    """(H, W) bool: pixels within ``radius`` (Chebyshev) of a 4-neighbour pair where neither pixel's plane
+    predicts the other's depth within ``jump`` (relative), or either depth is <= 0 (context.depth_edge_band)."""
+    h, w = depth.shape
+    Kinv = np.linalg.inv(K)
+
+    def predicts(p, q):  # p's plane at q's ray, within jump of q's depth
+        rp, rq = Kinv @ np.array([p[1], p[0], 1.0]), Kinv @ np.array([q[1], q[0], 1.0])
+        n = normal[p].astype(np.float64)
+        denom = float(n @ rq)
+        if denom == 0.0:
+            return False
+        pred = float(depth[p]) * float(n @ rp) / denom
+        return pred > 0 and abs(pred - depth[q]) / depth[q] <= jump
+
+    edge = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            for q in ((y + 1, x), (y, x + 1)):
+                if q[0] >= h or q[1] >= w:
+                    continue
+                p = (y, x)
+                if depth[p] <= 0 or depth[q] <= 0 or not (predicts(p, q) or predicts(q, p)):
+                    edge[p] = edge[q] = True
+    band = np.zeros((h, w), bool)
+    for y, x in np.argwhere(edge):
+        band[max(0, y - radius): y + radius + 1, max(0, x - radius): x + radius + 1] = True
+    return band
 
 
 # ----------------------------------------------------------------------------- geometry (§2.2, §2.9)
