@@ -3,7 +3,7 @@
 Why a separate process: numba code compiled in the running process and the same code loaded from its
 cache by a later process do not round identically (numba/numba#10617 sees the two optimised
 differently; here the float32 fast-math NCC kernels). PatchMatch amplifies last-bit differences into
-different maps (same quality: tiny within 1 % moves by about 0.02 points), so the first run after an
+different maps (same quality: tiny within 1 % moves by about 0.03 points), so the first run after an
 install would not reproduce later runs with the same seed. Compiling once here, before any real run,
 means every run (the demo, the tests, ``deepc regress``) loads the same cached machine code.
 scripts/setup.sh calls this; it is quick when the cache is already valid.
