@@ -172,9 +172,8 @@ def test_depth_edge_band_matches_reference(radius: int) -> None:
     a, _ = _cameras()
     depth, normal = _planes_map(a, rng)
     noisy = depth * (1 + rng.normal(0, 0.01, depth.shape)).astype(np.float32)  # pairs on both sides of jump
-    kinv = np.linalg.inv(a.K_idx).ravel()
     for d in (depth, noisy):
-        got = depth_edge_band(d, normal, kinv, 0.02, radius)
+        got = depth_edge_band(d, normal, a.pixel_rays(), 0.02, radius)
         np.testing.assert_array_equal(got, ref.edge_band_ref(d, normal, a.K_idx, 0.02, radius))
 
 
@@ -183,10 +182,10 @@ def test_depth_edge_band_finds_occlusions_not_slants() -> None:
     outline and the holes have, and the band widens them by the radius."""
     a, _ = _cameras()
     depth, normal = _planes_map(a, np.random.default_rng(5))
-    kinv = np.linalg.inv(a.K_idx).ravel()
+    rays = a.pixel_rays()
     step = np.abs(np.diff(depth, axis=0)) / np.maximum(depth[1:], 1e-6)
     assert np.median(step[depth[1:] * depth[:-1] > 0]) > 0.02  # a plain depth-ratio test would flag it
-    edge = depth_edge_band(depth, normal, kinv, 0.02, 0)
+    edge = depth_edge_band(depth, normal, rays, 0.02, 0)
     holes = depth <= 0
     near_hole = np.zeros_like(holes)
     for dy, dx in ((0, 0), (0, 1), (0, -1), (1, 0), (-1, 0)):
@@ -196,7 +195,7 @@ def test_depth_edge_band_finds_occlusions_not_slants() -> None:
     outline[7:13, 9:15] = False
     assert not (edge & ~near_hole & ~outline).any()  # nothing on the planes themselves
     assert (edge[outline & ~near_hole]).mean() > 0.4  # the box boundary is found
-    band = depth_edge_band(depth, normal, kinv, 0.02, 2)
+    band = depth_edge_band(depth, normal, rays, 0.02, 2)
     assert band[edge].all() and band.sum() > 2 * edge.sum()
     opts = PatchMatchOptions(fine_window=5, fine_edge_radius=2)
     np.testing.assert_array_equal(fine_window_region(depth, normal, a, opts), band)
@@ -228,6 +227,9 @@ def test_window_choice_respects_the_allowed_region() -> None:
             src = free if ctx.wset[y, x] else std
             np.testing.assert_array_equal(ctx.wgt[y, x, : len(offsets)], src.wgt[y, x, : len(offsets)])
             assert ctx.mu_a[y, x] == src.mu_a[y, x]
+    nowhere = build_context(img, a, [img], [b], opts, fine_allowed=np.zeros((20, 24), bool))
+    assert nowhere.ns.tolist() == std.ns.tolist() and not nowhere.wset.any()  # e.g. a random-start pass
+    np.testing.assert_array_equal(nowhere.wgt, std.wgt)
 
 
 def test_reprojection_error_matches_reference() -> None:

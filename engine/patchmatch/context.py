@@ -117,7 +117,7 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     sigma_c = weighting_sigma(options)
     wgt, wa, mu_a, var_a = bilateral_moments(ref_img, offs, options.ncc_weighting, options.sigma_spatial, sigma_c)
     h, w = ref_img.shape
-    if not options.fine_window:
+    if not options.fine_window or (fine_allowed is not None and not fine_allowed.any()):
         return wgt, wa, mu_a, var_a, np.zeros((h, w), np.uint8), [offs]
     offs_f = window_offsets_2d(options.fine_window_offsets())
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
@@ -158,25 +158,21 @@ def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, op
         return None
     if random_start:
         return np.zeros(depth.shape, bool)
-    kinv = np.linalg.inv(camera.K_idx).ravel()
-    return depth_edge_band(depth, normal, kinv, options.fine_edge_jump, options.fine_edge_radius)
+    return depth_edge_band(depth, normal, camera.pixel_rays(), options.fine_edge_jump, options.fine_edge_radius)
 
 
-def depth_edge_band(depth: np.ndarray, normal: np.ndarray, kinv: np.ndarray, jump: float, radius: int) -> np.ndarray:
+def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jump: float, radius: int) -> np.ndarray:
     """(H, W) bool: pixels within ``radius`` px (Chebyshev) of a depth discontinuity of a hypothesis map.
 
     Neighbouring pixels p, q (4-neighbours) are a discontinuity when each one's plane predicts the other's
     depth with a relative error above ``jump``, or when either has no valid hypothesis: a slanted plane
     (depth changing fast from pixel to pixel) is not an edge, an occlusion boundary is.
-    depth (H, W) camera-frame depth, normal (H, W, 3) camera-frame unit normals, kinv (9,) K⁻¹ (index space).
+    depth (H, W) camera-frame depth, normal (H, W, 3) camera-frame unit normals, rays (H, W, 3) the pixels'
+    rays K⁻¹ [x, y, 1] (``Camera.pixel_rays``).
     """
     h, w = depth.shape
     z = depth.astype(np.float64)
     n = normal.astype(np.float64)
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    k = np.asarray(kinv, np.float64).reshape(3, 3)
-    rays = np.stack([k[0, 0] * xs + k[0, 1] * ys + k[0, 2], k[1, 0] * xs + k[1, 1] * ys + k[1, 2],
-                     k[2, 0] * xs + k[2, 1] * ys + k[2, 2]], axis=-1)
     n_dot_own = np.einsum("hwc,hwc->hw", n, rays)
     edge = np.zeros((h, w), bool)
     for axis in (0, 1):
