@@ -57,8 +57,10 @@ def test_options_defaults_and_validation() -> None:
     assert (acmm.pass_iterations(0), acmm.pass_iterations(1)) == (3, 2)
     assert PatchMatchOptions(schedule="acmm", iterations=5).pass_iterations(1) == 5
     assert o.window_offsets() == [-5, -3, -1, 1, 3, 5]
-    assert o.fine_window == 0 and o.fine_window_offsets() == []
-    assert PatchMatchOptions(fine_window=5).fine_window_offsets() == [-2, -1, 0, 1, 2]
+    # the fine window near depth edges is on by default (a documented deviation from SPEC's single window)
+    assert (o.fine_window, o.fine_edge_radius, o.fine_max_level) == (5, 5, 0)
+    assert o.fine_window_offsets() == [-2, -1, 0, 1, 2]
+    assert PatchMatchOptions(fine_window=0).fine_window_offsets() == []
     assert PatchMatchOptions.from_dict(o.to_dict()) == o
     for bad in (dict(pattern="x"), dict(window=10), dict(k_update=4), dict(iterations=0), dict(levels=0),
                 dict(schedule="fast"), dict(num_threads=-1), dict(sigma_color=0.0), dict(fine_window=4),

@@ -202,7 +202,7 @@ def test_depth_edge_band_finds_occlusions_not_slants() -> None:
     assert not fine_window_region(depth, normal, a, opts, random_start=True).any()
     assert not fine_window_region(depth, normal, a, opts, level=1).any()  # fine_max_level 0
     assert fine_window_region(depth, normal, a, opts.replace(fine_max_level=1), level=1).sum() == band.sum()
-    assert fine_window_region(depth, normal, a, PatchMatchOptions(fine_window=5)) is None
+    assert fine_window_region(depth, normal, a, PatchMatchOptions(fine_edge_radius=0)) is None  # everywhere
     assert fine_window_region(depth, normal, a, PatchMatchOptions(fine_window=0), level=3) is None
 
 
@@ -219,7 +219,7 @@ def test_window_choice_respects_the_allowed_region() -> None:
     ctx = build_context(img, a, [img], [b], opts, fine_allowed=allowed)
     np.testing.assert_array_equal(ctx.wset, free.wset * allowed)
     assert ctx.wset.any() and (free.wset & ~allowed).any()
-    std = build_context(img, a, [img], [b], PatchMatchOptions())
+    std = build_context(img, a, [img], [b], PatchMatchOptions(fine_window=0))
     for y in range(20):
         for x in range(24):
             offsets = ref.window_choice_ref(img.astype(np.float64), x, y, opts, bool(allowed[y, x]))[0]
