@@ -57,21 +57,20 @@ def test_tiny_issue_target(pooled) -> None:
     assert pooled["within_1pct"] >= 90.0, pooled
 
 
-def test_fine_window_sharpens_occlusion_edges(tiny_maps, pooled) -> None:
-    """The default maps (the 5x5 fine window within 5 px of the depth discontinuities of each pass's
-    starting map, measured 89.0 %) against the 11 px window alone (fine_window=0; two levels, ACMM schedule
-    to keep the test short: measured 80.9 %), and the fine window wherever its texture test passes
-    (fine_edge_radius=0, same schedule: measured 90.2 %). The large window's foreground fattening along
-    tiny's occlusion edges is what the fine window removes; the band keeps the 11 px window's precision
-    inside surfaces away from edges
-    (benchmarks/results/fine_window_edges.json)."""
+def test_fine_window_sharpens_occlusion_edges(tiny_maps) -> None:
+    """Two levels, ACMM schedule (a short run), the same options but the window: the default (the 5x5 fine
+    window within 5 px of the depth discontinuities of each pass's starting map, measured 89.7 %) and the
+    fine window wherever its texture test passes (fine_edge_radius=0, measured 90.2 %) against the 11 px
+    window alone (fine_window=0, measured 80.9 %). The large window's foreground fattening along tiny's
+    occlusion edges is what the fine window removes; the band keeps the 11 px window's precision inside
+    surfaces away from edges (benchmarks/results/fine_window_edges.json)."""
     scene = tiny_maps[0]
     views = patchmatch_views(scene)
     quick = dict(levels=2, schedule="acmm")
     window11 = _pooled(scene, run_patchmatch(views, PatchMatchOptions(**quick, fine_window=0)))["within_1pct"]
-    assert pooled["within_1pct"] >= window11 + 5.0, (pooled["within_1pct"], window11)
-    fine = _pooled(scene, run_patchmatch(views, PatchMatchOptions(**quick, fine_edge_radius=0)))["within_1pct"]
-    assert fine >= 88.0 and fine >= window11 + 5.0, (fine, window11)
+    for extra in ({}, {"fine_edge_radius": 0}):
+        fine = _pooled(scene, run_patchmatch(views, PatchMatchOptions(**quick, **extra)))["within_1pct"]
+        assert fine >= 88.0 and fine >= window11 + 5.0, (extra, fine, window11)
 
 
 def test_default_fusion_keeps_the_maps_density(tiny_maps) -> None:
