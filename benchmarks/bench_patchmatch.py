@@ -9,7 +9,9 @@ Reported:
   (N · Σ_pixels S weighted samples; S = 36 with the standard window, 25 where a pixel takes the fine
   window), best of 3, 1 and 2 threads;
 - seconds per view per red-black iteration (black + red half-step) of a photometric pass at the
-  given size and source count (ACMM 5-combination refinement, DeepC pattern), iterations 1..3 averaged;
+  given size and source count (ACMM 5-combination refinement, DeepC pattern), iterations 1..3 averaged,
+  with the NCC windows the iteration evaluated per pixel update (``IterationEvent.ncc_windows``; SPEC
+  §2.12 budgets (K_up + 1 + 5) · N, the cost caches and early exits need far fewer) and per second;
 - JIT compile time: a subprocess running a tiny problem with a fresh NUMBA_CACHE_DIR (cold) and again
   with the cache filled (cached), wall time of the whole process;
 - 1 -> 2 thread speed-up of one iteration at the first size;
@@ -81,11 +83,13 @@ def ncc_throughput(width: int, height: int, n_src: int, threads: int) -> dict:
 def iteration_time(width: int, height: int, n_src: int, threads: int) -> dict:
     views, _ = make_scene(width, height, n_views=n_src + 1)
     times: list[float] = []
+    windows: list[int] = []
 
     class Obs:
         def on_iteration(self, e):
             if e.view == 0 and e.iteration > 0:
                 times.append(e.seconds)
+                windows.append(e.ncc_windows)
 
     opts = PatchMatchOptions(levels=1, geom_passes=0, iterations=4, num_threads=threads)
     # only view 0 is timed: the others keep their images (they are its sources) but get no source
@@ -94,8 +98,11 @@ def iteration_time(width: int, height: int, n_src: int, threads: int) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         run_patchmatch(vs, opts, observer=Obs())
+    per_update = float(np.mean(windows)) / (width * height)
     return {"size": f"{width}x{height}", "sources": n_src, "threads": threads,
-            "seconds_per_view_iteration": float(np.mean(times))}
+            "seconds_per_view_iteration": float(np.mean(times)),
+            "ncc_windows_per_pixel_update": per_update,
+            "ncc_windows_per_s": float(np.sum(windows) / np.sum(times))}
 
 
 def compile_times() -> dict:
@@ -136,7 +143,9 @@ def main() -> None:
         for n in sources:
             r = iteration_time(w, h, n, 2)
             result["iterations"].append(r)
-            print(f"iteration {r['size']} N={n:2d} 2 threads: {r['seconds_per_view_iteration']:7.3f} s/view/iteration")
+            print(f"iteration {r['size']} N={n:2d} 2 threads: {r['seconds_per_view_iteration']:7.3f} s/view/iteration, "
+                  f"{r['ncc_windows_per_pixel_update']:5.1f} NCC windows per pixel update "
+                  f"(SPEC's budget {(16 + 1 + 5) * n}), {r['ncc_windows_per_s'] / 1e6:5.2f} M windows/s")
     w, h = sizes[0]
     one = iteration_time(w, h, sources[0], 1)["seconds_per_view_iteration"]
     two = iteration_time(w, h, sources[0], 2)["seconds_per_view_iteration"]

@@ -52,6 +52,9 @@ CONFIGS: dict[str, dict[str, float]] = {
     "fine5_edges_jump1": {"fine_window": 5, "fine_edge_radius": 5, "fine_edge_jump": 0.01},
     "fine5_edges_var3": {"fine_window": 5, "fine_edge_radius": 5, "fine_min_var": 3e-4},
     "fine5_edges_l1": {"fine_window": 5, "fine_edge_radius": 5, "fine_max_level": 1},
+    # the band with SPEC's decaying good-cost threshold (alpha 90; every result of this benchmark before session
+    # 12 ran with it, the default since then is a constant threshold, alpha 0: results/tau_g_decay.json)
+    "fine5_edges_tau_decay": {"fine_window": 5, "fine_edge_radius": 5, "alpha": 90.0},
 }
 
 

@@ -6,7 +6,8 @@
 Runs ``run_patchmatch`` over all views of the scene (5 source views) and sums ``IterationEvent.seconds``
 (the two half-steps of one iteration, all views) per (level, pass) and per iteration. What the events
 do not cover (initial costs, the detail restorer's reference costs, bilateral moments, upsampling) is
-reported as ``outside_iterations``. When the scene has GT depth, pooled within 1 % / 5 % is printed too,
+reported as ``outside_iterations``. NCC windows per pixel update (``IterationEvent.ncc_windows``) are
+summed per pass. When the scene has GT depth, pooled within 1 % / 5 % is printed too,
 so that option sweeps (``--set``) show quality and time side by side.
 """
 
@@ -35,9 +36,13 @@ class _Timer:
     def __init__(self) -> None:
         self.by_pass: dict[tuple[int, int], float] = collections.defaultdict(float)
         self.by_iter: dict[tuple[int, int, int], float] = collections.defaultdict(float)
+        self.windows: dict[tuple[int, int], int] = collections.defaultdict(int)
+        self.updates: dict[tuple[int, int], int] = collections.defaultdict(int)
 
     def on_iteration(self, e) -> None:
         self.by_pass[(e.level, e.pass_index)] += e.seconds
+        self.windows[(e.level, e.pass_index)] += e.ncc_windows
+        self.updates[(e.level, e.pass_index)] += e.depth.size
         self.by_iter[(e.level, e.pass_index, e.iteration)] += e.seconds
 
 
@@ -71,11 +76,13 @@ def main() -> None:
     maps = run_patchmatch(views, options, observer=timer)
     total = time.perf_counter() - t0
     in_iterations = sum(timer.by_pass.values())
-    print(f"{'level':>5} {'pass':>11} {'seconds':>9} {'share':>6}   per iteration")
+    print(f"{'level':>5} {'pass':>11} {'seconds':>9} {'share':>6} {'windows/update':>14}   per iteration")
     for (level, pass_index), sec in sorted(timer.by_pass.items(), key=lambda kv: (-kv[0][0], kv[0][1])):
         iters = [timer.by_iter[k] for k in sorted(timer.by_iter) if k[:2] == (level, pass_index)]
         kind = "photometric" if pass_index == 0 else f"geometric {pass_index}"
-        print(f"{level:>5} {kind:>11} {sec:9.1f} {100 * sec / total:5.1f}%   " + " ".join(f"{s:.1f}" for s in iters))
+        per_update = timer.windows[(level, pass_index)] / max(timer.updates[(level, pass_index)], 1)
+        print(f"{level:>5} {kind:>11} {sec:9.1f} {100 * sec / total:5.1f}% {per_update:14.1f}   "
+              + " ".join(f"{s:.1f}" for s in iters))
     print(f"total {total:.1f} s, red-black iterations {in_iterations:.1f} s, outside them "
           f"{total - in_iterations:.1f} s")
     depth = _pooled_depth(scene, maps)
@@ -85,7 +92,9 @@ def main() -> None:
         "scene": args.scene, "size": list(views[0].image_gray.shape[::-1]), "views": len(views),
         "options": {"schedule": args.schedule, **overrides},
         "total_seconds": total, "iteration_seconds": in_iterations, "outside_iterations": total - in_iterations,
-        "by_pass": [{"level": k[0], "pass_index": k[1], "seconds": v} for k, v in sorted(timer.by_pass.items())],
+        "by_pass": [{"level": k[0], "pass_index": k[1], "seconds": v,
+                     "ncc_windows_per_pixel_update": timer.windows[k] / max(timer.updates[k], 1)}
+                    for k, v in sorted(timer.by_pass.items())],
         "by_iteration": [{"level": k[0], "pass_index": k[1], "iteration": k[2], "seconds": v}
                          for k, v in sorted(timer.by_iter.items())],
         "depth": depth})

@@ -82,6 +82,8 @@ def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdept
     h, w = Z.shape
     n_views = A.shape[0]
     for y in prange(h):
+        scr = np.empty((6, ox.shape[1]), np.float32)
+        sidx = np.empty(ox.shape[1], np.int32)
         for x in range(w):
             z = np.float64(Z[y, x])
             out[y, x] = 0
@@ -119,7 +121,7 @@ def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdept
                 if check_facing and nx * bx + ny * by + nz * bz <= 0.0:
                     continue
                 cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x], mu_a[y, x],
-                                        var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var)
+                                        var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var, scr, sidx)
                 if cost > max_cost:
                     continue
                 count += 1

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from engine.camera import rescaled_size
-from engine.patchmatch.engine import ROW_CACHE_MAX_BYTES
+from engine.patchmatch.engine import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
@@ -133,9 +133,9 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     per_view_context = 4 * (2 * offsets + 2 + 2 * sources) * largest
     patchmatch = (4 * 4 // 3 + 24 + 4 + 6) * total + per_view_context + 3 * 24 * largest
     # the view being processed keeps per-pass cost caches (engine/patchmatch/engine.py _caches): current
-    # hypothesis costs (float64 per source) and, below ROW_CACHE_MAX_BYTES, the view-selection rows
-    rows = largest * pm.k_viewsel * (sources + 4) * 8
-    patchmatch += 8 * sources * largest + (rows + 4 * largest if rows <= ROW_CACHE_MAX_BYTES else 0)
+    # hypothesis costs (float64 per source), versions and, below ROW_CACHE_MAX_BYTES, the candidate rows
+    rows = row_cache_bytes(largest, 1, pm.k_update, sources)
+    patchmatch += (8 * sources + 4) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
     after = 4 * total + 40 * total + 31 * total + 64 * gt_points + 24 * total
     baseline = current_rss() if baseline is None else baseline

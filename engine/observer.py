@@ -35,6 +35,8 @@ class IterationEvent:
         cost: (H, W) float32 aggregated matching cost of the stored hypothesis. Read-only view.
         selected_views: (H, W) uint32 bitmask over positions in the view's source list. Read-only.
         seconds: wall-clock seconds spent on this iteration.
+        ncc_windows: photometric costs (bilateral NCC windows) evaluated in this iteration; the engine's
+            caches make this far fewer than SPEC §2.12's (K_up + 1 + 5) · N per pixel.
     """
 
     view: int
@@ -49,6 +51,7 @@ class IterationEvent:
     cost: np.ndarray
     selected_views: np.ndarray
     seconds: float
+    ncc_windows: int = 0
 
 
 def readonly(array: np.ndarray) -> np.ndarray:

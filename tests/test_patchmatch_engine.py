@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 
 import numba
@@ -15,6 +16,8 @@ from engine.errors import DeepCError, OptionsError
 from engine.metrics import depth_metrics
 from engine.observer import IterationEvent, NullObserver, ObserverList
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, effective_levels, run_patchmatch
+from engine.patchmatch import kernels as K
+from engine.patchmatch.engine import _params
 
 FAST = dict(iterations=1, levels=2, geom_passes=1)
 
@@ -62,10 +65,16 @@ def test_options_defaults_and_validation() -> None:
     assert o.fine_window_offsets() == [-2, -1, 0, 1, 2]
     assert PatchMatchOptions(fine_window=0).fine_window_offsets() == []
     assert PatchMatchOptions.from_dict(o.to_dict()) == o
+    # the good-cost threshold stays at tau0 over a pass by default (a documented deviation from SPEC's
+    # decay, alpha = 90, which --set patchmatch.alpha=90 restores)
+    assert o.alpha == 0.0
+    assert [_params(o, 1.0, 2.0, t, False, False, 24)[0][K.F_TAU_G] for t in (0, 7)] == [0.8, 0.8]
+    spec = PatchMatchOptions(alpha=90.0)
+    assert _params(spec, 1.0, 2.0, 7, False, False, 24)[0][K.F_TAU_G] == pytest.approx(0.8 * math.exp(-49 / 90))
     for bad in (dict(pattern="x"), dict(window=10), dict(k_update=4), dict(iterations=0), dict(levels=0),
                 dict(schedule="fast"), dict(num_threads=-1), dict(sigma_color=0.0), dict(fine_window=4),
                 dict(fine_window=1), dict(fine_window_step=3), dict(fine_sigma_color=0.0), dict(fine_min_var=-1.0),
-                dict(fine_max_level=8), dict(fine_edge_radius=-1), dict(fine_edge_jump=0.0)):
+                dict(fine_max_level=8), dict(fine_edge_radius=-1), dict(fine_edge_jump=0.0), dict(alpha=-1.0)):
         with pytest.raises(OptionsError):
             PatchMatchOptions(**bad).validate()
 

@@ -14,11 +14,13 @@ from engine.patchmatch import reference as ref
 from engine.patchmatch.context import build_context, depth_edge_band, fine_window_region
 from engine.patchmatch.engine import _params, _State, half_step, init_cost
 from engine.patchmatch.geometry import perturb_normal, propagate_depth, random_normal, ray, relative_geometry
-from engine.patchmatch.ncc import bilateral_moments, ncc_cost, pad_sources, window_offsets_2d
+from engine.patchmatch.ncc import bilateral_moments, ncc_cost, ncc_scratch, pad_sources, window_offsets_2d
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import area_resize, jbu_upsample
 from engine.patchmatch.rng import combine, stream_key, uniform
 from engine.patchmatch.view_selection import view_weights
+
+SCR = ncc_scratch(128)  # scratch of the cost functions (windows of up to 128 samples)
 
 
 def _smooth_noise(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
@@ -73,7 +75,7 @@ def test_ncc_cost_matches_reference(step: int) -> None:
         H32 = H.astype(np.float32)
         x, y = int(rng.integers(0, 24)), int(rng.integers(0, 20))
         got = ncc_cost(stack.ravel(), 0, stack.shape[2], 26, 18, wgt[y, x], wa[y, x], mu[y, x], var[y, x], ox, oy,
-                       x, y, *H32.ravel(), np.float32(1e-5))
+                       x, y, *H32.ravel(), np.float32(1e-5), *SCR)
         want = ref.ncc_cost_ref(ref_img, src_img, H32.astype(np.float64), x, y, offs)
         assert got == pytest.approx(want, abs=2e-4)
         n_two += want == 2.0
@@ -105,7 +107,7 @@ def test_homography_and_photometric_cost_match_reference() -> None:
         assert ok
         got = K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, 0, ctx.wgt[y, x],
                                  ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], *ctx.offsets_at(x, y), x, y, m0, m1,
-                                 m2, 1e-5)
+                                 m2, 1e-5, *SCR)
         assert got == pytest.approx(want, abs=5e-4)
 
 
@@ -369,16 +371,16 @@ def test_init_cost_matches_reference(geometric: bool) -> None:
     assert (st.S == S_ref).mean() > 0.97  # masks may differ only on near-ties
 
 
-@pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps", [
-    (False, "deepc", "monte_carlo", "acmm5", False, None),
-    (True, "acmm", "deterministic", "all8", False, None),
-    (False, "deepc_far", "deterministic", "acmm5", False, 2.0**-6),
-    (False, "deepc", "monte_carlo", "acmm5", True, 2.0**-7),
+@pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps,alpha", [
+    (False, "deepc", "monte_carlo", "acmm5", False, None, 0.0),
+    (True, "acmm", "deterministic", "all8", False, None, 0.0),
+    (False, "deepc_far", "deterministic", "acmm5", False, 2.0**-6, 2.0),  # decaying tau_g: 0.49 at t = 1
+    (False, "deepc", "monte_carlo", "acmm5", True, 2.0**-7, 0.0),
 ])
 def test_half_step_matches_reference(geometric: bool, pattern: str, view_sampling: str, combos: str, detail: bool,
-                                     eps: float | None) -> None:
+                                     eps: float | None, alpha: float) -> None:
     opts = PatchMatchOptions(pattern=pattern, view_sampling=view_sampling, combos=combos, k_update=10, k_viewsel=6,
-                             fine_window=0 if pattern == "deepc_far" else 5)
+                             fine_window=0 if pattern == "deepc_far" else 5, alpha=alpha)
     ctx, prob, st = _tiny_problem(9, geometric, opts)
     pat, region = sampling_pattern(pattern)
     fp, ip = _params(opts, 2.0, 5.0, 1, geometric, detail, int(region.max()) + 1, eps)
@@ -412,7 +414,8 @@ def test_view_order_is_heaviest_first_over_positive_weights() -> None:
 @pytest.mark.parametrize("geometric", [False, True])
 def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bool) -> None:
     """Heaviest-view-first evaluation with early exit (in geometric passes first on the geometric terms
-    alone), the cached-row path and the current-hypothesis path give exactly the value of
+    and the costs already known), with no, some or all of the costs known from a cached row, and the
+    current-hypothesis path give exactly the value of
     Σ_j v_j (m_j + λ g_j) summed in view order (BIG when that reaches the threshold), which is what
     every earlier engine computed: regression baselines depend on it."""
     opts = PatchMatchOptions(fine_window=5)
@@ -436,7 +439,8 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
         m0, m1, m2, ok = plane_vector(ctx.kinv, rp, z, *n)
         row = np.array([K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, j,
                                            ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
-                                           *ctx.offsets_at(x, y), x, y, m0, m1, m2, min_var) for j in range(n_src)])
+                                           *ctx.offsets_at(x, y), x, y, m0, m1, m2, min_var, *SCR)
+                        for j in range(n_src)])
         acc = geom_only = 0.0
         for j in range(n_src):
             if v[j] > 0:
@@ -451,19 +455,24 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
         exits += want == K.BIG
         geometric_exits += geom_only >= threshold * vsum  # rejected before any image window is sampled
         n_sel = K.view_order(v, order)
-        got = K.aggregated_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth,
-                                ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
-                                *ctx.offsets_at(x, y), x, y, rp, z, n[0], n[1], n[2], v, vsum, order, n_sel, terms,
-                                geometric, lam, gmax, min_var, threshold)
-        assert got == want
-        assert K.row_cost(row, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sizes, ctx.sdepth, x, y, z, v, vsum, geometric, lam,
-                          gmax, threshold) == want
+        # no cost known, all known (the row of an unchanged neighbour's candidate), some known
+        for known_views in (np.zeros(n_src, bool), np.ones(n_src, bool), rng.random(n_src) < 0.5):
+            given = np.where(known_views, row, np.nan)
+            got = K.aggregated_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c,
+                                    ctx.sdepth, ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
+                                    *ctx.offsets_at(x, y), x, y, rp, z, n[0], n[1], n[2], v, vsum, order, n_sel,
+                                    terms, geometric, lam, gmax, min_var, threshold, given, *SCR)
+            assert got == want
+            # what it evaluated was added to the row, exactly
+            assert np.array_equal(given[~np.isnan(given)], row[~np.isnan(given)])
+            if want != K.BIG:
+                assert not np.isnan(given[v > 0]).any()
         known = np.full(n_src, np.nan)
         known[: n_src // 2] = row[: n_src // 2]
         assert K.current_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth,
                               ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
                               *ctx.offsets_at(x, y), x, y, rp, z, n[0], n[1], n[2], v, vsum, geometric, lam, gmax,
-                              min_var, known) == acc / vsum
+                              min_var, known, *SCR) == acc / vsum
         assert np.array_equal(known[v > 0], row[v > 0])  # evaluated views were added to the cache
     assert 10 < exits < 140
     assert (geometric_exits > 5) == geometric, geometric_exits  # the geometric-only bound was exercised
@@ -472,7 +481,7 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
 @pytest.mark.parametrize("geometric,combos", [(False, "acmm5"), (True, "all8")])
 def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> None:
     """Half-steps with the per-pass cost caches live give bit-identical maps to half-steps that start
-    every update from empty caches (i.e. evaluate every cost afresh)."""
+    every update from empty caches (i.e. evaluate every cost afresh), with far fewer NCC windows."""
     opts = PatchMatchOptions(combos=combos)
     ctx, _, st = _tiny_problem(12, geometric, opts)
     pat, region = sampling_pattern(opts.pattern)
@@ -480,18 +489,37 @@ def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> N
     init_cost(st, ctx, fp, ip)
     fresh = _State(st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy())
     hits = 0
+    n_cached = np.zeros(K.N_COUNTS, np.int64)
+    n_fresh = np.zeros(K.N_COUNTS, np.int64)
     for t in range(4):
         fp, ip = _params(opts, 2.0, 5.0, t, geometric, False, int(region.max()) + 1)
         for colour in (0, 1):
             key = np.uint64(stream_key(4, 0, 0, 0, t, colour))
             if t > 0:
                 hits += int(np.sum(st.RN > 0))
-            half_step(st, ctx, colour, st.C.copy(), pat, region, key, fp, ip)
+            n_cached += half_step(st, ctx, colour, st.C.copy(), pat, region, key, fp, ip)
             fresh.drop_caches()
-            half_step(fresh, ctx, colour, fresh.C.copy(), pat, region, key, fp, ip)
+            n_fresh += half_step(fresh, ctx, colour, fresh.C.copy(), pat, region, key, fp, ip)
             for a, b in ((st.Z, fresh.Z), (st.N, fresh.N), (st.C, fresh.C), (st.S, fresh.S)):
                 assert a.tobytes() == b.tobytes()
     assert hits > 0
+    assert n_cached[K.CNT_PIXELS] == n_fresh[K.CNT_PIXELS] == 4 * st.Z.size
+    # every pixel update: the view-selection rows cost at most K_vs windows per source view afresh, and
+    # the refinement (never cached) the same with and without caches
+    assert 0 < n_fresh[K.CNT_ROWS] <= opts.k_viewsel * ctx.num_sources * n_fresh[K.CNT_PIXELS]
+    assert n_cached[K.CNT_REFINE] == n_fresh[K.CNT_REFINE] > 0
+    assert n_cached[K.CNT_ROWS] < 0.9 * n_fresh[K.CNT_ROWS]
+    assert n_cached[K.CNT_REMAINING] < n_fresh[K.CNT_REMAINING]
+    assert n_cached[K.CNT_CURRENT] < n_fresh[K.CNT_CURRENT]
+    # slots the next update would hit: the sample's pixel still has the version the row was made with
+    h, w = st.Z.shape
+    live = 0
+    for y in range(h):
+        for x in range(w):
+            for k in range(st.RN[y, x]):
+                dx, dy = pat[st.RS[y, x, k]]
+                live += st.RV[y, x, k] == st.VER[y + dy, x + dx]
+    assert live > 0.2 * st.RN.sum(), (live, st.RN.sum())
     # the cached per-view costs of the stored hypotheses are their true costs
     known = ~np.isnan(st.P)
     assert known.mean() > 0.1

@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from engine.camera import Camera
 from engine.patchmatch.geometry import relative_geometry
-from engine.patchmatch.ncc import bilateral_moments, pad_sources, window_offsets_2d
+from engine.patchmatch.ncc import pad_sources, window_offsets_2d, window_terms
 from engine.patchmatch.options import PatchMatchOptions
 
 
@@ -115,30 +115,13 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     """
     offs = window_offsets_2d(options.window_offsets())
     sigma_c = weighting_sigma(options)
-    wgt, wa, mu_a, var_a = bilateral_moments(ref_img, offs, options.ncc_weighting, options.sigma_spatial, sigma_c)
-    h, w = ref_img.shape
-    if not options.fine_window or (fine_allowed is not None and not fine_allowed.any()):
-        return wgt, wa, mu_a, var_a, np.zeros((h, w), np.uint8), [offs]
-    offs_f = window_offsets_2d(options.fine_window_offsets())
+    use_fine = bool(options.fine_window) and (fine_allowed is None or bool(fine_allowed.any()))
+    offs_f = window_offsets_2d(options.fine_window_offsets()) if use_fine else np.zeros((0, 2), np.int32)
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
-    wgt_f, wa_f, mu_f, var_f = bilateral_moments(ref_img, offs_f, options.ncc_weighting, options.fine_sigma_spatial,
-                                                 fine_c)
-    var_test = var_f if fine_c == sigma_c else bilateral_moments(ref_img, offs_f, options.ncc_weighting,
-                                                                 options.fine_sigma_spatial, sigma_c)[3]
-    fine = var_test >= np.float32(options.fine_min_var)
-    if fine_allowed is not None:
-        fine &= fine_allowed
-    s0, s1 = len(offs), len(offs_f)
-    if s1 > s0:
-        pad = np.zeros((h, w, s1 - s0), np.float32)
-        wgt, wa = np.concatenate([wgt, pad], axis=2), np.concatenate([wa, pad], axis=2)
-    wgt[fine] = 0.0
-    wa[fine] = 0.0
-    wgt[fine, :s1] = wgt_f[fine]
-    wa[fine, :s1] = wa_f[fine]
-    mu_a[fine] = mu_f[fine]
-    var_a[fine] = var_f[fine]
-    return wgt, wa, mu_a, var_a, fine.astype(np.uint8), [offs, offs_f]
+    wgt, wa, mu_a, var_a, wset = window_terms(ref_img, offs, offs_f, options.ncc_weighting, options.sigma_spatial,
+                                              sigma_c, options.fine_sigma_spatial, fine_c, options.fine_min_var,
+                                              fine_allowed)
+    return wgt, wa, mu_a, var_a, wset, [offs, offs_f] if use_fine else [offs]
 
 
 def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, options: PatchMatchOptions,

@@ -32,8 +32,8 @@ from engine.patchmatch.rng import stream_key
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
 RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
-# the view-selection row cache takes K_vs · (N + 4) · 8 bytes per pixel (226 MB at 768x512, 5 sources);
-# above this it is left out (results are the same either way, only slower)
+# the candidate row cache takes K_up · (4 N + 6) + 4 bytes per pixel (165 MB at 768x512 with 5 sources,
+# 291 MB with 10); above this it is left out (results are the same either way, only slower)
 ROW_CACHE_MAX_BYTES = 2 << 30
 
 ProgressFn = Callable[[str, int, int], Any]
@@ -83,20 +83,23 @@ class ViewMaps:
 class _State:
     """Mutable per-view maps at the current level, and the cost caches of the running pass (set by
     :func:`init_cost`, see ``kernels.half_step_kernel``): ``P`` (H, W, N) f64 per-view photometric cost
-    of each pixel's stored hypothesis (NaN = unknown); ``RK`` (H, W, K_vs, 4) f64, ``RC`` (H, W, K_vs, N)
-    f64, ``RN`` (H, W) i32: hypotheses and cost rows of each pixel's last view-selection matrix."""
+    of each pixel's stored hypothesis (NaN = unknown); ``VER`` (H, W) u32 hypothesis versions; ``RS``
+    (H, W, K_up) i16, ``RV`` (H, W, K_up) u32, ``RC`` (H, W, K_up, N) f32, ``RN`` (H, W) i32: the
+    candidates (pattern sample and its pixel's version) and cost rows of each pixel's last update."""
 
     Z: np.ndarray
     N: np.ndarray
     C: np.ndarray
     S: np.ndarray
     P: np.ndarray | None = None
-    RK: np.ndarray | None = None
+    VER: np.ndarray | None = None
+    RS: np.ndarray | None = None
+    RV: np.ndarray | None = None
     RC: np.ndarray | None = None
     RN: np.ndarray | None = None
 
     def drop_caches(self) -> None:
-        self.P = self.RK = self.RC = self.RN = None
+        self.P = self.VER = self.RS = self.RV = self.RC = self.RN = None
 
 
 def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
@@ -164,7 +167,7 @@ def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int
     fp[K.F_ZMIN] = zmin
     fp[K.F_ZMAX] = zmax
     fp[K.F_EPS] = 2.0 ** (-iteration) if eps is None else eps
-    fp[K.F_TAU_G] = options.tau0 * math.exp(-(iteration**2) / options.alpha)
+    fp[K.F_TAU_G] = options.tau0 * (math.exp(-(iteration**2) / options.alpha) if options.alpha > 0 else 1.0)
     fp[K.F_TAU_BAD] = options.tau_bad
     fp[K.F_BETA] = options.beta
     fp[K.F_BETA_FB] = options.beta_fallback
@@ -190,21 +193,31 @@ def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int
     return fp, ip
 
 
-def _caches(state: _State, ctx: ViewContext, k_vs: int, reset: bool) -> bool:
+def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
+    """Bytes of the candidate row cache of an (h, w) view (see :class:`_State`)."""
+    return h * w * (k_up * (4 * n_sources + 2 + 4) + 4)
+
+
+def _caches(state: _State, ctx: ViewContext, k_up: int, reset: bool) -> bool:
     """(Re)allocate the state's cost caches for this context; ``reset`` empties them (new pass).
     Returns whether the row cache is used (it is left out above ROW_CACHE_MAX_BYTES)."""
     h, w = state.Z.shape
     n = ctx.num_sources
     if state.P is None or state.P.shape != (h, w, n):
         state.P = np.full((h, w, n), np.nan)
+        state.VER = np.zeros((h, w), np.uint32)
         reset = True
-    rows = h * w * k_vs * (n + 4) * 8 <= ROW_CACHE_MAX_BYTES
+    rows = row_cache_bytes(h, w, k_up, n) <= ROW_CACHE_MAX_BYTES
     if not rows:
-        state.RK, state.RC, state.RN = np.empty((1, 1, k_vs, 4)), np.empty((1, 1, k_vs, n)), np.zeros((1, 1), np.int32)
-    elif state.RN is None or state.RC.shape != (h, w, k_vs, n):
-        state.RK, state.RC, state.RN = np.empty((h, w, k_vs, 4)), np.empty((h, w, k_vs, n)), np.zeros((h, w), np.int32)
+        state.RS, state.RV = np.empty((1, 1, k_up), np.int16), np.empty((1, 1, k_up), np.uint32)
+        state.RC, state.RN = np.empty((1, 1, k_up, n), np.float32), np.zeros((1, 1), np.int32)
+    elif state.RN is None or state.RC.shape != (h, w, k_up, n):
+        state.RS, state.RV = np.empty((h, w, k_up), np.int16), np.empty((h, w, k_up), np.uint32)
+        state.RC, state.RN = np.empty((h, w, k_up, n), np.float32), np.zeros((h, w), np.int32)
     elif reset:
         state.RN[:] = 0
+    if reset:
+        state.VER[:] = 0
     return rows
 
 
@@ -212,7 +225,7 @@ def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, c
     """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule); with ``cache``
     also (re)start the cost caches the half-steps of this pass read."""
     if cache:
-        _caches(state, ctx, int(ip[K.I_K_VS]), True)
+        _caches(state, ctx, int(ip[K.I_K_UP]), True)
     P = state.P if cache else np.empty((1, 1, 1))
     K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
                        ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
@@ -220,13 +233,20 @@ def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, c
 
 
 def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
-              region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> None:
+              region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> np.ndarray:
     """One red or black half-step on one view (in place). Call :func:`init_cost` first in every pass
-    (and after changing the state's maps from outside): it fills the cost cache the half-steps trust."""
-    rows = _caches(state, ctx, int(ip[K.I_K_VS]), False)
-    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.RK, state.RC, state.RN, rows, cpre,
+    (and after changing the state's maps from outside): it fills the cost cache the half-steps trust.
+
+    Returns (N_COUNTS,) int64: NCC windows evaluated for the view-selection rows, the current
+    hypotheses, the remaining candidates and the refinement, and the number of pixels updated."""
+    rows = _caches(state, ctx, int(ip[K.I_K_UP]), False)
+    counts = np.zeros((state.Z.shape[0], K.N_COUNTS), np.int64)
+    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.VER, state.RS, state.RV, state.RC,
+                       state.RN, rows, cpre,
                        ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv,
-                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, fp, ip)
+                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, fp, ip,
+                       counts)
+    return counts.sum(axis=0)
 
 
 def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,
@@ -426,14 +446,16 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
         t0 = time.perf_counter()
         fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
                          perturbation_scale(options, t, done_before))
+        counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, i, level, pass_index, t, colour))
-            half_step(st, ctx, colour, cpre, pat, region, key, fp, ip)
+            counts += half_step(st, ctx, colour, cpre, pat, region, key, fp, ip)
         if on_iter is not None:
             on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
                                    iteration=t, step=step, depth=readonly(st.Z), normal=readonly(st.N),
                                    cost=readonly(st.C), selected_views=readonly(st.S),
-                                   seconds=time.perf_counter() - t0))
+                                   seconds=time.perf_counter() - t0,
+                                   ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
         step += 1
     st.drop_caches()  # only valid within this pass (ctx); do not keep them for every view
     return step

@@ -32,6 +32,10 @@ from engine.patchmatch.view_selection import view_weights
 F_ZMIN, F_ZMAX, F_EPS, F_TAU_G, F_TAU_BAD, F_BETA, F_BETA_FB, F_PRIOR_IN, F_PRIOR_OUT = range(9)
 F_GEOM_LAMBDA, F_GEOM_MAX, F_MIN_VAR, F_DETAIL_DELTA = range(9, 13)
 N_FP = 13
+# columns of the half-step's counts (H, N_COUNTS): NCC windows evaluated for the view-selection rows, the
+# current hypothesis, the remaining candidates and the refinement hypotheses; pixels updated
+CNT_ROWS, CNT_CURRENT, CNT_REMAINING, CNT_REFINE, CNT_PIXELS = range(5)
+N_COUNTS = 5
 # int parameters
 I_K_VS, I_K_UP, I_PLANE, I_GEOM, I_DETAIL, I_DETERMINISTIC, I_MC, I_N_GOOD, I_N_BAD = range(9)
 I_ALL8, I_RETRIES, I_TOP_K, I_N_REGIONS = range(9, 13)
@@ -41,7 +45,8 @@ BIG = 1e30
 
 
 @njit(cache=True, fastmath=True, _nrt=False)
-def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2, min_var):
+def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2, min_var, scr,
+                     sidx):
     """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y)."""
     h00 = np.float32(A[j, 0] - b[j, 0] * m0)
     h01 = np.float32(A[j, 1] - b[j, 0] * m1)
@@ -53,7 +58,7 @@ def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, o
     h21 = np.float32(A[j, 7] - b[j, 2] * m1)
     h22 = np.float32(A[j, 8] - b[j, 2] * m2)
     return ncc_cost(src, j * plane, stride, sizes[j, 0], sizes[j, 1], wgt_p, wa_p, mu, var, ox, oy, x, y,
-                    h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var))
+                    h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var), scr, sidx)
 
 
 @njit(cache=True, _nrt=False)
@@ -91,63 +96,72 @@ def view_order(v, order):
 
 @njit(cache=True, _nrt=False)
 def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
-                    z, nx, ny, nz, v, vsum, order, n_sel, terms, geom, lam, gmax, min_var, threshold):
+                    z, nx, ny, nz, v, vsum, order, n_sel, terms, geom, lam, gmax, min_var, threshold, row, scr, sidx):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y); BIG once it is proven >= ``threshold``.
 
+    ``row`` (N,) holds the m_j known already (NaN = unknown; the ones evaluated here are added).
     The result equals summing the terms in view order and returning BIG when that sum reaches
-    ``threshold · vsum`` (all terms are >= 0, so a partial sum only grows): views are evaluated in
-    ``order`` (the n_sel views with v_j > 0, heaviest first, see :func:`view_order`) so that a losing
-    hypothesis is usually rejected after one or two views; the terms of a hypothesis that survives are
-    summed again in view order, so its cost is bit-identical to the plain sum. ``terms`` is scratch (N,)."""
+    ``threshold · vsum`` (all terms are >= 0, so a partial sum only grows): the known terms (and in
+    geometric passes the geometric parts, which need no image window) are summed first, then the
+    missing m_j are evaluated in ``order`` (the n_sel views with v_j > 0, heaviest first, see
+    :func:`view_order`) so that a losing hypothesis is usually rejected after one or two windows; the
+    terms of a hypothesis that survives are summed again in view order, so its cost is bit-identical to
+    the plain sum. ``terms`` is scratch (N,)."""
     m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
     if not ok:
         return BIG
     limit = threshold * vsum
-    # ``partial`` bounds the sum from below: the terms of the views evaluated so far plus, in geometric
-    # passes, the geometric parts of all others. Those need no image window (about a third of the cost
-    # of a photometric term) and alone reject most hypotheses with a wrong depth.
+    # ``partial`` bounds the sum from below: first the known costs (free), then the geometric terms
+    # (no image window, but a read of the source depth at a point anywhere in the source for a random
+    # depth: a wrong depth usually exits at the first view), then the missing windows
     partial = 0.0
+    for i in range(n_sel):
+        j = order[i]
+        terms[j] = 0.0
+        if not math.isnan(row[j]):
+            partial += v[j] * row[j]
+    if partial * (1.0 - EXIT_MARGIN) >= limit:
+        return BIG
     if geom:
         for i in range(n_sel):
             j = order[i]
             g = lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
             terms[j] = g
             partial += v[j] * g
-        if partial * (1.0 - EXIT_MARGIN) >= limit:
-            return BIG
+            if partial * (1.0 - EXIT_MARGIN) >= limit:
+                return BIG
     for i in range(n_sel):
         j = order[i]
+        if not math.isnan(row[j]):
+            continue
         cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2,
-                                min_var)
+                                min_var, scr, sidx)
+        row[j] = cost
         partial += v[j] * cost
-        if geom:
-            cost += terms[j]
-        terms[j] = v[j] * cost
         if partial * (1.0 - EXIT_MARGIN) >= limit:
             return BIG
     acc = 0.0
     for j in range(v.shape[0]):
         if v[j] > 0.0:
-            acc += terms[j]
+            acc += v[j] * (row[j] + terms[j])
     if acc >= limit:
         return BIG
     return acc / vsum
 
 
 @njit(cache=True, _nrt=False)
-def photometric_part_below(row, v, vsum, threshold):
-    """False when Σ_j v_j row_j alone proves that the full cost Σ_j v_j (row_j + λ g_j) / Σ_j v_j is
-    >= ``threshold`` (same margin as :func:`aggregated_cost`'s early exit)."""
-    photo = 0.0
-    for j in range(v.shape[0]):
-        if v[j] > 0.0:
-            photo += v[j] * row[j]
-    return photo * (1.0 - EXIT_MARGIN) < threshold * vsum
+def n_known(row):
+    """Number of entries of ``row`` that are not NaN."""
+    n = 0
+    for j in range(row.shape[0]):
+        if not math.isnan(row[j]):
+            n += 1
+    return n
 
 
 @njit(cache=True, _nrt=False)
 def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
-                 z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, known):
+                 z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, known, scr, sidx):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j of the stored hypothesis (z, n) at (x, y), BIG if it has no plane.
 
     ``known`` (N,) caches m_j of this hypothesis (NaN = not evaluated yet): cached views are not
@@ -164,42 +178,13 @@ def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_
         cost = known[j]
         if math.isnan(cost):
             cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1,
-                                    m2, min_var)
+                                    m2, min_var, scr, sidx)
             known[j] = cost
         if geom:
             cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
         acc += vj * cost
         if acc >= limit:
             return BIG
-    return acc / vsum
-
-
-@njit(cache=True, _nrt=False)
-def find_row(keys, n_rows, z, nx, ny, nz):
-    """Index of the cached cost row whose hypothesis is exactly (z, n) among the first ``n_rows`` of
-    ``keys`` (K, 4) f64, or -1."""
-    for r in range(n_rows):
-        if keys[r, 0] == z and keys[r, 1] == nx and keys[r, 2] == ny and keys[r, 3] == nz:
-            return r
-    return -1
-
-
-@njit(cache=True, _nrt=False)
-def row_cost(row, A, b, B, c, sizes, sdepth, x, y, z, v, vsum, geom, lam, gmax, threshold):
-    """:func:`aggregated_cost` of a hypothesis whose photometric costs ``row`` (N,) over all views are
-    known (its plane exists): the same terms summed in the same order, BIG when >= ``threshold``."""
-    limit = threshold * vsum
-    if geom and not photometric_part_below(row, v, vsum, threshold):
-        return BIG  # the geometric terms only add
-    acc = 0.0
-    for j in range(v.shape[0]):
-        if v[j] > 0.0:
-            cost = row[j]
-            if geom:
-                cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
-            acc += v[j] * cost
-    if acc >= limit:
-        return BIG
     return acc / vsum
 
 
@@ -241,6 +226,8 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
+        scr = np.empty((6, ox.shape[1]), np.float32)
+        sidx = np.empty(ox.shape[1], np.int32)
         for x in range(w):
             z = Z[y, x]
             rp = ray(kinv, x, y)
@@ -255,7 +242,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
             for j in range(n_views):
                 if ok and z > 0.0:
                     costs[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x],
-                                                mu_a[y, x], var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var)
+                                                mu_a[y, x], var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var, scr, sidx)
                     if store:
                         P[y, x, j] = costs[j]
                 else:
@@ -292,16 +279,19 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c, sdepth,
-                     kinv, wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip):
-    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7).
+def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c,
+                     sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip, counts):
+    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7); add what it evaluated to
+    ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
 
     P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
     ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
-    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it.
-    With ``rows``, RK (H, W, K_vs, 4) f64 keys (z, n), RC (H, W, K_vs, N) f64 cost rows and RN (H, W)
-    i32 counts cache the view-selection rows of each pixel's previous update (RN = 0 at the start of
-    a pass): a candidate proposed again by an unchanged neighbour is bit-identical, so are its costs."""
+    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it
+    and increments the pixel's version VER (H, W) u32. With ``rows``, RS (H, W, K_up) i16 pattern
+    samples, RV (H, W, K_up) u32 their pixels' versions, RC (H, W, K_up, N) f32 photometric costs
+    (NaN = not evaluated) and RN (H, W) i32 counts cache the candidates of each pixel's previous
+    update (RN = 0 at the start of a pass): a candidate proposed again by the same sample of an
+    unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values)."""
     h, w = Z.shape
     n_views = A.shape[0]
     zmin = fp[F_ZMIN]
@@ -326,7 +316,11 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
         cand_z = np.empty(k_up, np.float64)
         cand_n = np.empty((k_up, 3), np.float64)
         cand_c = np.empty(k_up, np.float32)
-        M = np.empty((k_vs, n_views), np.float64)
+        cand_s = np.empty(k_up, np.int64)
+        cand_v = np.empty(k_up, np.uint32)
+        R = np.empty((k_up, n_views), np.float64)
+        M = R[:k_vs]
+        hrow = np.empty(n_views, np.float64)
         omega = np.empty(n_views, np.float64)
         v = np.empty(n_views, np.float64)
         tmp = np.empty(n_views, np.float64)
@@ -334,7 +328,11 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
         order = np.empty(n_views, np.int64)
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
+        scr = np.empty((6, ox.shape[1]), np.float32)
+        sidx = np.empty(ox.shape[1], np.int32)
+        n_rows = n_cur = n_rem = n_ref = n_px = 0
         for x in range((y + colour) % 2, w, 2):
+            n_px += 1
             pk = combine(key, y * w + x)
             rp = ray(kinv, x, y)
             wgt_p = wgt[y, x]
@@ -345,24 +343,40 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
             oxp = ox[ws, :ns[ws]]
             oyp = oy[ws, :ns[ws]]
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
-                                       reg_cost, reg_idx, cand_z, cand_n, cand_c)
+                                       reg_cost, reg_idx, cand_z, cand_n, cand_c, cand_s)
             n_vs = min(n_cand, k_vs)
             n_old = RN[y, x] if rows else 0
-            keys = RK[y, x] if rows else RK[0, 0]
+            # cost rows of the candidates: what the previous update of this pixel evaluated, if the same
+            # sample's pixel has not changed since (R[k, j] NaN = unknown)
+            for k in range(n_cand):
+                sk = cand_s[k]
+                ver = VER[y + pat[sk, 1], x + pat[sk, 0]]
+                cand_v[k] = ver
+                r = -1
+                for i in range(n_old):
+                    if RS[y, x, i] == sk and RV[y, x, i] == ver:
+                        r = i
+                        break
+                for j in range(n_views):
+                    R[k, j] = RC[y, x, r, j] if r >= 0 else np.nan
             # photometric cost matrix of the best candidates over all views (drives view selection)
             for k in range(n_vs):
-                r = find_row(keys, n_old, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
-                if r >= 0:
-                    for j in range(n_views):
-                        M[k, j] = RC[y, x, r, j]
+                missing = False
+                for j in range(n_views):
+                    if math.isnan(R[k, j]):
+                        missing = True
+                if not missing:
                     continue
                 m0, m1, m2, ok = plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
                 for j in range(n_views):
+                    if not math.isnan(R[k, j]):
+                        continue
                     if ok:
-                        M[k, j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, oxp, oyp,
-                                                   x, y, m0, m1, m2, min_var)
+                        n_rows += 1
+                        R[k, j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, oxp, oyp,
+                                                   x, y, m0, m1, m2, min_var, scr, sidx)
                     else:
-                        M[k, j] = 2.0
+                        R[k, j] = 2.0
             vsum = view_weights(M, n_vs, n_views, Sel, x, y, fp[F_TAU_G], fp[F_TAU_BAD], fp[F_BETA],
                                 fp[F_BETA_FB], ip[I_N_GOOD], ip[I_N_BAD], fp[F_PRIOR_IN], fp[F_PRIOR_OUT],
                                 ip[I_DETERMINISTIC] != 0, mc, pk, 0, omega, v)
@@ -371,6 +385,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
             n0y = np.float64(Nrm[y, x, 1])
             n0z = np.float64(Nrm[y, x, 2])
             known = P[y, x]
+            n_cur -= n_known(known)
             if vsum <= 0.0:
                 # degenerate weights: the top_k views with the lowest cost of the current hypothesis
                 m0, m1, m2, ok = plane_vector(kinv, rp, z0, n0x, n0y, n0z)
@@ -378,7 +393,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                     if ok:
                         if math.isnan(known[j]):
                             known[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var,
-                                                        oxp, oyp, x, y, m0, m1, m2, min_var)
+                                                        oxp, oyp, x, y, m0, m1, m2, min_var, scr, sidx)
                         tmp[j] = known[j]
                     else:
                         tmp[j] = 2.0
@@ -394,7 +409,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                         v[j] = 0.0
             # current hypothesis, full cost (the baseline all others must beat)
             c_cur = current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, oxp, oyp,
-                                 x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, known)
+                                 x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, known, scr, sidx)
+            n_cur += n_known(known)
             n_sel = view_order(v, order)
             if c_cur >= BIG:
                 c_cur = 2.0 + (lam * gmax if geom else 0.0)
@@ -407,14 +423,28 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
             won = False
             # candidates with a full cost row: aggregate from M
             for k in range(n_vs):
-                if geom and not photometric_part_below(M[k], v, vsum, best):
-                    continue  # the geometric terms only add
+                if geom:
+                    # lower bound: all photometric terms, then the geometric ones view by view
+                    bound = 0.0
+                    for j in range(n_views):
+                        if v[j] > 0.0:
+                            bound += v[j] * M[k, j]
+                    losing = bound * (1.0 - EXIT_MARGIN) >= best * vsum
+                    for i in range(n_sel):
+                        if losing:
+                            break
+                        j = order[i]
+                        terms[j] = lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, cand_z[k], gmax)
+                        bound += v[j] * terms[j]
+                        losing = bound * (1.0 - EXIT_MARGIN) >= best * vsum
+                    if losing:
+                        continue
                 acc = 0.0
                 for j in range(n_views):
                     if v[j] > 0.0:
                         cost = M[k, j]
                         if geom:
-                            cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, cand_z[k], gmax)
+                            cost += terms[j]
                         acc += v[j] * cost
                 cost = acc / vsum
                 if cost < best:
@@ -426,14 +456,11 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                     won = True
             # remaining candidates: only the selected views, early exit
             for k in range(n_vs, n_cand):
-                r = find_row(keys, n_old, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])
-                if r >= 0 and plane_vector(kinv, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2])[3]:
-                    cost = row_cost(RC[y, x, r], A, b, B, c, sizes, sdepth, x, y, cand_z[k], v, vsum, geom, lam, gmax,
-                                    best)
-                else:
-                    cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var,
-                                           oxp, oyp, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
-                                           vsum, order, n_sel, terms, geom, lam, gmax, min_var, best)
+                n_rem -= n_known(R[k])
+                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var,
+                                       oxp, oyp, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
+                                       vsum, order, n_sel, terms, geom, lam, gmax, min_var, best, R[k], scr, sidx)
+                n_rem += n_known(R[k])
                 if cost < best:
                     best = cost
                     zb = cand_z[k]
@@ -442,14 +469,12 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                     nbz = cand_n[k, 2]
                     won = True
             if rows:
-                for k in range(n_vs):
-                    RK[y, x, k, 0] = cand_z[k]
-                    RK[y, x, k, 1] = cand_n[k, 0]
-                    RK[y, x, k, 2] = cand_n[k, 1]
-                    RK[y, x, k, 3] = cand_n[k, 2]
+                for k in range(n_cand):
+                    RS[y, x, k] = cand_s[k]
+                    RV[y, x, k] = cand_v[k]
                     for j in range(n_views):
-                        RC[y, x, k, j] = M[k, j]
-                RN[y, x] = n_vs
+                        RC[y, x, k, j] = R[k, j]  # float32 values (or NaN): exact
+                RN[y, x] = n_cand
             # local refinement: combinations of current, perturbed and random depth / normal
             z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
             z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
@@ -503,9 +528,12 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
                 zi = hz[i]
                 if not (zi >= zmin and zi <= zmax):
                     continue
+                for j in range(n_views):
+                    hrow[j] = np.nan
                 cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, oxp,
                                        oyp, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, order, n_sel, terms,
-                                       geom, lam, gmax, min_var, best)
+                                       geom, lam, gmax, min_var, best, hrow, scr, sidx)
+                n_ref += n_known(hrow)
                 if cost < best:
                     best = cost
                     zb = zi
@@ -520,12 +548,19 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, RK, RC, RN, rows, Cpre, src, str
             Nrm[y, x, 1] = nby
             Nrm[y, x, 2] = nbz
             C[y, x] = best
-            if not (zb == z0 and nbx == n0x and nby == n0y and nbz == n0z):
+            # the caches hold costs of the stored float32 hypothesis: only a change of that invalidates them
+            if not (Z[y, x] == z0 and Nrm[y, x, 0] == n0x and Nrm[y, x, 1] == n0y and Nrm[y, x, 2] == n0z):
                 for j in range(n_views):
                     known[j] = np.nan
+                VER[y, x] += np.uint32(1)
             if won:
                 mask = np.uint32(0)
                 for j in range(n_views):
                     if v[j] > 0.0:
                         mask |= np.uint32(1) << np.uint32(j)
                 Sel[y, x] = mask
+        counts[y, CNT_ROWS] += n_rows
+        counts[y, CNT_CURRENT] += n_cur
+        counts[y, CNT_REMAINING] += n_rem
+        counts[y, CNT_REFINE] += n_ref
+        counts[y, CNT_PIXELS] += n_px

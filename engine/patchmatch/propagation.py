@@ -61,12 +61,13 @@ def sampling_pattern(name: str) -> tuple[np.ndarray, np.ndarray]:
 def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndarray, pat: np.ndarray,
                       region: np.ndarray, n_regions: int, kinv: np.ndarray, zmin: float, zmax: float,
                       plane: bool, k_max: int, reg_cost: np.ndarray, reg_idx: np.ndarray,
-                      cand_z: np.ndarray, cand_n: np.ndarray, cand_c: np.ndarray) -> int:
+                      cand_z: np.ndarray, cand_n: np.ndarray, cand_c: np.ndarray, cand_s: np.ndarray) -> int:
     """Fill up to ``k_max`` candidate hypotheses for pixel (x, y), best stored cost first.
 
     Scratch ``reg_cost``/``reg_idx`` have length >= n_regions; outputs ``cand_z`` (K,), ``cand_n``
-    (K, 3), ``cand_c`` (K,) (the sample's stored cost). Candidates whose propagated depth leaves
-    [zmin, zmax] are dropped. Returns the number of candidates. Ties keep pattern order.
+    (K, 3), ``cand_c`` (K,) (the sample's stored cost) and ``cand_s`` (K,) (the sample's index in the
+    pattern). Candidates whose propagated depth leaves [zmin, zmax] are dropped. Returns the number of
+    candidates. Ties keep pattern order.
     """
     h, w = Z.shape
     for r in range(n_regions):
@@ -109,11 +110,13 @@ def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndar
         last = min(n, k_max - 1)
         for i in range(last, pos, -1):
             cand_c[i] = cand_c[i - 1]
+            cand_s[i] = cand_s[i - 1]
             cand_z[i] = cand_z[i - 1]
             cand_n[i, 0] = cand_n[i - 1, 0]
             cand_n[i, 1] = cand_n[i - 1, 1]
             cand_n[i, 2] = cand_n[i - 1, 2]
         cand_c[pos] = c
+        cand_s[pos] = s
         cand_z[pos] = z
         cand_n[pos, 0] = nx
         cand_n[pos, 1] = ny

@@ -363,7 +363,7 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
     n_views = len(prob.src_imgs)
     if eps is None:
         eps = 2.0**-iteration
-    tau_g = o.tau0 * math.exp(-(iteration**2) / o.alpha)
+    tau_g = o.tau0 if o.alpha == 0 else o.tau0 * math.exp(-(iteration**2) / o.alpha)
     Z0, N0, C0, S0 = Z.copy(), N.copy(), C.copy(), S.copy()  # other colour's state, read-only
     for y in range(h):
         for x in range((y + colour) % 2, w, 2):
