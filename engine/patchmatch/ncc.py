@@ -62,16 +62,6 @@ def _pixel_moments(img, x, y, offs, n_off, mode, sigma_s, sigma_c, wrow, warow):
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def _bilateral_moments_kernel(img, offs, mode, sigma_s, sigma_c, wgt, wa, mu_a, var_a):
-    h, w = img.shape
-    for y in prange(h):
-        for x in range(w):
-            m, v = _pixel_moments(img, x, y, offs, offs.shape[0], mode, sigma_s, sigma_c, wgt[y, x], wa[y, x])
-            mu_a[y, x] = m
-            var_a[y, x] = v
-
-
-@njit(cache=True, parallel=True, fastmath=True)
 def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, sigma_c_f, min_var_f, allowed,
                          wgt, wa, mu_a, var_a, wset):
     """Per pixel: the fine window where ``allowed`` and its variance test (fine offsets, sigma_s_f,
@@ -115,15 +105,8 @@ def bilateral_moments(img: np.ndarray, offs: np.ndarray, weighting: str, sigma_s
         mu_a (H, W) float32 weighted mean, var_a (H, W) float32 weighted variance. Reference pixels
         outside the image are clamped to the border.
     """
-    img = np.ascontiguousarray(img, dtype=np.float32)
-    h, w = img.shape
-    s = offs.shape[0]
-    wgt = np.empty((h, w, s), np.float32)
-    wa = np.empty((h, w, s), np.float32)
-    mu_a = np.empty((h, w), np.float32)
-    var_a = np.empty((h, w), np.float32)
-    _bilateral_moments_kernel(img, offs, WEIGHTING_CODES[weighting], float(sigma_s), float(sigma_c),
-                              wgt, wa, mu_a, var_a)
+    wgt, wa, mu_a, var_a, _ = window_terms(img, offs, np.zeros((0, 2), np.int32), weighting, sigma_s, sigma_c,
+                                           sigma_s, sigma_c, 0.0, None)
     return wgt, wa, mu_a, var_a
 
 
