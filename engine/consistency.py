@@ -22,8 +22,9 @@ from engine.interrupt import check_interrupt
 from engine.options import Options, check, option
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.engine import PatchMatchView, ViewMaps
-from engine.patchmatch.geometry import plane_vector, ray
+from engine.patchmatch.geometry import plane_vector, ray, reprojection
 from engine.patchmatch.kernels import photometric_cost
+from engine.patchmatch.ncc import load_window
 from engine.patchmatch.options import PatchMatchOptions
 
 
@@ -48,42 +49,15 @@ class CounterOptions(Options):
         return self
 
 
-@njit(cache=True)
-def reprojection_check(A, b, B, c, sizes, sdepth, j, x, y, z):
-    """(error px, depth of the reprojected point in the reference camera); error -1 if unavailable."""
-    X0 = z * (A[j, 0] * x + A[j, 1] * y + A[j, 2]) + b[j, 0]
-    X1 = z * (A[j, 3] * x + A[j, 4] * y + A[j, 5]) + b[j, 1]
-    X2 = z * (A[j, 6] * x + A[j, 7] * y + A[j, 8]) + b[j, 2]
-    if X2 <= 0.0:
-        return -1.0, 0.0
-    u = X0 / X2
-    v = X1 / X2
-    iu = int(math.floor(u + 0.5))
-    iv = int(math.floor(v + 0.5))
-    if iu < 0 or iv < 0 or iu >= sizes[j, 0] or iv >= sizes[j, 1]:
-        return -1.0, 0.0
-    zs = sdepth[j, iv, iu]
-    if zs <= 0.0:
-        return -1.0, 0.0
-    Y0 = zs * (B[j, 0] * u + B[j, 1] * v + B[j, 2]) + c[j, 0]
-    Y1 = zs * (B[j, 3] * u + B[j, 4] * v + B[j, 5]) + c[j, 1]
-    Y2 = zs * (B[j, 6] * u + B[j, 7] * v + B[j, 8]) + c[j, 2]
-    if Y2 <= 0.0:
-        return -1.0, 0.0
-    dx = Y0 / Y2 - x
-    dy = Y1 / Y2 - y
-    return math.sqrt(dx * dx + dy * dy), Y2
-
-
 @njit(cache=True, parallel=True)
-def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdepth, kinv, wgt, wa, mu_a, var_a, ox,
-                   oy, wset, ns, min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
+def counter_kernel(Z, Nrm, src, stride, plane, geo, centers, sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy, wset, ns,
+                   min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
     """Fill ``out`` (H, W) uint8 with the number of consistent source views (module doc)."""
     h, w = Z.shape
-    n_views = A.shape[0]
+    n_views = geo.shape[0]
     for y in prange(h):
-        scr = np.empty((6, ox.shape[1]), np.float32)
-        sidx = np.empty(ox.shape[1], np.int32)
+        win = np.zeros((10, ox.shape[1]), np.float32)
+        sidx = np.zeros(ox.shape[1], np.int32)
         for x in range(w):
             z = np.float64(Z[y, x])
             out[y, x] = 0
@@ -96,15 +70,13 @@ def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdept
             m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
             if not ok:
                 continue
-            ws = wset[y, x]
-            oxp = ox[ws, :ns[ws]]
-            oyp = oy[ws, :ns[ws]]
+            n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
             px = z * rp[0]
             py = z * rp[1]
             pz = z * rp[2]
             count = 0
             for j in range(n_views):
-                err, zr = reprojection_check(A, b, B, c, sizes, sdepth, j, x, y, z)
+                err, zr = reprojection(geo, j, sdepth, x, y, z)
                 if err < 0.0 or err > reproj_px:
                     continue
                 if rel_depth > 0.0 and abs(zr - z) >= rel_depth * z:
@@ -120,8 +92,8 @@ def counter_kernel(Z, Nrm, src, stride, plane, sizes, A, b, B, c, centers, sdept
                     continue
                 if check_facing and nx * bx + ny * by + nz * bz <= 0.0:
                     continue
-                cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x], mu_a[y, x],
-                                        var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var, scr, sidx)
+                cost = photometric_cost(src, stride, plane, geo, j, win, n, mu_a[y, x], var_a[y, x], x, y, m0, m1, m2,
+                                        min_var, sidx)
                 if cost > max_cost:
                     continue
                 count += 1
@@ -160,7 +132,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
                             [views[j].camera for j in src_idx], ncc_options, [maps[j].depth for j in src_idx],
                             fine_window_region(m.depth, m.normal, v.camera, ncc_options))
         counter_kernel(np.ascontiguousarray(m.depth, np.float32), np.ascontiguousarray(m.normal, np.float32),
-                       ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.centers,
+                       ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.centers,
                        ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy,
                        ctx.wset, ctx.ns, float(ncc_options.min_var), float(options.reproj_px),
                        1.0 - float(options.ncc_min),

@@ -13,14 +13,21 @@ from engine.patchmatch import kernels as K
 from engine.patchmatch import reference as ref
 from engine.patchmatch.context import build_context, depth_edge_band, fine_window_region
 from engine.patchmatch.engine import _params, _State, half_step, init_cost
-from engine.patchmatch.geometry import perturb_normal, propagate_depth, random_normal, ray, relative_geometry
-from engine.patchmatch.ncc import bilateral_moments, ncc_cost, ncc_scratch, pad_sources, window_offsets_2d
+from engine.patchmatch.geometry import (
+    pack_geometry,
+    perturb_normal,
+    propagate_depth,
+    random_normal,
+    ray,
+    relative_geometry,
+)
+from engine.patchmatch.ncc import bilateral_moments, load_window, ncc_cost, ncc_work, pad_sources, window_offsets_2d
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import area_resize, jbu_upsample
 from engine.patchmatch.rng import combine, stream_key, uniform
 from engine.patchmatch.view_selection import view_weights
 
-SCR = ncc_scratch(128)  # scratch of the cost functions (windows of up to 128 samples)
+WIN, SIDX = ncc_work(128)  # working arrays of the cost functions (windows of up to 128 samples)
 
 
 def _smooth_noise(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
@@ -74,8 +81,10 @@ def test_ncc_cost_matches_reference(step: int) -> None:
         H = np.eye(3) + rng.normal(0, [[0.05, 0.05, 2], [0.05, 0.05, 2], [1e-3, 1e-3, 0.05]])
         H32 = H.astype(np.float32)
         x, y = int(rng.integers(0, 24)), int(rng.integers(0, 20))
-        got = ncc_cost(stack.ravel(), 0, stack.shape[2], 26, 18, wgt[y, x], wa[y, x], mu[y, x], var[y, x], ox, oy,
-                       x, y, *H32.ravel(), np.float32(1e-5), *SCR)
+        n = load_window(WIN, wgt, wa, ox[None], oy[None], np.zeros((20, 24), np.uint8), np.array([len(ox)]), x, y)
+        assert n == len(ox)
+        got = ncc_cost(stack.ravel(), 0, stack.shape[2], 26, 18, WIN, n, mu[y, x], var[y, x], x, y, *H32.ravel(),
+                       np.float32(1e-5), SIDX)
         want = ref.ncc_cost_ref(ref_img, src_img, H32.astype(np.float64), x, y, offs)
         assert got == pytest.approx(want, abs=2e-4)
         n_two += want == 2.0
@@ -105,9 +114,10 @@ def test_homography_and_photometric_cost_match_reference() -> None:
 
         m0, m1, m2, ok = plane_vector(ctx.kinv, tuple(rp), z, *n)
         assert ok
-        got = K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, 0, ctx.wgt[y, x],
-                                 ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x], *ctx.offsets_at(x, y), x, y, m0, m1,
-                                 m2, 1e-5, *SCR)
+        n_samples = ctx.window_at(x, y, WIN)
+        assert n_samples == len(offsets)
+        got = K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.geo, 0, WIN, n_samples, ctx.mu_a[y, x],
+                                 ctx.var_a[y, x], x, y, m0, m1, m2, 1e-5, SIDX)
         assert got == pytest.approx(want, abs=5e-4)
 
 
@@ -244,7 +254,7 @@ def test_reprojection_error_matches_reference() -> None:
 
     for _ in range(100):
         x, y, z = int(rng.integers(0, 24)), int(rng.integers(0, 20)), float(rng.uniform(2.5, 6))
-        got = reprojection_error(geo["A"], geo["b"], geo["B"], geo["c"], 0, depth_b[None], 24, 20, x, y, z)
+        got = reprojection_error(pack_geometry(geo, np.array([[24, 20]])), 0, depth_b[None], x, y, z)
         want = ref.reprojection_error_ref(a.K_idx, a.R, a.t, b.K_idx, b.R, b.t, depth_b, x, y, z)
         assert got == pytest.approx(want, abs=1e-6)
 
@@ -437,16 +447,16 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
         from engine.patchmatch.geometry import plane_vector
 
         m0, m1, m2, ok = plane_vector(ctx.kinv, rp, z, *n)
-        row = np.array([K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, j,
-                                           ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
-                                           *ctx.offsets_at(x, y), x, y, m0, m1, m2, min_var, *SCR)
+        n_samples = ctx.window_at(x, y, WIN)
+        row = np.array([K.photometric_cost(ctx.flat, ctx.stride, ctx.plane, ctx.geo, j, WIN, n_samples,
+                                           ctx.mu_a[y, x], ctx.var_a[y, x], x, y, m0, m1, m2, min_var, SIDX)
                         for j in range(n_src)])
         acc = geom_only = 0.0
         for j in range(n_src):
             if v[j] > 0:
                 cost = row[j]
                 if geometric:
-                    g = lam * K.geometric_cost(ctx.A, ctx.b, ctx.B, ctx.c, ctx.sizes, ctx.sdepth, j, x, y, z, gmax)
+                    g = lam * K.geometric_cost(ctx.geo, ctx.sdepth, j, x, y, z, gmax)
                     cost += g
                     geom_only += v[j] * g
                 acc += v[j] * cost
@@ -457,22 +467,24 @@ def test_aggregated_cost_equals_the_plain_in_order_sum_bit_for_bit(geometric: bo
         n_sel = K.view_order(v, order)
         # no cost known, all known (the row of an unchanged neighbour's candidate), some known
         for known_views in (np.zeros(n_src, bool), np.ones(n_src, bool), rng.random(n_src) < 0.5):
-            given = np.where(known_views, row, np.nan)
-            got = K.aggregated_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c,
-                                    ctx.sdepth, ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
-                                    *ctx.offsets_at(x, y), x, y, rp, z, n[0], n[1], n[2], v, vsum, order, n_sel,
-                                    terms, geometric, lam, gmax, min_var, threshold, given, *SCR)
+            rows = np.full((3, n_src), np.nan)  # the cost row is row 1 of a cache
+            rows[1] = np.where(known_views, row, np.nan)
+            given = rows[1]
+            got = K.aggregated_cost(ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv, WIN, n_samples,
+                                    ctx.mu_a[y, x], ctx.var_a[y, x], x, y, rp, z, n[0], n[1], n[2], v, vsum, order,
+                                    n_sel, terms, geometric, lam, gmax, min_var, threshold, rows, 1, SIDX)
             assert got == want
+            assert np.isnan(rows[[0, 2]]).all()  # only its own row
             # what it evaluated was added to the row, exactly
             assert np.array_equal(given[~np.isnan(given)], row[~np.isnan(given)])
             if want != K.BIG:
                 assert not np.isnan(given[v > 0]).any()
-        known = np.full(n_src, np.nan)
+        P = np.full(ctx.mu_a.shape + (n_src,), np.nan)
+        known = P[y, x]
         known[: n_src // 2] = row[: n_src // 2]
-        assert K.current_cost(ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth,
-                              ctx.kinv, ctx.wgt[y, x], ctx.wa[y, x], ctx.mu_a[y, x], ctx.var_a[y, x],
-                              *ctx.offsets_at(x, y), x, y, rp, z, n[0], n[1], n[2], v, vsum, geometric, lam, gmax,
-                              min_var, known, *SCR) == acc / vsum
+        assert K.current_cost(ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv, WIN, n_samples,
+                              ctx.mu_a[y, x], ctx.var_a[y, x], x, y, rp, z, n[0], n[1], n[2], v, vsum, geometric, lam,
+                              gmax, min_var, P, SIDX) == acc / vsum
         assert np.array_equal(known[v > 0], row[v > 0])  # evaluated views were added to the cache
     assert 10 < exits < 140
     assert (geometric_exits > 5) == geometric, geometric_exits  # the geometric-only bound was exercised

@@ -8,8 +8,8 @@ import numpy as np
 from scipy import ndimage
 
 from engine.camera import Camera
-from engine.patchmatch.geometry import relative_geometry
-from engine.patchmatch.ncc import pad_sources, window_offsets_2d, window_terms
+from engine.patchmatch.geometry import pack_geometry, relative_geometry
+from engine.patchmatch.ncc import load_window, pad_sources, window_offsets_2d, window_terms
 from engine.patchmatch.options import PatchMatchOptions
 
 
@@ -24,7 +24,8 @@ class ViewContext:
     after); mu_a, var_a (H, W) f32; offs (S0, 2) i32 the standard window's offsets; wset (H, W) u8;
     ns (n_sets,) i64; ox, oy (n_sets, S) f32;
     src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; sizes (N, 2) i32 (W, H);
-    A, B (N, 9), b, c, centers (N, 3) f64;
+    A, B (N, 9), b, c, centers (N, 3) f64; geo (N, GEO_COLS) f64 the same packed for the kernels
+    (``geometry.pack_geometry``);
     sdepth (N, Hm, Wm) f32 source depth maps (zeros of shape (N, 1, 1) when not needed).
     """
 
@@ -47,12 +48,17 @@ class ViewContext:
     flat: np.ndarray
     wset: np.ndarray
     ns: np.ndarray
+    geo: np.ndarray
 
     def offsets_at(self, x: int, y: int) -> tuple[np.ndarray, np.ndarray]:
         """The (S,) f32 offsets ``ox``, ``oy`` that reference pixel (x, y) matches with."""
         s = int(self.wset[y, x])
         n = int(self.ns[s])
         return self.ox[s, :n], self.oy[s, :n]
+
+    def window_at(self, x: int, y: int, win: np.ndarray) -> int:
+        """Load pixel (x, y)'s window into ``win`` (``ncc.ncc_work``); returns its number of samples."""
+        return int(load_window(win, self.wgt, self.wa, self.ox, self.oy, self.wset, self.ns, x, y))
 
     def samples_per_cost(self) -> np.ndarray:
         """(H, W) i64 weighted samples one photometric cost takes at each pixel."""
@@ -100,7 +106,7 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
         ox[i, : len(o)] = o[:, 0]
         oy[i, : len(o)] = o[:, 1]
     return ViewContext(geo["kinv"], wgt, wa, mu_a, var_a, offs, src, sizes, geo["A"], geo["b"], geo["B"],
-                       geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns)
+                       geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns, pack_geometry(geo, sizes))
 
 
 def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None

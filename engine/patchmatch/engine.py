@@ -227,8 +227,8 @@ def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, c
     if cache:
         _caches(state, ctx, int(ip[K.I_K_UP]), True)
     P = state.P if cache else np.empty((1, 1, 1))
-    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.sizes,
-                       ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
+    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.geo,
+                       ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
                        ctx.oy, ctx.wset, ctx.ns, fp, ip)
 
 
@@ -243,7 +243,7 @@ def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pa
     counts = np.zeros((state.Z.shape[0], K.N_COUNTS), np.int64)
     K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.VER, state.RS, state.RV, state.RC,
                        state.RN, rows, cpre,
-                       ctx.flat, ctx.stride, ctx.plane, ctx.sizes, ctx.A, ctx.b, ctx.B, ctx.c, ctx.sdepth, ctx.kinv,
+                       ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv,
                        ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, fp, ip,
                        counts)
     return counts.sum(axis=0)

@@ -8,6 +8,7 @@ Relative geometry ref -> source j (precomputed once per reference view and level
     A_j = K_j R_rel K_r⁻¹ (9,), b_j = K_j t_rel (3,)  so that  x̃_j ~ z A_j p̃ + b_j,
     B_j = K_r R_relᵀ K_j⁻¹ (9,), c_j = -K_r R_relᵀ t_rel (3,)  so that  p̃' ~ z_j B_j x̃_j + c_j,
 and the plane-induced homography is H_j = A_j - b_j mᵀ with m = K_r⁻ᵀ n / d.
+The kernels take them packed per source as one (N, GEO_COLS) float64 array (:func:`pack_geometry`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,17 @@ from numba import njit
 
 from engine.camera import Camera
 from engine.patchmatch.rng import uniform
+
+# columns of the packed geometry: A_j, b_j, B_j, c_j, then the source's width and height (px)
+GEO_A, GEO_B, GEO_BB, GEO_C, GEO_W, GEO_H = 0, 9, 12, 21, 24, 25
+GEO_COLS = 26
+
+
+def pack_geometry(rel: dict[str, np.ndarray], sizes: np.ndarray) -> np.ndarray:
+    """(N, GEO_COLS) float64: ``rel``'s A, b, B, c (:func:`relative_geometry`) and ``sizes`` (N, 2) (W, H)
+    of each source, one row per source (one array argument instead of five)."""
+    return np.ascontiguousarray(np.concatenate([rel["A"], rel["b"], rel["B"], rel["c"],
+                                                np.asarray(sizes, np.float64).reshape(-1, 2)], axis=1))
 
 
 def relative_geometry(ref: Camera, sources: list[Camera]) -> dict[str, np.ndarray]:
@@ -135,31 +147,38 @@ def perturb_normal(key: np.uint64, draw: int, rp: tuple, nx: float, ny: float, n
 
 
 @njit(cache=True, inline="always")
-def reprojection_error(A: np.ndarray, b: np.ndarray, B: np.ndarray, c: np.ndarray, j: int,
-                       depth: np.ndarray, w: int, h: int, x: float, y: float, z: float) -> float:
-    """Forward-backward reprojection error (px) of depth z at ref pixel (x, y) via source j (§2.9).
+def reprojection(geo: np.ndarray, j: int, depth: np.ndarray, x: float, y: float, z: float) -> tuple[float, float]:
+    """Forward-backward reprojection of depth z at ref pixel (x, y) via source j (§2.9, §3): (error px,
+    depth of the point reprojected from source j in the reference camera).
 
-    The source depth is read at the nearest pixel of the projection; returns -1 when the point
+    ``geo`` is the packed geometry (:func:`pack_geometry`), ``depth`` (N, Hm, Wm) the source depth maps.
+    The source depth is read at the nearest pixel of the projection; the error is -1 when the point
     projects behind or outside source j or the source has no depth there."""
-    X0 = z * (A[j, 0] * x + A[j, 1] * y + A[j, 2]) + b[j, 0]
-    X1 = z * (A[j, 3] * x + A[j, 4] * y + A[j, 5]) + b[j, 1]
-    X2 = z * (A[j, 6] * x + A[j, 7] * y + A[j, 8]) + b[j, 2]
+    X0 = z * (geo[j, 0] * x + geo[j, 1] * y + geo[j, 2]) + geo[j, 9]
+    X1 = z * (geo[j, 3] * x + geo[j, 4] * y + geo[j, 5]) + geo[j, 10]
+    X2 = z * (geo[j, 6] * x + geo[j, 7] * y + geo[j, 8]) + geo[j, 11]
     if X2 <= 0.0:
-        return -1.0
+        return -1.0, 0.0
     u = X0 / X2
     v = X1 / X2
     iu = int(math.floor(u + 0.5))
     iv = int(math.floor(v + 0.5))
-    if iu < 0 or iv < 0 or iu >= w or iv >= h:
-        return -1.0
+    if iu < 0 or iv < 0 or iu >= int(geo[j, 24]) or iv >= int(geo[j, 25]):
+        return -1.0, 0.0
     zs = depth[j, iv, iu]
     if zs <= 0.0:
-        return -1.0
-    Y0 = zs * (B[j, 0] * u + B[j, 1] * v + B[j, 2]) + c[j, 0]
-    Y1 = zs * (B[j, 3] * u + B[j, 4] * v + B[j, 5]) + c[j, 1]
-    Y2 = zs * (B[j, 6] * u + B[j, 7] * v + B[j, 8]) + c[j, 2]
+        return -1.0, 0.0
+    Y0 = zs * (geo[j, 12] * u + geo[j, 13] * v + geo[j, 14]) + geo[j, 21]
+    Y1 = zs * (geo[j, 15] * u + geo[j, 16] * v + geo[j, 17]) + geo[j, 22]
+    Y2 = zs * (geo[j, 18] * u + geo[j, 19] * v + geo[j, 20]) + geo[j, 23]
     if Y2 <= 0.0:
-        return -1.0
+        return -1.0, 0.0
     dx = Y0 / Y2 - x
     dy = Y1 / Y2 - y
-    return math.sqrt(dx * dx + dy * dy)
+    return math.sqrt(dx * dx + dy * dy), Y2
+
+
+@njit(cache=True, inline="always")
+def reprojection_error(geo: np.ndarray, j: int, depth: np.ndarray, x: float, y: float, z: float) -> float:
+    """The error (px) of :func:`reprojection` (-1 where unavailable)."""
+    return reprojection(geo, j, depth, x, y, z)[0]

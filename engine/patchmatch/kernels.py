@@ -7,10 +7,12 @@ per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a half-ste
 Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments``):
     ref context : kinv (9,), wgt/wa (H, W, S) f32, mu_a/var_a (H, W) f32
     sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
-                  sizes (N, 2) i32 (W, H), ox/oy (S,) f32 window offsets of the pixel (per-pixel kernels
-                  take the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64 and wset (H, W) u8 and
-                  pass each pixel its own, see ``context.ViewContext``),
-                  A (N, 9), b (N, 3), B (N, 9), c (N, 3) f64, sdepth (N, Hm, Wm) f32 (geometric passes)
+                  geo (N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``),
+                  sdepth (N, Hm, Wm) f32 (geometric passes)
+    pixel       : win (10, S) f32 and sidx (S,) i32 (``ncc.ncc_work``) with the pixel's window of n samples
+                  loaded (``ncc.load_window``); the per-pixel kernels take the window terms wgt, wa (H, W, S)
+                  f32 and the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64, wset (H, W) u8
+                  (see ``context.ViewContext``)
     fp          : float64 parameters, indices F_* below
     ip          : int64 parameters, indices I_* below
 """
@@ -23,7 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from engine.patchmatch.geometry import perturb_normal, plane_vector, random_normal, ray, reprojection_error
-from engine.patchmatch.ncc import ncc_cost
+from engine.patchmatch.ncc import load_window, ncc_cost
 from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
@@ -44,27 +46,27 @@ N_IP = 13
 BIG = 1e30
 
 
-@njit(cache=True, fastmath=True, _nrt=False)
-def photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2, min_var, scr,
-                     sidx):
-    """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y)."""
-    h00 = np.float32(A[j, 0] - b[j, 0] * m0)
-    h01 = np.float32(A[j, 1] - b[j, 0] * m1)
-    h02 = np.float32(A[j, 2] - b[j, 0] * m2)
-    h10 = np.float32(A[j, 3] - b[j, 1] * m0)
-    h11 = np.float32(A[j, 4] - b[j, 1] * m1)
-    h12 = np.float32(A[j, 5] - b[j, 1] * m2)
-    h20 = np.float32(A[j, 6] - b[j, 2] * m0)
-    h21 = np.float32(A[j, 7] - b[j, 2] * m1)
-    h22 = np.float32(A[j, 8] - b[j, 2] * m2)
-    return ncc_cost(src, j * plane, stride, sizes[j, 0], sizes[j, 1], wgt_p, wa_p, mu, var, ox, oy, x, y,
-                    h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var), scr, sidx)
+@njit(cache=True, fastmath=True, _nrt=False, inline="always")
+def photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, m2, min_var, sidx):
+    """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y).
+    Inlined where it is called: one call (and argument list) per NCC window fewer."""
+    h00 = np.float32(geo[j, 0] - geo[j, 9] * m0)
+    h01 = np.float32(geo[j, 1] - geo[j, 9] * m1)
+    h02 = np.float32(geo[j, 2] - geo[j, 9] * m2)
+    h10 = np.float32(geo[j, 3] - geo[j, 10] * m0)
+    h11 = np.float32(geo[j, 4] - geo[j, 10] * m1)
+    h12 = np.float32(geo[j, 5] - geo[j, 10] * m2)
+    h20 = np.float32(geo[j, 6] - geo[j, 11] * m0)
+    h21 = np.float32(geo[j, 7] - geo[j, 11] * m1)
+    h22 = np.float32(geo[j, 8] - geo[j, 11] * m2)
+    return ncc_cost(src, j * plane, stride, int(geo[j, 24]), int(geo[j, 25]), win, n, mu, var, x, y,
+                    h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var), sidx)
 
 
 @njit(cache=True, _nrt=False)
-def geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax):
+def geometric_cost(geo, sdepth, j, x, y, z, gmax):
     """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (§2.9)."""
-    e = reprojection_error(A, b, B, c, j, sdepth, sizes[j, 0], sizes[j, 1], x, y, z)
+    e = reprojection_error(geo, j, sdepth, x, y, z)
     if e < 0.0 or e > gmax:
         return gmax
     return e
@@ -95,11 +97,11 @@ def view_order(v, order):
 
 
 @njit(cache=True, _nrt=False)
-def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
-                    z, nx, ny, nz, v, vsum, order, n_sel, terms, geom, lam, gmax, min_var, threshold, row, scr, sidx):
+def aggregated_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, rp, z, nx, ny, nz, v, vsum, order,
+                    n_sel, terms, geom, lam, gmax, min_var, threshold, R, k, sidx):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y); BIG once it is proven >= ``threshold``.
 
-    ``row`` (N,) holds the m_j known already (NaN = unknown; the ones evaluated here are added).
+    Row k of ``R`` (K, N) holds the m_j known already (NaN = unknown; the ones evaluated here are added).
     The result equals summing the terms in view order and returning BIG when that sum reaches
     ``threshold · vsum`` (all terms are >= 0, so a partial sum only grows): the known terms (and in
     geometric passes the geometric parts, which need no image window) are summed first, then the
@@ -118,53 +120,62 @@ def aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, 
     for i in range(n_sel):
         j = order[i]
         terms[j] = 0.0
-        if not math.isnan(row[j]):
-            partial += v[j] * row[j]
+        if not math.isnan(R[k, j]):
+            partial += v[j] * R[k, j]
     if partial * (1.0 - EXIT_MARGIN) >= limit:
         return BIG
     if geom:
         for i in range(n_sel):
             j = order[i]
-            g = lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+            g = lam * geometric_cost(geo, sdepth, j, x, y, z, gmax)
             terms[j] = g
             partial += v[j] * g
             if partial * (1.0 - EXIT_MARGIN) >= limit:
                 return BIG
     for i in range(n_sel):
         j = order[i]
-        if not math.isnan(row[j]):
+        if not math.isnan(R[k, j]):
             continue
-        cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1, m2,
-                                min_var, scr, sidx)
-        row[j] = cost
+        cost = photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, m2, min_var, sidx)
+        R[k, j] = cost
         partial += v[j] * cost
         if partial * (1.0 - EXIT_MARGIN) >= limit:
             return BIG
     acc = 0.0
     for j in range(v.shape[0]):
         if v[j] > 0.0:
-            acc += v[j] * (row[j] + terms[j])
+            acc += v[j] * (R[k, j] + terms[j])
     if acc >= limit:
         return BIG
     return acc / vsum
 
 
 @njit(cache=True, _nrt=False)
-def n_known(row):
-    """Number of entries of ``row`` that are not NaN."""
+def n_known(R, k):
+    """Number of entries of row k of ``R`` (K, N) that are not NaN."""
     n = 0
-    for j in range(row.shape[0]):
-        if not math.isnan(row[j]):
+    for j in range(R.shape[1]):
+        if not math.isnan(R[k, j]):
             n += 1
     return n
 
 
 @njit(cache=True, _nrt=False)
-def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, ox, oy, x, y, rp,
-                 z, nx, ny, nz, v, vsum, geom, lam, gmax, min_var, known, scr, sidx):
+def n_known_px(P, y, x):
+    """Number of views whose cost of pixel (x, y)'s stored hypothesis is cached in ``P`` (H, W, N)."""
+    n = 0
+    for j in range(P.shape[2]):
+        if not math.isnan(P[y, x, j]):
+            n += 1
+    return n
+
+
+@njit(cache=True, _nrt=False)
+def current_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, rp, z, nx, ny, nz, v, vsum, geom, lam,
+                 gmax, min_var, P, sidx):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j of the stored hypothesis (z, n) at (x, y), BIG if it has no plane.
 
-    ``known`` (N,) caches m_j of this hypothesis (NaN = not evaluated yet): cached views are not
+    ``P[y, x]`` (N,) caches m_j of this hypothesis (NaN = not evaluated yet): cached views are not
     evaluated again, new ones are added to the cache. Same sum, same order as :func:`aggregated_cost`."""
     m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
     if not ok:
@@ -175,13 +186,12 @@ def current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_
         vj = v[j]
         if vj <= 0.0:
             continue
-        cost = known[j]
+        cost = P[y, x, j]
         if math.isnan(cost):
-            cost = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, ox, oy, x, y, m0, m1,
-                                    m2, min_var, scr, sidx)
-            known[j] = cost
+            cost = photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, m2, min_var, sidx)
+            P[y, x, j] = cost
         if geom:
-            cost += lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+            cost += lam * geometric_cost(geo, sdepth, j, x, y, z, gmax)
         acc += vj * cost
         if acc >= limit:
             return BIG
@@ -208,8 +218,8 @@ def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
 
 
 @njit(cache=True, parallel=True)
-def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt, wa, mu_a,
-                     var_a, ox, oy, wset, ns, fp, ip):
+def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy,
+                     wset, ns, fp, ip):
     """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
 
     k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
@@ -217,7 +227,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
     With ``store`` the m_j go to the cache P (H, W, N) f64 of the half-steps (NaN where the
     hypothesis has no plane)."""
     h, w = Z.shape
-    n_views = A.shape[0]
+    n_views = geo.shape[0]
     top_k = ip[I_TOP_K]
     geom = ip[I_GEOM] != 0
     lam = fp[F_GEOM_LAMBDA]
@@ -226,14 +236,12 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
-        scr = np.empty((6, ox.shape[1]), np.float32)
-        sidx = np.empty(ox.shape[1], np.int32)
+        win = np.zeros((10, ox.shape[1]), np.float32)
+        sidx = np.zeros(ox.shape[1], np.int32)
         for x in range(w):
             z = Z[y, x]
             rp = ray(kinv, x, y)
-            ws = wset[y, x]
-            oxp = ox[ws, :ns[ws]]
-            oyp = oy[ws, :ns[ws]]
+            n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
             nx = Nrm[y, x, 0]
             ny = Nrm[y, x, 1]
             nz = Nrm[y, x, 2]
@@ -241,8 +249,8 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
             n_ok = 0
             for j in range(n_views):
                 if ok and z > 0.0:
-                    costs[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt[y, x], wa[y, x],
-                                                mu_a[y, x], var_a[y, x], oxp, oyp, x, y, m0, m1, m2, min_var, scr, sidx)
+                    costs[j] = photometric_cost(src, stride, plane, geo, j, win, n, mu_a[y, x], var_a[y, x], x, y,
+                                                m0, m1, m2, min_var, sidx)
                     if store:
                         P[y, x, j] = costs[j]
                 else:
@@ -269,7 +277,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
                 if costs[j] <= kth:
                     mask |= np.uint32(1) << np.uint32(j)
                     if geom:
-                        gsum += geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, z, gmax)
+                        gsum += geometric_cost(geo, sdepth, j, x, y, z, gmax)
                         gcount += 1
             cost = total / k
             if geom and gcount > 0:
@@ -279,8 +287,8 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, sizes, A, b, 
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre, src, stride, plane, sizes, A, b, B, c,
-                     sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip, counts):
+def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre, src, stride, plane, geo, sdepth, kinv,
+                     wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip, counts):
     """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7); add what it evaluated to
     ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
 
@@ -293,7 +301,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
     update (RN = 0 at the start of a pass): a candidate proposed again by the same sample of an
     unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values)."""
     h, w = Z.shape
-    n_views = A.shape[0]
+    n_views = geo.shape[0]
     zmin = fp[F_ZMIN]
     zmax = fp[F_ZMAX]
     eps = fp[F_EPS]
@@ -313,6 +321,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
     for y in prange(h):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
+        reg_z = np.empty(n_regions, np.float64)
+        reg_ord = np.empty(n_regions, np.int64)
         cand_z = np.empty(k_up, np.float64)
         cand_n = np.empty((k_up, 3), np.float64)
         cand_c = np.empty(k_up, np.float32)
@@ -320,7 +330,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
         cand_v = np.empty(k_up, np.uint32)
         R = np.empty((k_up, n_views), np.float64)
         M = R[:k_vs]
-        hrow = np.empty(n_views, np.float64)
+        hrow = np.empty((1, n_views), np.float64)
         omega = np.empty(n_views, np.float64)
         v = np.empty(n_views, np.float64)
         tmp = np.empty(n_views, np.float64)
@@ -328,22 +338,18 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
         order = np.empty(n_views, np.int64)
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
-        scr = np.empty((6, ox.shape[1]), np.float32)
-        sidx = np.empty(ox.shape[1], np.int32)
+        win = np.zeros((10, ox.shape[1]), np.float32)
+        sidx = np.zeros(ox.shape[1], np.int32)
         n_rows = n_cur = n_rem = n_ref = n_px = 0
         for x in range((y + colour) % 2, w, 2):
             n_px += 1
             pk = combine(key, y * w + x)
             rp = ray(kinv, x, y)
-            wgt_p = wgt[y, x]
-            wa_p = wa[y, x]
+            n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
             mu = mu_a[y, x]
             var = var_a[y, x]
-            ws = wset[y, x]
-            oxp = ox[ws, :ns[ws]]
-            oyp = oy[ws, :ns[ws]]
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
-                                       reg_cost, reg_idx, cand_z, cand_n, cand_c, cand_s)
+                                       reg_cost, reg_idx, reg_z, reg_ord, cand_z, cand_n, cand_c, cand_s)
             n_vs = min(n_cand, k_vs)
             n_old = RN[y, x] if rows else 0
             # cost rows of the candidates: what the previous update of this pixel evaluated, if the same
@@ -352,11 +358,17 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                 sk = cand_s[k]
                 ver = VER[y + pat[sk, 1], x + pat[sk, 0]]
                 cand_v[k] = ver
+                # the sample's slot (samples are unique in a list, and lists keep their order mostly)
                 r = -1
-                for i in range(n_old):
-                    if RS[y, x, i] == sk and RV[y, x, i] == ver:
-                        r = i
-                        break
+                if k < n_old and RS[y, x, k] == sk:
+                    r = k
+                else:
+                    for i in range(n_old):
+                        if RS[y, x, i] == sk:
+                            r = i
+                            break
+                if r >= 0 and RV[y, x, r] != ver:
+                    r = -1
                 for j in range(n_views):
                     R[k, j] = RC[y, x, r, j] if r >= 0 else np.nan
             # photometric cost matrix of the best candidates over all views (drives view selection)
@@ -373,8 +385,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                         continue
                     if ok:
                         n_rows += 1
-                        R[k, j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var, oxp, oyp,
-                                                   x, y, m0, m1, m2, min_var, scr, sidx)
+                        R[k, j] = photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, m2,
+                                                   min_var, sidx)
                     else:
                         R[k, j] = 2.0
             vsum = view_weights(M, n_vs, n_views, Sel, x, y, fp[F_TAU_G], fp[F_TAU_BAD], fp[F_BETA],
@@ -384,17 +396,16 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             n0x = np.float64(Nrm[y, x, 0])
             n0y = np.float64(Nrm[y, x, 1])
             n0z = np.float64(Nrm[y, x, 2])
-            known = P[y, x]
-            n_cur -= n_known(known)
+            n_cur -= n_known_px(P, y, x)
             if vsum <= 0.0:
                 # degenerate weights: the top_k views with the lowest cost of the current hypothesis
                 m0, m1, m2, ok = plane_vector(kinv, rp, z0, n0x, n0y, n0z)
                 for j in range(n_views):
                     if ok:
-                        if math.isnan(known[j]):
-                            known[j] = photometric_cost(src, stride, plane, sizes, A, b, j, wgt_p, wa_p, mu, var,
-                                                        oxp, oyp, x, y, m0, m1, m2, min_var, scr, sidx)
-                        tmp[j] = known[j]
+                        if math.isnan(P[y, x, j]):
+                            P[y, x, j] = photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1,
+                                                          m2, min_var, sidx)
+                        tmp[j] = P[y, x, j]
                     else:
                         tmp[j] = 2.0
                     omega[j] = tmp[j]
@@ -408,9 +419,9 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                     else:
                         v[j] = 0.0
             # current hypothesis, full cost (the baseline all others must beat)
-            c_cur = current_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, oxp, oyp,
-                                 x, y, rp, z0, n0x, n0y, n0z, v, vsum, geom, lam, gmax, min_var, known, scr, sidx)
-            n_cur += n_known(known)
+            c_cur = current_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, rp, z0, n0x, n0y, n0z,
+                                 v, vsum, geom, lam, gmax, min_var, P, sidx)
+            n_cur += n_known_px(P, y, x)
             n_sel = view_order(v, order)
             if c_cur >= BIG:
                 c_cur = 2.0 + (lam * gmax if geom else 0.0)
@@ -434,7 +445,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                         if losing:
                             break
                         j = order[i]
-                        terms[j] = lam * geometric_cost(A, b, B, c, sizes, sdepth, j, x, y, cand_z[k], gmax)
+                        terms[j] = lam * geometric_cost(geo, sdepth, j, x, y, cand_z[k], gmax)
                         bound += v[j] * terms[j]
                         losing = bound * (1.0 - EXIT_MARGIN) >= best * vsum
                     if losing:
@@ -456,11 +467,11 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                     won = True
             # remaining candidates: only the selected views, early exit
             for k in range(n_vs, n_cand):
-                n_rem -= n_known(R[k])
-                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var,
-                                       oxp, oyp, x, y, rp, cand_z[k], cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v,
-                                       vsum, order, n_sel, terms, geom, lam, gmax, min_var, best, R[k], scr, sidx)
-                n_rem += n_known(R[k])
+                n_rem -= n_known(R, k)
+                cost = aggregated_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, rp, cand_z[k],
+                                       cand_n[k, 0], cand_n[k, 1], cand_n[k, 2], v, vsum, order, n_sel, terms, geom,
+                                       lam, gmax, min_var, best, R, k, sidx)
+                n_rem += n_known(R, k)
                 if cost < best:
                     best = cost
                     zb = cand_z[k]
@@ -529,11 +540,11 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                 if not (zi >= zmin and zi <= zmax):
                     continue
                 for j in range(n_views):
-                    hrow[j] = np.nan
-                cost = aggregated_cost(src, stride, plane, sizes, A, b, B, c, sdepth, kinv, wgt_p, wa_p, mu, var, oxp,
-                                       oyp, x, y, rp, zi, hn[i, 0], hn[i, 1], hn[i, 2], v, vsum, order, n_sel, terms,
-                                       geom, lam, gmax, min_var, best, hrow, scr, sidx)
-                n_ref += n_known(hrow)
+                    hrow[0, j] = np.nan
+                cost = aggregated_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, rp, zi, hn[i, 0],
+                                       hn[i, 1], hn[i, 2], v, vsum, order, n_sel, terms, geom, lam, gmax, min_var, best,
+                                       hrow, 0, sidx)
+                n_ref += n_known(hrow, 0)
                 if cost < best:
                     best = cost
                     zb = zi
@@ -551,7 +562,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             # the caches hold costs of the stored float32 hypothesis: only a change of that invalidates them
             if not (Z[y, x] == z0 and Nrm[y, x, 0] == n0x and Nrm[y, x, 1] == n0y and Nrm[y, x, 2] == n0z):
                 for j in range(n_views):
-                    known[j] = np.nan
+                    P[y, x, j] = np.nan
                 VER[y, x] += np.uint32(1)
             if won:
                 mask = np.uint32(0)

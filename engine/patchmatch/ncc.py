@@ -152,24 +152,44 @@ def pad_sources(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return out, sizes
 
 
-def ncc_scratch(n_samples: int) -> tuple[np.ndarray, np.ndarray]:
-    """Scratch of :func:`ncc_cost` for windows of up to ``n_samples`` samples: (6, n) float32 and (n,)
-    int32. One pair per thread (the kernels allocate one per image row)."""
-    return np.empty((6, n_samples), np.float32), np.empty(n_samples, np.int32)
+def ncc_work(n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Working arrays of :func:`ncc_cost` for windows of up to ``n_samples`` samples: ``win`` (10, n)
+    float32 (rows 0-3 the reference pixel's window, see :func:`load_window`; rows 4-9 scratch) and
+    ``sidx`` (n,) int32 scratch. One pair per thread (the kernels allocate one per image row)."""
+    return np.zeros((10, n_samples), np.float32), np.zeros(n_samples, np.int32)
+
+
+@njit(cache=True, inline="always")
+def load_window(win, wgt, wa, ox, oy, wset, ns, x, y):
+    """Copy reference pixel (x, y)'s window into rows 0-3 of ``win``: weights w, weighted centred
+    intensities w·a (``wgt``, ``wa`` (H, W, S) f32) and the offsets of its window set (``ox``, ``oy``
+    (n_sets, S) f32, ``wset`` (H, W) u8, ``ns`` (n_sets,) i64). Returns the number of samples.
+
+    One copy per pixel, so that the cost functions take one array instead of four views (numba passes
+    each array as 7-11 machine words and counts references to views: per NCC window that was 10-20 %
+    of the time)."""
+    s = wset[y, x]
+    n = ns[s]
+    for k in range(n):
+        win[0, k] = wgt[y, x, k]
+        win[1, k] = wa[y, x, k]
+        win[2, k] = ox[s, k]
+        win[3, k] = oy[s, k]
+    return n
 
 
 @njit(cache=True, fastmath=True, _nrt=False)
-def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, wgt: np.ndarray, wa: np.ndarray,
-             mu_a: float, var_a: float, ox: np.ndarray, oy: np.ndarray, x: int, y: int,
+def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np.ndarray, n: int,
+             mu_a: float, var_a: float, x: int, y: int,
              h00: float, h01: float, h02: float, h10: float, h11: float, h12: float,
-             h20: float, h21: float, h22: float, min_var: float, scr: np.ndarray, sidx: np.ndarray) -> float:
+             h20: float, h21: float, h22: float, min_var: float, sidx: np.ndarray) -> float:
     """Photometric cost in [0, 2] (a float32 value) of the homography H (row-major h00..h22, float32) at
     ref pixel (x, y).
 
     ``flat`` is the padded source stack raveled; the source starts at ``base`` with row ``stride``
-    and size (sw, sh). ``wgt``/``wa`` are the (S,) rows of the reference pixel, ``ox``/``oy`` the (S,)
-    float32 window offsets; ``scr`` (6, >= S) float32 and ``sidx`` (>= S,) int32 are scratch
-    (:func:`ncc_scratch`).
+    and size (sw, sh). ``win`` (10, >= n) float32 holds the reference pixel's window of ``n`` samples in
+    rows 0-3 (weights, weighted centred intensities, x and y offsets: :func:`load_window`) and is
+    scratch in rows 4-9; ``sidx`` (>= n,) int32 is scratch (:func:`ncc_work`).
 
     Three loops instead of one: LLVM does not vectorise a loop with gathers on this CPU (its cost
     model rejects them), so the projection (two divisions per sample) and the bilinear blend with the
@@ -191,19 +211,18 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, wgt: np
         return 2.0
     tiny = np.float32(1e-6)
     zero = np.float32(0.0)
-    n = ox.shape[0]
     istride = np.int32(stride)
     # 1. projection, clamped to the image (border mode): texel index within the source and fractions
     for k in range(n):
-        dx = ox[k]
-        dy = oy[k]
+        dx = win[2, k]
+        dy = win[3, k]
         hz = max(cz + h20 * dx + h21 * dy, tiny)
         u = min(max((bu + h00 * dx + h01 * dy) / hz, zero), wmax)
         v = min(max((bv + h10 * dx + h11 * dy) / hz, zero), hmax)
         iu = np.int32(u)
         iv = np.int32(v)
-        scr[0, k] = u - np.float32(iu)
-        scr[1, k] = v - np.float32(iv)
+        win[4, k] = u - np.float32(iu)
+        win[5, k] = v - np.float32(iv)
         sidx[k] = iv * istride + iu
     # 2. the four texels (the padded border keeps idx + stride + 1 inside the source)
     ubase = np.uint64(base)
@@ -211,28 +230,28 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, wgt: np
     u1 = np.uint64(1)
     for k in range(n):
         idx = ubase + np.uint64(sidx[k])
-        scr[2, k] = flat[idx]
-        scr[3, k] = flat[idx + u1]
-        scr[4, k] = flat[idx + ustride]
-        scr[5, k] = flat[idx + ustride + u1]
+        win[6, k] = flat[idx]
+        win[7, k] = flat[idx + u1]
+        win[8, k] = flat[idx + ustride]
+        win[9, k] = flat[idx + ustride + u1]
     # 3. bilinear blend and weighted moments
     sb = np.float32(0.0)
     sbb = np.float32(0.0)
     sab = np.float32(0.0)
     for k in range(n):
-        fu = scr[0, k]
-        fv = scr[1, k]
-        p00 = scr[2, k]
-        p01 = scr[3, k]
-        p10 = scr[4, k]
-        p11 = scr[5, k]
+        fu = win[4, k]
+        fv = win[5, k]
+        p00 = win[6, k]
+        p01 = win[7, k]
+        p10 = win[8, k]
+        p11 = win[9, k]
         top = p00 + fu * (p01 - p00)
         bot = p10 + fu * (p11 - p10)
         bval = top + fv * (bot - top)
-        wb = wgt[k] * bval
+        wb = win[0, k] * bval
         sb += wb
         sbb += wb * bval
-        sab += wa[k] * bval
+        sab += win[1, k] * bval
     var_b = sbb - sb * sb
     if var_a < min_var or var_b < min_var:
         return 2.0

@@ -60,14 +60,15 @@ def sampling_pattern(name: str) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True, _nrt=False)
 def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndarray, pat: np.ndarray,
                       region: np.ndarray, n_regions: int, kinv: np.ndarray, zmin: float, zmax: float,
-                      plane: bool, k_max: int, reg_cost: np.ndarray, reg_idx: np.ndarray,
-                      cand_z: np.ndarray, cand_n: np.ndarray, cand_c: np.ndarray, cand_s: np.ndarray) -> int:
+                      plane: bool, k_max: int, reg_cost: np.ndarray, reg_idx: np.ndarray, reg_z: np.ndarray,
+                      reg_ord: np.ndarray, cand_z: np.ndarray, cand_n: np.ndarray, cand_c: np.ndarray,
+                      cand_s: np.ndarray) -> int:
     """Fill up to ``k_max`` candidate hypotheses for pixel (x, y), best stored cost first.
 
-    Scratch ``reg_cost``/``reg_idx`` have length >= n_regions; outputs ``cand_z`` (K,), ``cand_n``
-    (K, 3), ``cand_c`` (K,) (the sample's stored cost) and ``cand_s`` (K,) (the sample's index in the
-    pattern). Candidates whose propagated depth leaves [zmin, zmax] are dropped. Returns the number of
-    candidates. Ties keep pattern order.
+    Scratch ``reg_cost`` (f32), ``reg_idx``, ``reg_z`` (f64), ``reg_ord`` (i64) have length >= n_regions;
+    outputs ``cand_z`` (K,), ``cand_n`` (K, 3), ``cand_c`` (K,) (the sample's stored cost) and ``cand_s``
+    (K,) (the sample's index in the pattern). Candidates whose propagated depth leaves [zmin, zmax] are
+    dropped. Returns the number of candidates. Ties keep pattern order.
     """
     h, w = Z.shape
     for r in range(n_regions):
@@ -86,6 +87,8 @@ def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndar
             reg_cost[r] = c
             reg_idx[r] = s
     rp = ray(kinv, x, y)
+    # rank the regions' winners by stored cost (stable insertion sort of region indices: moving one
+    # integer per step instead of a whole candidate)
     n = 0
     for r in range(n_regions):
         s = reg_idx[r]
@@ -93,34 +96,27 @@ def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndar
             continue
         qx = x + pat[s, 0]
         qy = y + pat[s, 1]
-        nx = Nrm[qy, qx, 0]
-        ny = Nrm[qy, qx, 1]
-        nz = Nrm[qy, qx, 2]
-        rq = ray(kinv, qx, qy)
-        z = propagate_depth(Z[qy, qx], nx, ny, nz, rq, rp, plane)
+        z = propagate_depth(Z[qy, qx], Nrm[qy, qx, 0], Nrm[qy, qx, 1], Nrm[qy, qx, 2], ray(kinv, qx, qy), rp, plane)
         if not (z >= zmin and z <= zmax):
             continue
+        reg_z[r] = z
         c = reg_cost[r]
-        # insertion into the sorted list (stable: equal costs keep region order)
         pos = n
-        while pos > 0 and cand_c[pos - 1] > c:
+        while pos > 0 and reg_cost[reg_ord[pos - 1]] > c:
+            reg_ord[pos] = reg_ord[pos - 1]
             pos -= 1
-        if pos >= k_max:
-            continue
-        last = min(n, k_max - 1)
-        for i in range(last, pos, -1):
-            cand_c[i] = cand_c[i - 1]
-            cand_s[i] = cand_s[i - 1]
-            cand_z[i] = cand_z[i - 1]
-            cand_n[i, 0] = cand_n[i - 1, 0]
-            cand_n[i, 1] = cand_n[i - 1, 1]
-            cand_n[i, 2] = cand_n[i - 1, 2]
-        cand_c[pos] = c
-        cand_s[pos] = s
-        cand_z[pos] = z
-        cand_n[pos, 0] = nx
-        cand_n[pos, 1] = ny
-        cand_n[pos, 2] = nz
-        if n < k_max:
-            n += 1
+        reg_ord[pos] = r
+        n += 1
+    n = min(n, k_max)
+    for i in range(n):
+        r = reg_ord[i]
+        s = reg_idx[r]
+        qx = x + pat[s, 0]
+        qy = y + pat[s, 1]
+        cand_c[i] = reg_cost[r]
+        cand_s[i] = s
+        cand_z[i] = reg_z[r]
+        cand_n[i, 0] = Nrm[qy, qx, 0]
+        cand_n[i, 1] = Nrm[qy, qx, 1]
+        cand_n[i, 2] = Nrm[qy, qx, 2]
     return n
