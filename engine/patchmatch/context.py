@@ -23,9 +23,8 @@ class ViewContext:
     Shapes: kinv (9,); wgt, wa (H, W, S) f32 (S = max(ns), a pixel's weights in its first ns entries, zeros
     after); mu_a, var_a (H, W) f32; offs (S0, 2) i32 the standard window's offsets; wset (H, W) u8;
     ns (n_sets,) i64; ox, oy (n_sets, S) f32;
-    src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; sizes (N, 2) i32 (W, H);
-    A, B (N, 9), b, c, centers (N, 3) f64; geo (N, GEO_COLS) f64 the same packed for the kernels
-    (``geometry.pack_geometry``);
+    src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; geo (N, GEO_COLS) f64 the ref->source matrices A, b,
+    B, c and source sizes packed for the kernels (``geometry.pack_geometry``); centers (N, 3) f64;
     sdepth (N, Hm, Wm) f32 source depth maps (zeros of shape (N, 1, 1) when not needed).
     """
 
@@ -36,11 +35,6 @@ class ViewContext:
     var_a: np.ndarray
     offs: np.ndarray
     src: np.ndarray
-    sizes: np.ndarray
-    A: np.ndarray
-    b: np.ndarray
-    B: np.ndarray
-    c: np.ndarray
     centers: np.ndarray
     sdepth: np.ndarray
     ox: np.ndarray
@@ -74,7 +68,7 @@ class ViewContext:
 
     @property
     def num_sources(self) -> int:
-        return int(self.A.shape[0])
+        return int(self.geo.shape[0])
 
 
 def weighting_sigma(options: PatchMatchOptions) -> float:
@@ -105,8 +99,8 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
     for i, o in enumerate(offs_sets):
         ox[i, : len(o)] = o[:, 0]
         oy[i, : len(o)] = o[:, 1]
-    return ViewContext(geo["kinv"], wgt, wa, mu_a, var_a, offs, src, sizes, geo["A"], geo["b"], geo["B"],
-                       geo["c"], geo["centers"], sdepth, ox, oy, src.reshape(-1), wset, ns, pack_geometry(geo, sizes))
+    return ViewContext(geo["kinv"], wgt, wa, mu_a, var_a, offs, src, geo["centers"], sdepth, ox, oy, src.reshape(-1),
+                       wset, ns, pack_geometry(geo, sizes))
 
 
 def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None

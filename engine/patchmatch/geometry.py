@@ -154,23 +154,23 @@ def reprojection(geo: np.ndarray, j: int, depth: np.ndarray, x: float, y: float,
     ``geo`` is the packed geometry (:func:`pack_geometry`), ``depth`` (N, Hm, Wm) the source depth maps.
     The source depth is read at the nearest pixel of the projection; the error is -1 when the point
     projects behind or outside source j or the source has no depth there."""
-    X0 = z * (geo[j, 0] * x + geo[j, 1] * y + geo[j, 2]) + geo[j, 9]
-    X1 = z * (geo[j, 3] * x + geo[j, 4] * y + geo[j, 5]) + geo[j, 10]
-    X2 = z * (geo[j, 6] * x + geo[j, 7] * y + geo[j, 8]) + geo[j, 11]
+    X0 = z * (geo[j, GEO_A] * x + geo[j, GEO_A + 1] * y + geo[j, GEO_A + 2]) + geo[j, GEO_B]
+    X1 = z * (geo[j, GEO_A + 3] * x + geo[j, GEO_A + 4] * y + geo[j, GEO_A + 5]) + geo[j, GEO_B + 1]
+    X2 = z * (geo[j, GEO_A + 6] * x + geo[j, GEO_A + 7] * y + geo[j, GEO_A + 8]) + geo[j, GEO_B + 2]
     if X2 <= 0.0:
         return -1.0, 0.0
     u = X0 / X2
     v = X1 / X2
     iu = int(math.floor(u + 0.5))
     iv = int(math.floor(v + 0.5))
-    if iu < 0 or iv < 0 or iu >= int(geo[j, 24]) or iv >= int(geo[j, 25]):
+    if iu < 0 or iv < 0 or iu >= int(geo[j, GEO_W]) or iv >= int(geo[j, GEO_H]):
         return -1.0, 0.0
     zs = depth[j, iv, iu]
     if zs <= 0.0:
         return -1.0, 0.0
-    Y0 = zs * (geo[j, 12] * u + geo[j, 13] * v + geo[j, 14]) + geo[j, 21]
-    Y1 = zs * (geo[j, 15] * u + geo[j, 16] * v + geo[j, 17]) + geo[j, 22]
-    Y2 = zs * (geo[j, 18] * u + geo[j, 19] * v + geo[j, 20]) + geo[j, 23]
+    Y0 = zs * (geo[j, GEO_BB] * u + geo[j, GEO_BB + 1] * v + geo[j, GEO_BB + 2]) + geo[j, GEO_C]
+    Y1 = zs * (geo[j, GEO_BB + 3] * u + geo[j, GEO_BB + 4] * v + geo[j, GEO_BB + 5]) + geo[j, GEO_C + 1]
+    Y2 = zs * (geo[j, GEO_BB + 6] * u + geo[j, GEO_BB + 7] * v + geo[j, GEO_BB + 8]) + geo[j, GEO_C + 2]
     if Y2 <= 0.0:
         return -1.0, 0.0
     dx = Y0 / Y2 - x

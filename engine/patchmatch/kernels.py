@@ -24,7 +24,17 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from engine.patchmatch.geometry import perturb_normal, plane_vector, random_normal, ray, reprojection_error
+from engine.patchmatch.geometry import (
+    GEO_A,
+    GEO_B,
+    GEO_H,
+    GEO_W,
+    perturb_normal,
+    plane_vector,
+    random_normal,
+    ray,
+    reprojection_error,
+)
 from engine.patchmatch.ncc import load_window, ncc_cost
 from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
@@ -50,16 +60,16 @@ BIG = 1e30
 def photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, m2, min_var, sidx):
     """m_j of the plane with vector m = (m0, m1, m2) (see geometry.plane_vector) at ref pixel (x, y).
     Inlined where it is called: one call (and argument list) per NCC window fewer."""
-    h00 = np.float32(geo[j, 0] - geo[j, 9] * m0)
-    h01 = np.float32(geo[j, 1] - geo[j, 9] * m1)
-    h02 = np.float32(geo[j, 2] - geo[j, 9] * m2)
-    h10 = np.float32(geo[j, 3] - geo[j, 10] * m0)
-    h11 = np.float32(geo[j, 4] - geo[j, 10] * m1)
-    h12 = np.float32(geo[j, 5] - geo[j, 10] * m2)
-    h20 = np.float32(geo[j, 6] - geo[j, 11] * m0)
-    h21 = np.float32(geo[j, 7] - geo[j, 11] * m1)
-    h22 = np.float32(geo[j, 8] - geo[j, 11] * m2)
-    return ncc_cost(src, j * plane, stride, int(geo[j, 24]), int(geo[j, 25]), win, n, mu, var, x, y,
+    h00 = np.float32(geo[j, GEO_A] - geo[j, GEO_B] * m0)
+    h01 = np.float32(geo[j, GEO_A + 1] - geo[j, GEO_B] * m1)
+    h02 = np.float32(geo[j, GEO_A + 2] - geo[j, GEO_B] * m2)
+    h10 = np.float32(geo[j, GEO_A + 3] - geo[j, GEO_B + 1] * m0)
+    h11 = np.float32(geo[j, GEO_A + 4] - geo[j, GEO_B + 1] * m1)
+    h12 = np.float32(geo[j, GEO_A + 5] - geo[j, GEO_B + 1] * m2)
+    h20 = np.float32(geo[j, GEO_A + 6] - geo[j, GEO_B + 2] * m0)
+    h21 = np.float32(geo[j, GEO_A + 7] - geo[j, GEO_B + 2] * m1)
+    h22 = np.float32(geo[j, GEO_A + 8] - geo[j, GEO_B + 2] * m2)
+    return ncc_cost(src, j * plane, stride, int(geo[j, GEO_W]), int(geo[j, GEO_H]), win, n, mu, var, x, y,
                     h00, h01, h02, h10, h11, h12, h20, h21, h22, np.float32(min_var), sidx)
 
 
