@@ -9,7 +9,7 @@ Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments
     sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
                   geo (N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``),
                   sdepth (N, Hm, Wm) f32 (geometric passes)
-    pixel       : win (10, S) f32 and sidx (S,) i32 (``ncc.ncc_work``) with the pixel's window of n samples
+    pixel       : win (WORK_ROWS, S) f32 and sidx (S,) i32 (``ncc.ncc_work``) with the pixel's window of n samples
                   loaded (``ncc.load_window``); the per-pixel kernels take the window terms wgt, wa (H, W, S)
                   f32 and the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64, wset (H, W) u8
                   (see ``context.ViewContext``)
@@ -35,7 +35,7 @@ from engine.patchmatch.geometry import (
     ray,
     reprojection_error,
 )
-from engine.patchmatch.ncc import load_window, ncc_cost
+from engine.patchmatch.ncc import WORK_ROWS, load_window, ncc_cost
 from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
@@ -246,7 +246,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, 
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
-        win = np.zeros((10, ox.shape[1]), np.float32)
+        win = np.zeros((WORK_ROWS, ox.shape[1]), np.float32)
         sidx = np.zeros(ox.shape[1], np.int32)
         for x in range(w):
             z = Z[y, x]
@@ -331,7 +331,6 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
     for y in prange(h):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
-        reg_z = np.empty(n_regions, np.float64)
         reg_ord = np.empty(n_regions, np.int64)
         cand_z = np.empty(k_up, np.float64)
         cand_n = np.empty((k_up, 3), np.float64)
@@ -348,7 +347,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
         order = np.empty(n_views, np.int64)
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
-        win = np.zeros((10, ox.shape[1]), np.float32)
+        win = np.zeros((WORK_ROWS, ox.shape[1]), np.float32)
         sidx = np.zeros(ox.shape[1], np.int32)
         n_rows = n_cur = n_rem = n_ref = n_px = 0
         for x in range((y + colour) % 2, w, 2):
@@ -359,7 +358,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             mu = mu_a[y, x]
             var = var_a[y, x]
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,
-                                       reg_cost, reg_idx, reg_z, reg_ord, cand_z, cand_n, cand_c, cand_s)
+                                       reg_cost, reg_idx, reg_ord, cand_z, cand_n, cand_c, cand_s)
             n_vs = min(n_cand, k_vs)
             n_old = RN[y, x] if rows else 0
             # cost rows of the candidates: what the previous update of this pixel evaluated, if the same

@@ -152,11 +152,15 @@ def pad_sources(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return out, sizes
 
 
+# rows of ncc_cost's working array: the pixel's window (4) and per-sample scratch (3)
+WORK_ROWS = 7
+
+
 def ncc_work(n_samples: int) -> tuple[np.ndarray, np.ndarray]:
-    """Working arrays of :func:`ncc_cost` for windows of up to ``n_samples`` samples: ``win`` (10, n)
-    float32 (rows 0-3 the reference pixel's window, see :func:`load_window`; rows 4-9 scratch) and
+    """Working arrays of :func:`ncc_cost` for windows of up to ``n_samples`` samples: ``win`` (WORK_ROWS, n)
+    float32 (rows 0-3 the reference pixel's window, see :func:`load_window`; rows 4-6 scratch) and
     ``sidx`` (n,) int32 scratch. One pair per thread (the kernels allocate one per image row)."""
-    return np.zeros((10, n_samples), np.float32), np.zeros(n_samples, np.int32)
+    return np.zeros((WORK_ROWS, n_samples), np.float32), np.zeros(n_samples, np.int32)
 
 
 @njit(cache=True, inline="always")
@@ -187,14 +191,16 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     ref pixel (x, y).
 
     ``flat`` is the padded source stack raveled; the source starts at ``base`` with row ``stride``
-    and size (sw, sh). ``win`` (10, >= n) float32 holds the reference pixel's window of ``n`` samples in
+    and size (sw, sh). ``win`` (WORK_ROWS, >= n) float32 holds the reference pixel's window of ``n`` samples in
     rows 0-3 (weights, weighted centred intensities, x and y offsets: :func:`load_window`) and is
-    scratch in rows 4-9; ``sidx`` (>= n,) int32 is scratch (:func:`ncc_work`).
+    scratch in rows 4-6; ``sidx`` (>= n,) int32 is scratch (:func:`ncc_work`).
 
     Three loops instead of one: LLVM does not vectorise a loop with gathers on this CPU (its cost
-    model rejects them), so the projection (two divisions per sample) and the bilinear blend with the
-    weighted sums get loops of their own that it vectorises 8 wide, and only the four texel loads per
-    sample stay scalar (2.1x the samples per second of the single loop, benchmarks/bench_patchmatch.py).
+    model rejects them), so the projection (two divisions per sample) and the weighted sums get loops of
+    their own that it vectorises 8 wide (2.1x the samples per second of the single loop,
+    benchmarks/bench_patchmatch.py). The scalar loop in between loads the four texels and blends them:
+    it is bound by loads and stores, and storing one blended value instead of four texels makes the
+    window ~7 % cheaper (benchmarks/results/bench_patchmatch_ab_blend.json).
     """
     fx = np.float32(x)
     fy = np.float32(y)
@@ -224,30 +230,27 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
         win[4, k] = u - np.float32(iu)
         win[5, k] = v - np.float32(iv)
         sidx[k] = iv * istride + iu
-    # 2. the four texels (the padded border keeps idx + stride + 1 inside the source)
+    # 2. the four texels and their bilinear blend (the padded border keeps idx + stride + 1 inside the
+    # source); blending here stores one value per sample instead of four for the next loop
     ubase = np.uint64(base)
     ustride = np.uint64(stride)
     u1 = np.uint64(1)
     for k in range(n):
         idx = ubase + np.uint64(sidx[k])
-        win[6, k] = flat[idx]
-        win[7, k] = flat[idx + u1]
-        win[8, k] = flat[idx + ustride]
-        win[9, k] = flat[idx + ustride + u1]
-    # 3. bilinear blend and weighted moments
+        p00 = flat[idx]
+        p01 = flat[idx + u1]
+        p10 = flat[idx + ustride]
+        p11 = flat[idx + ustride + u1]
+        fu = win[4, k]
+        top = p00 + fu * (p01 - p00)
+        bot = p10 + fu * (p11 - p10)
+        win[6, k] = top + win[5, k] * (bot - top)
+    # 3. weighted moments
     sb = np.float32(0.0)
     sbb = np.float32(0.0)
     sab = np.float32(0.0)
     for k in range(n):
-        fu = win[4, k]
-        fv = win[5, k]
-        p00 = win[6, k]
-        p01 = win[7, k]
-        p10 = win[8, k]
-        p11 = win[9, k]
-        top = p00 + fu * (p01 - p00)
-        bot = p10 + fu * (p11 - p10)
-        bval = top + fv * (bot - top)
+        bval = win[6, k]
         wb = win[0, k] * bval
         sb += wb
         sbb += wb * bval

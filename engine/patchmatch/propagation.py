@@ -60,12 +60,12 @@ def sampling_pattern(name: str) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True, _nrt=False)
 def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndarray, pat: np.ndarray,
                       region: np.ndarray, n_regions: int, kinv: np.ndarray, zmin: float, zmax: float,
-                      plane: bool, k_max: int, reg_cost: np.ndarray, reg_idx: np.ndarray, reg_z: np.ndarray,
+                      plane: bool, k_max: int, reg_cost: np.ndarray, reg_idx: np.ndarray,
                       reg_ord: np.ndarray, cand_z: np.ndarray, cand_n: np.ndarray, cand_c: np.ndarray,
                       cand_s: np.ndarray) -> int:
     """Fill up to ``k_max`` candidate hypotheses for pixel (x, y), best stored cost first.
 
-    Scratch ``reg_cost`` (f32), ``reg_idx``, ``reg_z`` (f64), ``reg_ord`` (i64) have length >= n_regions;
+    Scratch ``reg_cost`` (f32), ``reg_idx``, ``reg_ord`` (i64) have length >= n_regions;
     outputs ``cand_z`` (K,), ``cand_n`` (K, 3), ``cand_c`` (K,) (the sample's stored cost) and ``cand_s``
     (K,) (the sample's index in the pattern). Candidates whose propagated depth leaves [zmin, zmax] are
     dropped. Returns the number of candidates. Ties keep pattern order.
@@ -86,37 +86,38 @@ def gather_candidates(x: int, y: int, Z: np.ndarray, Nrm: np.ndarray, C: np.ndar
         if c < reg_cost[r]:
             reg_cost[r] = c
             reg_idx[r] = s
-    rp = ray(kinv, x, y)
     # rank the regions' winners by stored cost (stable insertion sort of region indices: moving one
-    # integer per step instead of a whole candidate)
-    n = 0
+    # integer per step instead of a whole candidate), then propagate down the ranking until k_max
+    # candidates fall inside [zmin, zmax]: the same list as dropping first, without the depths of the
+    # samples ranked below the k_max-th
+    n_ranked = 0
     for r in range(n_regions):
-        s = reg_idx[r]
-        if s < 0:
+        if reg_idx[r] < 0:
             continue
+        c = reg_cost[r]
+        pos = n_ranked
+        while pos > 0 and reg_cost[reg_ord[pos - 1]] > c:
+            reg_ord[pos] = reg_ord[pos - 1]
+            pos -= 1
+        reg_ord[pos] = r
+        n_ranked += 1
+    rp = ray(kinv, x, y)
+    n = 0
+    for i in range(n_ranked):
+        if n >= k_max:
+            break
+        r = reg_ord[i]
+        s = reg_idx[r]
         qx = x + pat[s, 0]
         qy = y + pat[s, 1]
         z = propagate_depth(Z[qy, qx], Nrm[qy, qx, 0], Nrm[qy, qx, 1], Nrm[qy, qx, 2], ray(kinv, qx, qy), rp, plane)
         if not (z >= zmin and z <= zmax):
             continue
-        reg_z[r] = z
-        c = reg_cost[r]
-        pos = n
-        while pos > 0 and reg_cost[reg_ord[pos - 1]] > c:
-            reg_ord[pos] = reg_ord[pos - 1]
-            pos -= 1
-        reg_ord[pos] = r
+        cand_c[n] = reg_cost[r]
+        cand_s[n] = s
+        cand_z[n] = z
+        cand_n[n, 0] = Nrm[qy, qx, 0]
+        cand_n[n, 1] = Nrm[qy, qx, 1]
+        cand_n[n, 2] = Nrm[qy, qx, 2]
         n += 1
-    n = min(n, k_max)
-    for i in range(n):
-        r = reg_ord[i]
-        s = reg_idx[r]
-        qx = x + pat[s, 0]
-        qy = y + pat[s, 1]
-        cand_c[i] = reg_cost[r]
-        cand_s[i] = s
-        cand_z[i] = reg_z[r]
-        cand_n[i, 0] = Nrm[qy, qx, 0]
-        cand_n[i, 1] = Nrm[qy, qx, 1]
-        cand_n[i, 2] = Nrm[qy, qx, 2]
     return n
