@@ -9,10 +9,10 @@ Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments
     sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
                   geo (N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``),
                   sdepth (N, Hm, Wm) f32 (geometric passes)
-    pixel       : win (WORK_ROWS, S) f32 and sidx (S,) i32 (``ncc.ncc_work``) with the pixel's window of n samples
-                  loaded (``ncc.load_window``); the per-pixel kernels take the window terms wgt, wa (H, W, S)
-                  f32 and the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64, wset (H, W) u8
-                  (see ``context.ViewContext``)
+    pixel       : win (WORK_ROWS, work_width(S)) f32 and sidx i32 (``ncc.ncc_work``) with the pixel's
+                  window of n samples loaded (``ncc.load_window``); the per-pixel kernels take the window
+                  terms wgt, wa (H, W, S) f32 and the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64,
+                  wset (H, W) u8 (see ``context.ViewContext``)
     fp          : float64 parameters, indices F_* below
     ip          : int64 parameters, indices I_* below
 """
@@ -35,7 +35,7 @@ from engine.patchmatch.geometry import (
     ray,
     reprojection_error,
 )
-from engine.patchmatch.ncc import WORK_ROWS, load_window, ncc_cost
+from engine.patchmatch.ncc import WORK_ROWS, load_window, ncc_cost, work_width
 from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
@@ -106,7 +106,7 @@ def view_order(v, order):
     return n
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def aggregated_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, rp, z, nx, ny, nz, v, vsum, order,
                     n_sel, terms, geom, lam, gmax, min_var, threshold, R, k, sidx):
     """Σ_j v_j (m_j + λ g_j) / Σ_j v_j for hypothesis (z, n) at (x, y); BIG once it is proven >= ``threshold``.
@@ -246,8 +246,8 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, 
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
-        win = np.zeros((WORK_ROWS, ox.shape[1]), np.float32)
-        sidx = np.zeros(ox.shape[1], np.int32)
+        win = np.zeros((WORK_ROWS, work_width(ox.shape[1])), np.float32)
+        sidx = np.zeros(work_width(ox.shape[1]), np.int32)
         for x in range(w):
             z = Z[y, x]
             rp = ray(kinv, x, y)
@@ -347,8 +347,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
         order = np.empty(n_views, np.int64)
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
-        win = np.zeros((WORK_ROWS, ox.shape[1]), np.float32)
-        sidx = np.zeros(ox.shape[1], np.int32)
+        win = np.zeros((WORK_ROWS, work_width(ox.shape[1])), np.float32)
+        sidx = np.zeros(work_width(ox.shape[1]), np.int32)
         n_rows = n_cur = n_rem = n_ref = n_px = 0
         for x in range((y + colour) % 2, w, 2):
             n_px += 1

@@ -154,20 +154,32 @@ def pad_sources(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 # rows of ncc_cost's working array: the pixel's window (4) and per-sample scratch (3)
 WORK_ROWS = 7
+# ncc_cost's vectorised loops run over whole vectors of this many float32 lanes (AVX2)
+LANES = 8
+
+
+@njit(cache=True, inline="always")
+def work_width(n_samples):
+    """Columns of the working arrays for windows of up to ``n_samples`` samples: rounded up to whole
+    vectors (:data:`LANES`)."""
+    return (n_samples + LANES - 1) // LANES * LANES
 
 
 def ncc_work(n_samples: int) -> tuple[np.ndarray, np.ndarray]:
-    """Working arrays of :func:`ncc_cost` for windows of up to ``n_samples`` samples: ``win`` (WORK_ROWS, n)
-    float32 (rows 0-3 the reference pixel's window, see :func:`load_window`; rows 4-6 scratch) and
-    ``sidx`` (n,) int32 scratch. One pair per thread (the kernels allocate one per image row)."""
-    return np.zeros((WORK_ROWS, n_samples), np.float32), np.zeros(n_samples, np.int32)
+    """Working arrays of :func:`ncc_cost` for windows of up to ``n_samples`` samples: ``win``
+    (WORK_ROWS, work_width(n)) float32 (rows 0-3 the reference pixel's window, see :func:`load_window`;
+    rows 4-6 scratch) and ``sidx`` (work_width(n),) int32 scratch. One pair per thread (the kernels
+    allocate one per image row)."""
+    width = work_width(n_samples)
+    return np.zeros((WORK_ROWS, width), np.float32), np.zeros(width, np.int32)
 
 
 @njit(cache=True, inline="always")
 def load_window(win, wgt, wa, ox, oy, wset, ns, x, y):
     """Copy reference pixel (x, y)'s window into rows 0-3 of ``win``: weights w, weighted centred
     intensities w·a (``wgt``, ``wa`` (H, W, S) f32) and the offsets of its window set (``ox``, ``oy``
-    (n_sets, S) f32, ``wset`` (H, W) u8, ``ns`` (n_sets,) i64). Returns the number of samples.
+    (n_sets, S) f32, ``wset`` (H, W) u8, ``ns`` (n_sets,) i64), and zeros up to ``work_width(n)``.
+    Returns the number of samples n.
 
     One copy per pixel, so that the cost functions take one array instead of four views (numba passes
     each array as 7-11 machine words and counts references to views: per NCC window that was 10-20 %
@@ -179,6 +191,12 @@ def load_window(win, wgt, wa, ox, oy, wset, ns, x, y):
         win[1, k] = wa[y, x, k]
         win[2, k] = ox[s, k]
         win[3, k] = oy[s, k]
+    # zero weights and offsets up to the next whole vector: ncc_cost's vector loops run over them
+    for k in range(n, work_width(n)):
+        win[0, k] = 0.0
+        win[1, k] = 0.0
+        win[2, k] = 0.0
+        win[3, k] = 0.0
     return n
 
 
@@ -191,9 +209,10 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     ref pixel (x, y).
 
     ``flat`` is the padded source stack raveled; the source starts at ``base`` with row ``stride``
-    and size (sw, sh). ``win`` (WORK_ROWS, >= n) float32 holds the reference pixel's window of ``n`` samples in
-    rows 0-3 (weights, weighted centred intensities, x and y offsets: :func:`load_window`) and is
-    scratch in rows 4-6; ``sidx`` (>= n,) int32 is scratch (:func:`ncc_work`).
+    and size (sw, sh). ``win`` (WORK_ROWS, >= work_width(n)) float32 holds the reference pixel's window of
+    ``n`` samples in rows 0-3 (weights, weighted centred intensities, x and y offsets, zero up to work_width(n):
+    :func:`load_window`) and is scratch in rows 4-6 (row 6 finite: :func:`ncc_work` zeroes it); ``sidx``
+    (>= work_width(n),) int32 is scratch.
 
     Three loops instead of one: LLVM does not vectorise a loop with gathers on this CPU (its cost
     model rejects them), so the projection (two divisions per sample) and the weighted sums get loops of
@@ -218,8 +237,11 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     tiny = np.float32(1e-6)
     zero = np.float32(0.0)
     istride = np.int32(stride)
+    # whole vectors: the zero-weight samples past n (load_window) cost less than a scalar remainder loop
+    # with two divisions per sample; they add exact zeros to the sums (row 6 past n is always finite)
+    n_vec = work_width(n)
     # 1. projection, clamped to the image (border mode): texel index within the source and fractions
-    for k in range(n):
+    for k in range(n_vec):
         dx = win[2, k]
         dy = win[3, k]
         hz = max(cz + h20 * dx + h21 * dy, tiny)
@@ -249,7 +271,7 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     sb = np.float32(0.0)
     sbb = np.float32(0.0)
     sab = np.float32(0.0)
-    for k in range(n):
+    for k in range(n_vec):
         bval = win[6, k]
         wb = win[0, k] * bval
         sb += wb
