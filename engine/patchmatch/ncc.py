@@ -218,8 +218,9 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     model rejects them), so the projection (two divisions per sample) and the weighted sums get loops of
     their own that it vectorises 8 wide (2.1x the samples per second of the single loop,
     benchmarks/bench_patchmatch.py). The scalar loop in between loads the four texels and blends them:
-    it is bound by loads and stores, and storing one blended value instead of four texels makes the
-    window ~7 % cheaper (benchmarks/results/bench_patchmatch_ab_blend.json).
+    it is bound by loads and stores, and storing one blended value instead of four texels makes a window
+    ~7 % cheaper; running the vector loops over whole vectors another ~8 % (A/B of the half-step with
+    both: benchmarks/results/bench_patchmatch_ab_blend.json).
     """
     fx = np.float32(x)
     fy = np.float32(y)
