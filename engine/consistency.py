@@ -24,7 +24,7 @@ from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.engine import PatchMatchView, ViewMaps
 from engine.patchmatch.geometry import plane_vector, ray, reprojection
 from engine.patchmatch.kernels import photometric_cost
-from engine.patchmatch.ncc import WORK_ROWS, load_window, work_width
+from engine.patchmatch.ncc import load_window, ncc_work
 from engine.patchmatch.options import PatchMatchOptions
 
 
@@ -56,8 +56,7 @@ def counter_kernel(Z, Nrm, src, stride, plane, geo, centers, sdepth, kinv, wgt, 
     h, w = Z.shape
     n_views = geo.shape[0]
     for y in prange(h):
-        win = np.zeros((WORK_ROWS, work_width(ox.shape[1])), np.float32)
-        sidx = np.zeros(work_width(ox.shape[1]), np.int32)
+        win, sidx = ncc_work(ox.shape[1])
         for x in range(w):
             z = np.float64(Z[y, x])
             out[y, x] = 0

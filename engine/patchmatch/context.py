@@ -166,7 +166,8 @@ def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jum
         edge[b] |= pair
     if radius <= 0 or not edge.any():
         return edge
-    # a square dilation is a separable maximum filter (6x faster than binary_dilation at 768 px, same band)
+    # a square dilation is a maximum filter, which scipy applies axis by axis (binary_dilation visits the
+    # whole (2r+1)^2 structure per pixel)
     return ndimage.maximum_filter(edge.view(np.uint8), size=2 * radius + 1, mode="constant", cval=0).astype(bool)
 
 

@@ -35,7 +35,7 @@ from engine.patchmatch.geometry import (
     ray,
     reprojection_error,
 )
-from engine.patchmatch.ncc import WORK_ROWS, load_window, ncc_cost, work_width
+from engine.patchmatch.ncc import load_window, ncc_cost, ncc_work
 from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
@@ -246,8 +246,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, 
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
-        win = np.zeros((WORK_ROWS, work_width(ox.shape[1])), np.float32)
-        sidx = np.zeros(work_width(ox.shape[1]), np.int32)
+        win, sidx = ncc_work(ox.shape[1])
         for x in range(w):
             z = Z[y, x]
             rp = ray(kinv, x, y)
@@ -347,8 +346,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
         order = np.empty(n_views, np.int64)
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
-        win = np.zeros((WORK_ROWS, work_width(ox.shape[1])), np.float32)
-        sidx = np.zeros(work_width(ox.shape[1]), np.int32)
+        win, sidx = ncc_work(ox.shape[1])
         n_rows = n_cur = n_rem = n_ref = n_px = 0
         for x in range((y + colour) % 2, w, 2):
             n_px += 1

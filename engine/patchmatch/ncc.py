@@ -165,7 +165,8 @@ def work_width(n_samples):
     return (n_samples + LANES - 1) // LANES * LANES
 
 
-def ncc_work(n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+@njit(cache=True)
+def ncc_work(n_samples):
     """Working arrays of :func:`ncc_cost` for windows of up to ``n_samples`` samples: ``win``
     (WORK_ROWS, work_width(n)) float32 (rows 0-3 the reference pixel's window, see :func:`load_window`;
     rows 4-6 scratch) and ``sidx`` (work_width(n),) int32 scratch. One pair per thread (the kernels
@@ -178,7 +179,8 @@ def ncc_work(n_samples: int) -> tuple[np.ndarray, np.ndarray]:
 def load_window(win, wgt, wa, ox, oy, wset, ns, x, y):
     """Copy reference pixel (x, y)'s window into rows 0-3 of ``win``: weights w, weighted centred
     intensities w·a (``wgt``, ``wa`` (H, W, S) f32) and the offsets of its window set (``ox``, ``oy``
-    (n_sets, S) f32, ``wset`` (H, W) u8, ``ns`` (n_sets,) i64), and zeros up to ``work_width(n)``.
+    (n_sets, S) f32, ``wset`` (H, W) u8, ``ns`` (n_sets,) i64), and zeros up to ``work_width(n)`` in
+    rows 0-3 and 6.
     Returns the number of samples n.
 
     One copy per pixel, so that the cost functions take one array instead of four views (numba passes
@@ -191,12 +193,14 @@ def load_window(win, wgt, wa, ox, oy, wset, ns, x, y):
         win[1, k] = wa[y, x, k]
         win[2, k] = ox[s, k]
         win[3, k] = oy[s, k]
-    # zero weights and offsets up to the next whole vector: ncc_cost's vector loops run over them
+    # zero weights, offsets and blended values up to the next whole vector: ncc_cost's vector loops run
+    # over them (its texel loop writes row 6 only below n)
     for k in range(n, work_width(n)):
         win[0, k] = 0.0
         win[1, k] = 0.0
         win[2, k] = 0.0
         win[3, k] = 0.0
+        win[6, k] = 0.0
     return n
 
 
@@ -210,17 +214,17 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
 
     ``flat`` is the padded source stack raveled; the source starts at ``base`` with row ``stride``
     and size (sw, sh). ``win`` (WORK_ROWS, >= work_width(n)) float32 holds the reference pixel's window of
-    ``n`` samples in rows 0-3 (weights, weighted centred intensities, x and y offsets, zero up to work_width(n):
-    :func:`load_window`) and is scratch in rows 4-6 (row 6 finite: :func:`ncc_work` zeroes it); ``sidx``
-    (>= work_width(n),) int32 is scratch.
+    ``n`` samples in rows 0-3 (weights, weighted centred intensities, x and y offsets, zero up to work_width(n)
+    as row 6: :func:`load_window`) and is scratch in rows 4-6; ``sidx`` (>= work_width(n),) int32 is
+    scratch.
 
     Three loops instead of one: LLVM does not vectorise a loop with gathers on this CPU (its cost
     model rejects them), so the projection (two divisions per sample) and the weighted sums get loops of
     their own that it vectorises 8 wide (2.1x the samples per second of the single loop,
     benchmarks/bench_patchmatch.py). The scalar loop in between loads the four texels and blends them:
-    it is bound by loads and stores, and storing one blended value instead of four texels makes a window
-    ~7 % cheaper; running the vector loops over whole vectors another ~8 % (A/B of the half-step with
-    both: benchmarks/results/bench_patchmatch_ab_blend.json).
+    it is bound by loads and stores, so it stores one blended value per sample instead of four texels,
+    and the vector loops run over whole vectors instead of ending in a scalar remainder (with the inlined
+    aggregated_cost, 1.05-1.21x per half-step: benchmarks/results/bench_patchmatch_ab_blend.json).
     """
     fx = np.float32(x)
     fy = np.float32(y)
@@ -239,7 +243,7 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     zero = np.float32(0.0)
     istride = np.int32(stride)
     # whole vectors: the zero-weight samples past n (load_window) cost less than a scalar remainder loop
-    # with two divisions per sample; they add exact zeros to the sums (row 6 past n is always finite)
+    # with two divisions per sample, and add exact zeros to the sums
     n_vec = work_width(n)
     # 1. projection, clamped to the image (border mode): texel index within the source and fractions
     for k in range(n_vec):
