@@ -55,6 +55,11 @@ CONFIGS: dict[str, dict[str, float]] = {
     # the band with SPEC's decaying good-cost threshold (alpha 90; every result of this benchmark before session
     # 12 ran with it, the default since then is a constant threshold, alpha 0: results/tau_g_decay.json)
     "fine5_edges_tau_decay": {"fine_window": 5, "fine_edge_radius": 5, "alpha": 90.0},
+    # a wider band (8 px: the starting map's edges sit a few pixels off the true ones where the large window
+    # fattened the foreground), and with a lower weight for views that are neither good nor bad in the view
+    # selection (beta_fallback 0.3 instead of ACMM's 0.4: occluded views of background beside an object)
+    "fine5_edges_r8": {"fine_window": 5, "fine_edge_radius": 8},
+    "fine5_edges_r8_fb3": {"fine_window": 5, "fine_edge_radius": 8, "beta_fallback": 0.3},
 }
 
 

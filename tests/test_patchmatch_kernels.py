@@ -381,6 +381,36 @@ def test_init_cost_matches_reference(geometric: bool) -> None:
     assert (st.S == S_ref).mean() > 0.97  # masks may differ only on near-ties
 
 
+def test_init_cost_reuses_the_previous_pass_costs_only_where_the_window_matches() -> None:
+    """A geometric pass starts from the costs its photometric pass left (same images): the result is the same
+    as evaluating every window again, a carried-over cost is used as it is (poisoned values show through), and
+    a pixel whose window set changed, or a state without carried-over costs, is evaluated afresh."""
+    opts = PatchMatchOptions(init_top_k=2, fine_window=5, fine_edge_radius=0)
+    ctx, _, st = _tiny_problem(8, False, opts)
+    fp, ip = _params(opts, 2.0, 5.0, 0, False, False, 24)
+    init_cost(st, ctx, fp, ip)
+    fresh_C, fresh_P = st.C.copy(), st.P.copy()
+    assert np.isfinite(fresh_P).mean() > 0.9
+    # carried over from a pass that evaluated half of the views: same costs
+    partial = fresh_P.astype(np.float32)
+    partial[..., 0] = np.nan
+    st.drop_caches(keep_costs_of=ctx)
+    st.known = partial.copy()
+    init_cost(st, ctx, fp, ip)
+    np.testing.assert_array_equal(st.C, fresh_C)
+    np.testing.assert_array_equal(st.P, fresh_P)
+    assert st.known is None  # used once: the half-steps change the hypotheses
+    # poisoned carried-over costs show where they are used
+    poison = np.where(np.isfinite(fresh_P), np.float32(0.0), np.nan).astype(np.float32)
+    changed_window = np.zeros(st.Z.shape, bool)
+    changed_window[::3] = True
+    st.known, st.known_wset = poison, np.where(changed_window, 1 - ctx.wset, ctx.wset).astype(np.uint8)
+    init_cost(st, ctx, fp, ip)
+    valid = np.isfinite(fresh_P).all(axis=-1)
+    assert np.all(st.C[valid & ~changed_window] == 0.0)
+    np.testing.assert_array_equal(st.C[changed_window], fresh_C[changed_window])
+
+
 @pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps,alpha", [
     (False, "deepc", "monte_carlo", "acmm5", False, None, 0.0),
     (True, "acmm", "deterministic", "all8", False, None, 0.0),

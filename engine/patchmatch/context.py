@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 from scipy import ndimage
 
 from engine.camera import Camera
+from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.geometry import pack_geometry, relative_geometry
 from engine.patchmatch.ncc import load_window, pad_sources, window_offsets_2d, window_terms
 from engine.patchmatch.options import PatchMatchOptions
@@ -54,6 +56,11 @@ class ViewContext:
         """Load pixel (x, y)'s window into ``win`` (``ncc.ncc_work``); returns its number of samples."""
         return int(load_window(win, self.wgt, self.wa, self.ox, self.oy, self.wset, self.ns, x, y))
 
+    def release(self, pool: BufferPool) -> None:
+        """Hand the large reference-side arrays to ``pool`` (the context is unusable afterwards)."""
+        pool.give(self.wgt, self.wa, self.mu_a, self.var_a)
+        self.wgt = self.wa = self.mu_a = self.var_a = None
+
     def samples_per_cost(self) -> np.ndarray:
         """(H, W) i64 weighted samples one photometric cost takes at each pixel."""
         return self.ns[self.wset]
@@ -78,11 +85,13 @@ def weighting_sigma(options: PatchMatchOptions) -> float:
 
 def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarray], src_cams: list[Camera],
                   options: PatchMatchOptions, src_depths: list[np.ndarray] | None = None,
-                  fine_allowed: np.ndarray | None = None) -> ViewContext:
+                  fine_allowed: np.ndarray | None = None, pool: BufferPool | None = None) -> ViewContext:
     """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1]).
 
-    ``fine_allowed`` (H, W) bool restricts the fine window to those pixels (None = no restriction)."""
-    wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options, fine_allowed)
+    ``fine_allowed`` (H, W) bool restricts the fine window to those pixels (None = no restriction); the
+    window terms' arrays come from ``pool`` when given (see :meth:`ViewContext.release`)."""
+    wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options, fine_allowed,
+                                                            np.empty if pool is None else pool.take)
     offs = offs_sets[0]
     src, sizes = pad_sources(src_imgs)
     geo = relative_geometry(ref_cam, src_cams)
@@ -103,7 +112,8 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
                        wset, ns, pack_geometry(geo, sizes))
 
 
-def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None
+def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None,
+                    alloc: Callable[..., np.ndarray] = np.empty
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """Reference-side NCC terms with the per-pixel window choice.
 
@@ -120,7 +130,7 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
     wgt, wa, mu_a, var_a, wset = window_terms(ref_img, offs, offs_f, options.ncc_weighting, options.sigma_spatial,
                                               sigma_c, options.fine_sigma_spatial, fine_c, options.fine_min_var,
-                                              fine_allowed)
+                                              fine_allowed, alloc)
     return wgt, wa, mu_a, var_a, wset, [offs, offs_f] if use_fine else [offs]
 
 

@@ -23,6 +23,7 @@ from engine.errors import DeepCError
 from engine.interrupt import check_interrupt
 from engine.observer import IterationEvent, readonly
 from engine.patchmatch import kernels as K
+from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext, build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.propagation import sampling_pattern
@@ -85,7 +86,9 @@ class _State:
     :func:`init_cost`, see ``kernels.half_step_kernel``): ``P`` (H, W, N) f64 per-view photometric cost
     of each pixel's stored hypothesis (NaN = unknown); ``VER`` (H, W) u32 hypothesis versions; ``RS``
     (H, W, K_up) i16, ``RV`` (H, W, K_up) u32, ``RC`` (H, W, K_up, N) f32, ``RN`` (H, W) i32: the
-    candidates (pattern sample and its pixel's version) and cost rows of each pixel's last update."""
+    candidates (pattern sample and its pixel's version) and cost rows of each pixel's last update.
+    Between the passes of a level: ``known`` (H, W, N) f32, the last pass's P, with ``known_wset`` (H, W) u8
+    the window set each pixel matched with (:func:`init_cost` of the next pass reuses them)."""
 
     Z: np.ndarray
     N: np.ndarray
@@ -97,8 +100,19 @@ class _State:
     RV: np.ndarray | None = None
     RC: np.ndarray | None = None
     RN: np.ndarray | None = None
+    known: np.ndarray | None = None
+    known_wset: np.ndarray | None = None
 
-    def drop_caches(self) -> None:
+    def drop_caches(self, keep_costs_of: ViewContext | None = None, pool: BufferPool | None = None) -> None:
+        """Free the pass's caches (into ``pool`` when given); with ``keep_costs_of`` (the pass's context) keep
+        the photometric costs of the stored hypotheses for the next pass at this level (float32 holds them
+        exactly)."""
+        if keep_costs_of is not None and self.P is not None:
+            self.known, self.known_wset = self.P.astype(np.float32), keep_costs_of.wset.copy()
+        else:
+            self.known = self.known_wset = None
+        if pool is not None:
+            pool.give(self.P, self.VER, self.RS, self.RV, self.RC, self.RN)
         self.P = self.VER = self.RS = self.RV = self.RC = self.RN = None
 
 
@@ -198,38 +212,46 @@ def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
     return h * w * (k_up * (4 * n_sources + 2 + 4) + 4)
 
 
-def _caches(state: _State, ctx: ViewContext, k_up: int, reset: bool) -> bool:
-    """(Re)allocate the state's cost caches for this context; ``reset`` empties them (new pass).
-    Returns whether the row cache is used (it is left out above ROW_CACHE_MAX_BYTES)."""
+def _caches(state: _State, ctx: ViewContext, k_up: int, reset: bool, pool: BufferPool | None = None) -> bool:
+    """(Re)allocate the state's cost caches for this context (from ``pool`` when given); ``reset`` empties
+    them (new pass). Returns whether the row cache is used (it is left out above ROW_CACHE_MAX_BYTES)."""
     h, w = state.Z.shape
     n = ctx.num_sources
+    empty = np.empty if pool is None else pool.take
     if state.P is None or state.P.shape != (h, w, n):
-        state.P = np.full((h, w, n), np.nan)
-        state.VER = np.zeros((h, w), np.uint32)
+        state.P = empty((h, w, n), np.float64)
+        state.VER = empty((h, w), np.uint32)
         reset = True
     rows = row_cache_bytes(h, w, k_up, n) <= ROW_CACHE_MAX_BYTES
     if not rows:
         state.RS, state.RV = np.empty((1, 1, k_up), np.int16), np.empty((1, 1, k_up), np.uint32)
         state.RC, state.RN = np.empty((1, 1, k_up, n), np.float32), np.zeros((1, 1), np.int32)
     elif state.RN is None or state.RC.shape != (h, w, k_up, n):
-        state.RS, state.RV = np.empty((h, w, k_up), np.int16), np.empty((h, w, k_up), np.uint32)
-        state.RC, state.RN = np.empty((h, w, k_up, n), np.float32), np.zeros((h, w), np.int32)
-    elif reset:
+        # contents are never read before written: RN = 0 (below) makes every cached row unknown
+        state.RS, state.RV = empty((h, w, k_up), np.int16), empty((h, w, k_up), np.uint32)
+        state.RC, state.RN = empty((h, w, k_up, n), np.float32), empty((h, w), np.int32)
         state.RN[:] = 0
     if reset:
+        state.P[:] = np.nan
         state.VER[:] = 0
+        state.RN[:] = 0
     return rows
 
 
-def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, cache: bool = True) -> None:
+def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, cache: bool = True,
+              pool: BufferPool | None = None) -> None:
     """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule); with ``cache``
-    also (re)start the cost caches the half-steps of this pass read."""
+    also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given)."""
     if cache:
-        _caches(state, ctx, int(ip[K.I_K_UP]), True)
+        _caches(state, ctx, int(ip[K.I_K_UP]), True, pool)
     P = state.P if cache else np.empty((1, 1, 1))
-    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, ctx.flat, ctx.stride, ctx.plane, ctx.geo,
-                       ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
+    known, known_wset = state.known, state.known_wset
+    if known is None or known.shape != (*state.Z.shape, ctx.num_sources):
+        known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
+    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, known, known_wset, ctx.flat, ctx.stride,
+                       ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
                        ctx.oy, ctx.wset, ctx.ns, fp, ip)
+    state.known = state.known_wset = None  # only valid for the hypotheses they were computed for
 
 
 def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
@@ -334,8 +356,10 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     done = 0  # iterations of all earlier passes (perturbation schedule 'global')
     n_active = sum(active)
     resume = _resume_states(checkpoint, images, n_levels)
+    pool = BufferPool()  # the large per-pass arrays, reused from view to view (buffers.py)
     for level in range(n_levels - 1, -1, -1):
         coarsest = level == n_levels - 1
+        pool.clear()  # a new level's arrays have other shapes
         if resume is not None and level >= resume[0]:
             # passes up to the resume point are done: only advance the counters
             for pass_index in range(1 + options.geom_passes):
@@ -383,7 +407,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 elif active[i]:
                     step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, kind,
                                           detail, n_iter, options, pat, region, n_regions, on_iter, step, done,
-                                          random_start=coarsest and pass_index == 0)
+                                          random_start=coarsest and pass_index == 0, pool=pool)
                 if checkpoint is not None and saved is None:
                     checkpoint.save(level, pass_index, i, dataclasses.asdict(states[i]))
                 if progress is not None:
@@ -426,17 +450,17 @@ def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, i
 def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, kind: str, detail: bool, n_iter: int, options: PatchMatchOptions,
                    pat: np.ndarray, region: np.ndarray, n_regions: int, on_iter: Callable | None, step: int,
-                   done_before: int = 0, random_start: bool = False) -> int:
+                   done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None) -> int:
     src_idx = list(v.source_views)
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
                         [cameras[j][level] for j in src_idx], options,
                         [snapshot[j] for j in src_idx] if snapshot is not None else None,
-                        fine_window_region(st.Z, st.N, cameras[i][level], options, random_start, level))
+                        fine_window_region(st.Z, st.N, cameras[i][level], options, random_start, level), pool)
     zmin, zmax = float(v.depth_min), float(v.depth_max)
     fp, ip = _params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
     if detail:
         cpre = restorer_reference(st, ctx, options, fp, ip, i, level, zmin, zmax)
-    init_cost(st, ctx, fp, ip)
+    init_cost(st, ctx, fp, ip, pool=pool)
     if not detail:
         cpre = st.C
     elif options.detail_restorer_reference == "upsampled":
@@ -457,5 +481,9 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
                                    seconds=time.perf_counter() - t0,
                                    ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
         step += 1
-    st.drop_caches()  # only valid within this pass (ctx); do not keep them for every view
+    # the caches are only valid within this pass (ctx); the photometric costs of the final hypotheses also hold
+    # in the next pass of this level (same images; init_cost checks the window set)
+    st.drop_caches(keep_costs_of=ctx if pass_index < options.geom_passes else None, pool=pool)
+    if pool is not None:
+        ctx.release(pool)
     return step

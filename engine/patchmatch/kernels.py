@@ -228,14 +228,16 @@ def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
 
 
 @njit(cache=True, parallel=True)
-def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy,
-                     wset, ns, fp, ip):
+def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, plane, geo, sdepth, kinv, wgt, wa,
+                     mu_a, var_a, ox, oy, wset, ns, fp, ip):
     """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
 
     k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
     views in geometric passes); Sel = {j : m_j <= k-th smallest}; k = 0 gives C = 2 (+ λ·δ), Sel = 0.
     With ``store`` the m_j go to the cache P (H, W, N) f64 of the half-steps (NaN where the
-    hypothesis has no plane)."""
+    hypothesis has no plane). ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier
+    pass over the same images (NaN = not evaluated), valid where that pass matched pixel (x, y) with the
+    same window set, ``known_wset`` (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again."""
     h, w = Z.shape
     n_views = geo.shape[0]
     top_k = ip[I_TOP_K]
@@ -243,11 +245,13 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, 
     lam = fp[F_GEOM_LAMBDA]
     gmax = fp[F_GEOM_MAX]
     min_var = fp[F_MIN_VAR]
+    have_known = known.shape[0] == h and known.shape[1] == w and known.shape[2] == n_views
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
         win, sidx = ncc_work(ox.shape[1])
         for x in range(w):
+            reuse = have_known and known_wset[y, x] == wset[y, x]
             z = Z[y, x]
             rp = ray(kinv, x, y)
             n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
@@ -258,8 +262,11 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, src, stride, plane, geo, sdepth, 
             n_ok = 0
             for j in range(n_views):
                 if ok and z > 0.0:
-                    costs[j] = photometric_cost(src, stride, plane, geo, j, win, n, mu_a[y, x], var_a[y, x], x, y,
-                                                m0, m1, m2, min_var, sidx)
+                    if reuse and not math.isnan(known[y, x, j]):
+                        costs[j] = known[y, x, j]
+                    else:
+                        costs[j] = photometric_cost(src, stride, plane, geo, j, win, n, mu_a[y, x], var_a[y, x], x,
+                                                    y, m0, m1, m2, min_var, sidx)
                     if store:
                         P[y, x, j] = costs[j]
                 else:

@@ -13,6 +13,7 @@ bilinear sampling at a coordinate clamped to [0, W-1] never reads out of bounds 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit, prange
@@ -112,18 +113,20 @@ def bilateral_moments(img: np.ndarray, offs: np.ndarray, weighting: str, sigma_s
 
 def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weighting: str, sigma_s: float,
                  sigma_c: float, sigma_s_fine: float, sigma_c_fine: float, min_var_fine: float,
-                 allowed: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 allowed: np.ndarray | None, alloc: Callable[..., np.ndarray] = np.empty
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Reference-side NCC terms with a per-pixel choice between two windows (see
     ``context.reference_terms``): wgt, wa (H, W, max(S, S_fine)) f32 (zero past the pixel's window),
     mu_a, var_a (H, W) f32 and wset (H, W) u8 (1 = fine). ``offs_fine`` (0, 2) disables the fine
-    window; ``allowed`` (H, W) bool or None (everywhere)."""
+    window; ``allowed`` (H, W) bool or None (everywhere). ``alloc(shape, dtype)`` gives the output arrays
+    (``np.empty`` or a ``buffers.BufferPool``'s take)."""
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
     s = max(offs.shape[0], offs_fine.shape[0])
-    wgt = np.empty((h, w, s), np.float32)
-    wa = np.empty((h, w, s), np.float32)
-    mu_a = np.empty((h, w), np.float32)
-    var_a = np.empty((h, w), np.float32)
+    wgt = alloc((h, w, s), np.float32)
+    wa = alloc((h, w, s), np.float32)
+    mu_a = alloc((h, w), np.float32)
+    var_a = alloc((h, w), np.float32)
     wset = np.empty((h, w), np.uint8)
     if allowed is None:
         allowed = np.ones((h, w), np.bool_)
