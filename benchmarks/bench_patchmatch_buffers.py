@@ -41,7 +41,8 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=768)
     ap.add_argument("--view", type=int, default=5)
     ap.add_argument("--rounds", type=int, default=5)
-    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "bench_patchmatch_buffers.json")
+    ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "bench_patchmatch_buffers.json"),
+                    help="output file ('' = none)")
     args = ap.parse_args()
     scene = load_scene(args.scene, SceneOptions(max_image_size=args.size, num_source_views=5))
     views = patchmatch_views(scene)
@@ -103,7 +104,7 @@ def main() -> None:
     for name, r in rows.items():
         print(f"{name:24s} {1e3 * r['fresh_s']:9.1f} {1e3 * r['pooled_s']:9.1f} {r['ratio']:6.2f}")
     if args.json:
-        write_json(args.json, {"scene": scene.name, "size": [w, h], "view": args.view, "rounds": args.rounds,
+        write_json(Path(args.json), {"scene": scene.name, "size": [w, h], "view": args.view, "rounds": args.rounds,
                                "rows": rows, "how": "alternating fresh / pooled in one process, best of rounds"})
         print(f"wrote {args.json}")
 
