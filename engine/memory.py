@@ -8,7 +8,8 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
 - PatchMatch (SPEC.md §2.11): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (2·S window weights, moments, padded source images and
-  source depths: 4·(2·S + 2 + 2·sources) B/px) and its checkpoint buffers (3 × 24 B/px);
+  source depths: 4·(2·S + 2 + 2·sources) B/px) and its checkpoint buffers (3 × 24 B/px), and between the
+  passes of a level every view's photometric costs for the next pass (float32 per source + 1 B/px);
 - after PatchMatch: counter maps (4 B/px), fusion (per view depth, normal, colour, masks ~ 40 B/px and a
   cloud of up to one point per pixel at 31 B) and evaluation (GT points as float64 and float32 plus a
   KD-tree, ~64 B per point, and the fused points).
@@ -131,7 +132,7 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     cached = sum(sorted(pixels, reverse=True)[:_MAX_CACHED_VIEWS])
     inputs = 12 * cached + 4 * total + 27 * original_largest
     per_view_context = 4 * (2 * offsets + 2 + 2 * sources) * largest
-    patchmatch = (4 * 4 // 3 + 24 + 4 + 6) * total + per_view_context + 3 * 24 * largest
+    patchmatch = (4 * 4 // 3 + 24 + 4 + 6 + 4 * sources + 1) * total + per_view_context + 3 * 24 * largest
     # the view being processed keeps per-pass cost caches (engine/patchmatch/engine.py _caches): current
     # hypothesis costs (float64 per source), versions and, below ROW_CACHE_MAX_BYTES, the candidate rows
     rows = row_cache_bytes(largest, 1, pm.k_update, sources)

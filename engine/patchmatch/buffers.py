@@ -16,8 +16,9 @@ class BufferPool:
     """Arrays handed back after a pass, taken again by the next one of the same shape and dtype.
 
     ``take`` has ``np.empty``'s contract (contents undefined). Arrays given back must no longer be
-    referenced by anything that reads them later; ``clear`` drops everything (call it when the shapes
-    change, at a new pyramid level, so that the pool never holds more than one pass's arrays)."""
+    referenced by anything that reads them later. A take that finds nothing to reuse drops everything the
+    pool holds (views of other sizes, a new pyramid level): the pool never holds more than what the last
+    pass gave back. ``clear`` drops everything."""
 
     def __init__(self) -> None:
         self._free: dict[tuple, list[np.ndarray]] = {}
@@ -25,7 +26,10 @@ class BufferPool:
     def take(self, shape: tuple[int, ...] | int, dtype: type | np.dtype = np.float64) -> np.ndarray:
         shape = (shape,) if isinstance(shape, int) else tuple(int(s) for s in shape)
         free = self._free.get((shape, np.dtype(dtype).str))
-        return free.pop() if free else np.empty(shape, dtype)
+        if free:
+            return free.pop()
+        self._free.clear()
+        return np.empty(shape, dtype)
 
     def give(self, *arrays: np.ndarray | None) -> None:
         for a in arrays:
