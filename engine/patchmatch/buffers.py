@@ -2,9 +2,10 @@
 
 Every view pass needs the same large arrays (the reference window terms, 113 MB at 768x512, and the cost
 caches, 180 MB with 5 sources). Freshly allocated, each 4 KiB page of them faults when first written, inside
-the parallel kernels, and on this virtual machine that cost varies a lot from run to run
-(``benchmarks/bench_patchmatch_buffers.py``: one view's window terms and its initial cost plus a half-step
-1.04-1.4x faster in reused arrays; best of 9 in ``benchmarks/results/bench_patchmatch_buffers.json``).
+the parallel kernels, and on this virtual machine that cost varies a lot from run to run. Reused arrays
+make one view's window terms 1.07x and its initial cost plus a half-step 1.06x faster in the committed
+measurement (``benchmarks/results/bench_patchmatch_buffers.json``, best of 9); repeat with
+``benchmarks/bench_patchmatch_buffers.py``, whose ratios change from run to run with the machine.
 """
 
 from __future__ import annotations

@@ -108,12 +108,18 @@ class _State:
         the photometric costs of the stored hypotheses for the next pass at this level (float32 holds them
         exactly)."""
         if keep_costs_of is not None and self.P is not None:
-            self.known, self.known_wset = self.P.astype(np.float32), keep_costs_of.wset.copy()
+            # the context's wset is never pooled: keeping a reference is enough
+            self.known, self.known_wset = self.P.astype(np.float32), keep_costs_of.wset
         else:
             self.known = self.known_wset = None
         if pool is not None:
             pool.give(self.P, self.VER, self.RS, self.RV, self.RC, self.RN)
         self.P = self.VER = self.RS = self.RV = self.RC = self.RN = None
+
+    def maps(self) -> dict[str, np.ndarray]:
+        """The maps a checkpoint saves (no copies, unlike ``dataclasses.asdict``, which would also deep-copy
+        the caches)."""
+        return {"Z": self.Z, "N": self.N, "C": self.C, "S": self.S}
 
 
 def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
@@ -246,7 +252,7 @@ def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, c
         _caches(state, ctx, int(ip[K.I_K_UP]), True, pool)
     P = state.P if cache else np.empty((1, 1, 1))
     known, known_wset = state.known, state.known_wset
-    if known is None or known.shape != (*state.Z.shape, ctx.num_sources):
+    if known is None:  # the kernel also ignores carried-over costs of another shape
         known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
     K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, known, known_wset, ctx.flat, ctx.stride,
                        ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
@@ -409,7 +415,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                                           detail, n_iter, options, pat, region, n_regions, on_iter, step, done,
                                           random_start=coarsest and pass_index == 0, pool=pool)
                 if checkpoint is not None and saved is None:
-                    checkpoint.save(level, pass_index, i, dataclasses.asdict(states[i]))
+                    checkpoint.save(level, pass_index, i, states[i].maps())
                 if progress is not None:
                     progress(f"level {level} {kind}", i + 1, n_views)
             done += n_iter
