@@ -97,6 +97,34 @@ def _num(x: float | None) -> str:
     return f"{x:7.2f}" if x is not None else f"{'-':>7s}"
 
 
+METRICS_HEADER = (f"{'within1%':>8s} {'within5%':>8s} {'valid%':>6s} {'F1 1cm':>7s} {'F1 2cm':>7s} {'F1 5cm':>7s} "
+                  f"{'PM s':>6s}")
+
+
+def metrics_text(r: dict) -> str:
+    """The metric columns of one :func:`run` result (under METRICS_HEADER)."""
+    return (f"{r['within_1pct']:8.2f} {r['within_5pct']:8.2f} {r['valid_fraction']:6.1f} {_num(r['f1_1cm'])} "
+            f"{_num(r['f1_2cm'])} {_num(r['f1_5cm'])} {r['patchmatch_seconds']:6.1f}")
+
+
+def sweep(scenes: list[str], configs: list[str], seeds: list[int], schedule: str, work: Path | None) -> list[dict]:
+    """Run every configuration (names in CONFIGS) on every scene for every seed, printing a table row per run
+    (in a temporary folder when ``work`` is None); returns the rows."""
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        work = work or Path(tmp)
+        print(f"{'scene':12s} {'config':24s} {'seed':>4s} {METRICS_HEADER}")
+        for name in scenes:
+            scene = scene_path(name, work)
+            for config in configs:
+                for seed in seeds:
+                    r = {"scene": name, "config": config, "seed": seed, "options": CONFIGS[config],
+                         **run(scene, config, work, seed, schedule)}
+                    rows.append(r)
+                    print(f"{name:12s} {config:24s} {seed:4d} {metrics_text(r)}", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default="tiny,small,synth_01000,synth_01001")
@@ -111,21 +139,7 @@ def main() -> None:
     for c in configs:
         if c not in CONFIGS:
             raise SystemExit(f"--configs: unknown configuration {c!r} (known: {', '.join(CONFIGS)})")
-    with tempfile.TemporaryDirectory() as tmp:
-        work = args.work or Path(tmp)
-        rows = []
-        print(f"{'scene':12s} {'config':11s} {'seed':>4s} {'within1%':>8s} {'within5%':>8s} {'valid%':>6s} "
-              f"{'F1 1cm':>7s} {'F1 2cm':>7s} {'F1 5cm':>7s} {'PM s':>6s}")
-        for name in args.scenes.split(","):
-            scene = scene_path(name, work)
-            for config in configs:
-                for seed in seeds:
-                    r = {"scene": name, "config": config, "seed": seed, "options": CONFIGS[config],
-                         **run(scene, config, work, seed, args.schedule)}
-                    rows.append(r)
-                    print(f"{name:12s} {config:11s} {seed:4d} {r['within_1pct']:8.2f} {r['within_5pct']:8.2f} "
-                          f"{r['valid_fraction']:6.1f} {_num(r['f1_1cm'])} {_num(r['f1_2cm'])} {_num(r['f1_5cm'])} "
-                          f"{r['patchmatch_seconds']:6.1f}", flush=True)
+    rows = sweep(args.scenes.split(","), configs, seeds, args.schedule, args.work)
     write_json(args.json, {"schedule": args.schedule, "seeds": seeds, "configs": CONFIGS, "rows": rows})
     print(f"wrote {args.json}")
 

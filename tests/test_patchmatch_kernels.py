@@ -411,16 +411,18 @@ def test_init_cost_reuses_the_previous_pass_costs_only_where_the_window_matches(
     np.testing.assert_array_equal(st.C[changed_window], fresh_C[changed_window])
 
 
-@pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps,alpha", [
-    (False, "deepc", "monte_carlo", "acmm5", False, None, 0.0),
-    (True, "acmm", "deterministic", "all8", False, None, 0.0),
-    (False, "deepc_far", "deterministic", "acmm5", False, 2.0**-6, 2.0),  # decaying tau_g: 0.49 at t = 1
-    (False, "deepc", "monte_carlo", "acmm5", True, 2.0**-7, 0.0),
+@pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps,alpha,min_improvement", [
+    (False, "deepc", "monte_carlo", "acmm5", False, None, 0.0, 0.0),
+    (True, "acmm", "deterministic", "all8", False, None, 0.0, 0.0),
+    (False, "deepc_far", "deterministic", "acmm5", False, 2.0**-6, 2.0, 0.0),  # decaying tau_g: 0.49 at t = 1
+    (False, "deepc", "monte_carlo", "acmm5", True, 2.0**-7, 0.0, 0.003),
+    (True, "deepc", "monte_carlo", "acmm5", False, None, 0.0, 0.05),
 ])
 def test_half_step_matches_reference(geometric: bool, pattern: str, view_sampling: str, combos: str, detail: bool,
-                                     eps: float | None, alpha: float) -> None:
+                                     eps: float | None, alpha: float, min_improvement: float) -> None:
     opts = PatchMatchOptions(pattern=pattern, view_sampling=view_sampling, combos=combos, k_update=10, k_viewsel=6,
-                             fine_window=0 if pattern == "deepc_far" else 5, alpha=alpha)
+                             fine_window=0 if pattern == "deepc_far" else 5, alpha=alpha,
+                             min_improvement=min_improvement)
     ctx, prob, st = _tiny_problem(9, geometric, opts)
     pat, region = sampling_pattern(pattern)
     fp, ip = _params(opts, 2.0, 5.0, 1, geometric, detail, int(region.max()) + 1, eps)
@@ -568,3 +570,27 @@ def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> N
     check = _State(st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy())
     init_cost(check, ctx, fp, ip)
     assert np.array_equal(st.P[known], check.P[known])
+
+
+def test_min_improvement_keeps_hypotheses_that_are_not_clearly_beaten() -> None:
+    """A replacement must be cheaper by more than ``min_improvement``: the larger the margin, the fewer pixels
+    change; a margin no cost difference can reach changes no hypothesis."""
+    changed = []
+    for margin in (0.0, 0.003, 0.05, 1.99):
+        opts = PatchMatchOptions(min_improvement=margin)
+        ctx, _, st = _tiny_problem(12, False, opts)
+        pat, region = sampling_pattern(opts.pattern)
+        fp, ip = _params(opts, 2.0, 5.0, 2, False, False, int(region.max()) + 1)
+        init_cost(st, ctx, fp, ip)
+        for t in range(3):  # past the random start, where almost any candidate wins by far
+            for colour in (0, 1):
+                half_step(st, ctx, colour, st.C.copy(), pat, region, np.uint64(stream_key(4, 0, 0, 0, t, colour)),
+                          fp, ip)
+        Z, N = st.Z.copy(), st.N.copy()
+        for colour in (0, 1):
+            half_step(st, ctx, colour, st.C.copy(), pat, region, np.uint64(stream_key(4, 0, 0, 0, 3, colour)), fp, ip)
+        moved = (st.Z != Z) | np.any(st.N != N, axis=-1)
+        changed.append(moved.mean())
+        if margin == 1.99:
+            assert not moved.any()  # (C is still recomputed: the view weights change from update to update)
+    assert changed[0] > changed[1] > changed[2] > changed[3] == 0.0, changed

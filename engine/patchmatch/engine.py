@@ -197,6 +197,7 @@ def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int
     fp[K.F_GEOM_MAX] = options.geom_max
     fp[K.F_MIN_VAR] = options.min_var
     fp[K.F_DETAIL_DELTA] = options.detail_restorer_delta
+    fp[K.F_MIN_IMPROVEMENT] = options.min_improvement
     ip[K.I_K_VS] = options.k_viewsel
     ip[K.I_K_UP] = options.k_update
     ip[K.I_PLANE] = int(options.plane_propagation)

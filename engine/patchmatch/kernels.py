@@ -42,8 +42,8 @@ from engine.patchmatch.view_selection import view_weights
 
 # float parameters
 F_ZMIN, F_ZMAX, F_EPS, F_TAU_G, F_TAU_BAD, F_BETA, F_BETA_FB, F_PRIOR_IN, F_PRIOR_OUT = range(9)
-F_GEOM_LAMBDA, F_GEOM_MAX, F_MIN_VAR, F_DETAIL_DELTA = range(9, 13)
-N_FP = 13
+F_GEOM_LAMBDA, F_GEOM_MAX, F_MIN_VAR, F_DETAIL_DELTA, F_MIN_IMPROVEMENT = range(9, 14)
+N_FP = 14
 # columns of the half-step's counts (H, N_COUNTS): NCC windows evaluated for the view-selection rows, the
 # current hypothesis, the remaining candidates and the refinement hypotheses; pixels updated
 CNT_ROWS, CNT_CURRENT, CNT_REMAINING, CNT_REFINE, CNT_PIXELS = range(5)
@@ -315,7 +315,8 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
     samples, RV (H, W, K_up) u32 their pixels' versions, RC (H, W, K_up, N) f32 photometric costs
     (NaN = not evaluated) and RN (H, W) i32 counts cache the candidates of each pixel's previous
     update (RN = 0 at the start of a pass): a candidate proposed again by the same sample of an
-    unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values)."""
+    unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values).
+    A hypothesis is replaced only by one whose cost is lower by more than fp[F_MIN_IMPROVEMENT]."""
     h, w = Z.shape
     n_views = geo.shape[0]
     zmin = fp[F_ZMIN]
@@ -334,6 +335,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
     top_k = ip[I_TOP_K]
     n_regions = ip[I_N_REGIONS]
     mc = ip[I_MC]
+    min_improvement = fp[F_MIN_IMPROVEMENT]
     for y in prange(h):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
@@ -440,12 +442,14 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             if c_cur >= BIG:
                 c_cur = 2.0 + (lam * gmax if geom else 0.0)
             c_old = c_cur
-            best = c_cur
+            # a replacement must lower the cost by more than min_improvement (0 = any lower cost)
+            best = c_cur - min_improvement
             zb = z0
             nbx = n0x
             nby = n0y
             nbz = n0z
             won = False
+            changed = False
             # candidates with a full cost row: aggregate from M
             for k in range(n_vs):
                 if geom:
@@ -479,6 +483,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                     nby = cand_n[k, 1]
                     nbz = cand_n[k, 2]
                     won = True
+                    changed = True
             # remaining candidates: only the selected views, early exit
             for k in range(n_vs, n_cand):
                 n_rem -= n_known(R, k)
@@ -493,6 +498,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                     nby = cand_n[k, 1]
                     nbz = cand_n[k, 2]
                     won = True
+                    changed = True
             if rows:
                 for k in range(n_cand):
                     RS[y, x, k] = cand_s[k]
@@ -561,10 +567,14 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                 n_ref += n_known(hrow, 0)
                 if cost < best:
                     best = cost
+                    changed = True
                     zb = zi
                     nbx = hn[i, 0]
                     nby = hn[i, 1]
                     nbz = hn[i, 2]
+            if not changed:
+                C[y, x] = c_old  # same hypothesis, same cost; its caches stay valid
+                continue
             if detail and not (best < Cpre[y, x] - fp[F_DETAIL_DELTA]):
                 C[y, x] = c_old  # detail restorer: keep the upsampled hypothesis
                 continue

@@ -407,11 +407,12 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
                     if cur[j] <= kth and v.sum() < o.init_top_k:
                         v[j] = 1.0
             c_cur = prob.aggregated(x, y, z0, n0, v, geometric)
-            best, zb, nb, won = c_cur, z0, n0, False
+            # a replacement must be cheaper by more than min_improvement
+            best, zb, nb, won, changed = c_cur - o.min_improvement, z0, n0, False, False
             for _k, (_, z, nq) in enumerate(cands):
                 cost = prob.aggregated(x, y, z, nq, v, geometric)
                 if cost < best:
-                    best, zb, nb, won = cost, z, nq, True
+                    best, zb, nb, won, changed = cost, z, nq, True, True
             z_rnd = zmin + (zmax - zmin) * rng.uniform(np.uint64(pk), 100)
             z_prt = zb * (1.0 - eps + 2.0 * eps * rng.uniform(np.uint64(pk), 101))
             n_rnd, _ = random_normal_ref(pk, 102, rp)
@@ -425,7 +426,10 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
                     continue
                 cost = prob.aggregated(x, y, zz, nn, v, geometric)
                 if cost < best:
-                    best, zb, nb = cost, zz, nn
+                    best, zb, nb, changed = cost, zz, nn, True
+            if not changed:
+                C[y, x] = c_cur
+                continue
             if detail and not (best < Cpre[y, x] - o.detail_restorer_delta):
                 C[y, x] = c_cur
                 continue
