@@ -78,9 +78,10 @@ class PatchMatchOptions(Options):
         "(cost units, [0, 2]); 0 = any lower cost (ACMM, SPEC). A speed / precision trade-off: near convergence "
         "80 % of the pixels still swap their plane in every iteration for a slightly cheaper one (fountain_p11 "
         "768), and each swap voids the cached costs of the pixel and of the neighbours that sample it; 0.003 "
-        "halves the swaps and a quarter of the NCC windows (ACMM schedule 299 -> 274 s, within 1 % 75.5 -> 75.4), "
-        "but the small gains it refuses are refinement: fused F1 at 1 cm drops 4.5 points on tiny and 1.3 on "
-        "small, 0.3 on a held-out scene (benchmarks/results/min_improvement.json)")
+        "halves the swaps and a quarter of the NCC windows (ACMM schedule 299 -> 274 s, paper schedule 896 -> "
+        "666 s, within 1 % unchanged), but the small gains it refuses are refinement: fused F1 at 1 cm drops "
+        "3-4.5 points on tiny, 0.7-1.3 on small, 0.3 on a held-out scene (F1 at 2 cm 0.1-1.2) "
+        "(benchmarks/results/min_improvement.json)")
     # --- view selection (§2.8)
     view_sampling: str = option("monte_carlo", "view weights: Monte-Carlo counts or deterministic weights",
                                 choices=VIEW_SAMPLING)
