@@ -74,7 +74,8 @@ def test_options_defaults_and_validation() -> None:
     for bad in (dict(pattern="x"), dict(window=10), dict(k_update=4), dict(iterations=0), dict(levels=0),
                 dict(schedule="fast"), dict(num_threads=-1), dict(sigma_color=0.0), dict(fine_window=4),
                 dict(fine_window=1), dict(fine_window_step=3), dict(fine_sigma_color=0.0), dict(fine_min_var=-1.0),
-                dict(fine_max_level=8), dict(fine_edge_radius=-1), dict(fine_edge_jump=0.0), dict(alpha=-1.0)):
+                dict(fine_max_level=8), dict(fine_edge_radius=-1), dict(fine_edge_jump=0.0), dict(alpha=-1.0),
+                dict(min_improvement=-0.1), dict(min_improvement=math.inf)):
         with pytest.raises(OptionsError):
             PatchMatchOptions(**bad).validate()
 
@@ -185,3 +186,20 @@ def test_quality_on_synthetic_scene(scene, restorer: bool, reference: str, min_w
         valid.append(r["valid_fraction"])
     assert np.mean(valid) >= 95.0
     assert np.mean(within) >= min_within, within
+
+
+def test_min_improvement_spares_the_last_iteration_of_each_pass(small_scene) -> None:
+    """With a margin no cost gain reaches, no hypothesis changes before a pass's last iteration, and that one
+    still refines (any lower cost wins there), so the run ends far better than its random start."""
+    views, gt = small_scene
+    rec = Recorder()
+    opts = PatchMatchOptions(iterations=3, levels=1, geom_passes=1, min_improvement=10.0)
+    maps = run_patchmatch(views, opts, observer=rec)
+    for view in range(len(views)):
+        for pass_index in (0, 1):
+            it = [e.depth for e in rec.events if e.view == view and e.pass_index == pass_index]
+            assert len(it) == 3
+            assert np.array_equal(it[0], it[1])  # the margin blocks every replacement
+            assert not np.array_equal(it[1], it[2])  # the last iteration refines
+    start = depth_metrics(rec.events[0].depth, gt[0])["within_5pct"]
+    assert depth_metrics(maps[0].depth, gt[0])["within_5pct"] > start + 20

@@ -180,8 +180,10 @@ def perturbation_scale(options: PatchMatchOptions, iteration: int, done_before: 
 
 
 def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int, geometric: bool,
-            detail: bool, n_regions: int, eps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Kernel parameter vectors; ``eps`` defaults to 2^-iteration."""
+            detail: bool, n_regions: int, eps: float | None = None,
+            last: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Kernel parameter vectors; ``eps`` defaults to 2^-iteration; ``last``: the pass's last iteration, where any
+    lower cost replaces a hypothesis (``PatchMatchOptions.min_improvement``)."""
     fp = np.zeros(K.N_FP, np.float64)
     ip = np.zeros(K.N_IP, np.int64)
     fp[K.F_ZMIN] = zmin
@@ -197,7 +199,7 @@ def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int
     fp[K.F_GEOM_MAX] = options.geom_max
     fp[K.F_MIN_VAR] = options.min_var
     fp[K.F_DETAIL_DELTA] = options.detail_restorer_delta
-    fp[K.F_MIN_IMPROVEMENT] = options.min_improvement
+    fp[K.F_MIN_IMPROVEMENT] = 0.0 if last else options.min_improvement
     ip[K.I_K_VS] = options.k_viewsel
     ip[K.I_K_UP] = options.k_update
     ip[K.I_PLANE] = int(options.plane_propagation)
@@ -476,7 +478,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
         check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
         t0 = time.perf_counter()
         fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
-                         perturbation_scale(options, t, done_before))
+                         perturbation_scale(options, t, done_before), last=t == n_iter - 1)
         counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, i, level, pass_index, t, colour))
