@@ -79,9 +79,10 @@ class PatchMatchOptions(Options):
         "(cost units, [0, 2]), except in the last iteration of each pass, where any lower cost wins; 0 = any lower "
         "cost throughout (ACMM, SPEC). Near convergence 80 % of the pixels still swap their plane in every "
         "iteration for a slightly cheaper one (fountain_p11 768), and each swap voids the cached costs of the "
-        "pixel and of the neighbours that sample it. 0.003: ACMM schedule 299 -> 267 s the same day, depth "
-        "metrics unchanged, fused F1 at 1 cm -0.2..+0.4 (ACMM) and +0.2..+1.0 (paper schedule) on tiny, small and "
-        "two held-out scenes; the same margin in every iteration lost 0.7-4.5 points of F1 at 1 cm "
+        "pixel and of the neighbours that sample it. 0.003: ACMM schedule 299 -> 267 s the same day, paper "
+        "schedule 896 -> 665 s (2.3x OpenMVS), depth metrics unchanged, fused F1 at 1 cm -0.2..+0.4 (ACMM) "
+        "and +0.2..+1.0 (paper schedule) on tiny, small and two held-out scenes; the same margin in every "
+        "iteration lost 0.7-4.5 points of F1 at 1 cm "
         "(benchmarks/results/min_improvement.json)")
     # --- view selection (§2.8)
     view_sampling: str = option("monte_carlo", "view weights: Monte-Carlo counts or deterministic weights",
