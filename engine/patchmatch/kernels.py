@@ -442,14 +442,14 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             if c_cur >= BIG:
                 c_cur = 2.0 + (lam * gmax if geom else 0.0)
             c_old = c_cur
-            # a replacement must lower the cost by more than min_improvement (0 = any lower cost)
-            best = c_cur - min_improvement
+            # a replacement must lower the cost by more than min_improvement (0 = any lower cost): below ``bar``
+            bar = c_cur - min_improvement
+            best = bar
             zb = z0
             nbx = n0x
             nby = n0y
             nbz = n0z
             won = False
-            changed = False
             # candidates with a full cost row: aggregate from M
             for k in range(n_vs):
                 if geom:
@@ -483,7 +483,6 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                     nby = cand_n[k, 1]
                     nbz = cand_n[k, 2]
                     won = True
-                    changed = True
             # remaining candidates: only the selected views, early exit
             for k in range(n_vs, n_cand):
                 n_rem -= n_known(R, k)
@@ -498,7 +497,6 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                     nby = cand_n[k, 1]
                     nbz = cand_n[k, 2]
                     won = True
-                    changed = True
             if rows:
                 for k in range(n_cand):
                     RS[y, x, k] = cand_s[k]
@@ -567,13 +565,12 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                 n_ref += n_known(hrow, 0)
                 if cost < best:
                     best = cost
-                    changed = True
                     zb = zi
                     nbx = hn[i, 0]
                     nby = hn[i, 1]
                     nbz = hn[i, 2]
-            if not changed:
-                C[y, x] = c_old  # same hypothesis, same cost; its caches stay valid
+            if not (best < bar):
+                C[y, x] = c_old  # nothing won: same hypothesis, same cost; its caches stay valid
                 continue
             if detail and not (best < Cpre[y, x] - fp[F_DETAIL_DELTA]):
                 C[y, x] = c_old  # detail restorer: keep the upsampled hypothesis

@@ -407,12 +407,13 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
                     if cur[j] <= kth and v.sum() < o.init_top_k:
                         v[j] = 1.0
             c_cur = prob.aggregated(x, y, z0, n0, v, geometric)
-            # a replacement must be cheaper by more than min_improvement
-            best, zb, nb, won, changed = c_cur - o.min_improvement, z0, n0, False, False
+            # a replacement must be cheaper by more than min_improvement: below ``bar``
+            bar = c_cur - o.min_improvement
+            best, zb, nb, won = bar, z0, n0, False
             for _k, (_, z, nq) in enumerate(cands):
                 cost = prob.aggregated(x, y, z, nq, v, geometric)
                 if cost < best:
-                    best, zb, nb, won, changed = cost, z, nq, True, True
+                    best, zb, nb, won = cost, z, nq, True
             z_rnd = zmin + (zmax - zmin) * rng.uniform(np.uint64(pk), 100)
             z_prt = zb * (1.0 - eps + 2.0 * eps * rng.uniform(np.uint64(pk), 101))
             n_rnd, _ = random_normal_ref(pk, 102, rp)
@@ -426,8 +427,8 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
                     continue
                 cost = prob.aggregated(x, y, zz, nn, v, geometric)
                 if cost < best:
-                    best, zb, nb, changed = cost, zz, nn, True
-            if not changed:
+                    best, zb, nb = cost, zz, nn
+            if not best < bar:  # nothing won
                 C[y, x] = c_cur
                 continue
             if detail and not (best < Cpre[y, x] - o.detail_restorer_delta):
