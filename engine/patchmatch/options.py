@@ -75,14 +75,14 @@ class PatchMatchOptions(Options):
                             "paper's last iteration)")
     normal_perturb_retries: int = option(3, "retries with halved angle when a perturbed normal faces away")
     min_improvement: float = option(
-        0.0, "a pixel's hypothesis is replaced only by one whose aggregated cost is lower by more than this "
+        0.003, "a pixel's hypothesis is replaced only by one whose aggregated cost is lower by more than this "
         "(cost units, [0, 2]), except in the last iteration of each pass, where any lower cost wins; 0 = any lower "
         "cost throughout (ACMM, SPEC). Near convergence 80 % of the pixels still swap their plane in every "
         "iteration for a slightly cheaper one (fountain_p11 768), and each swap voids the cached costs of the "
-        "pixel and of the neighbours that sample it. 0.003: ACMM schedule 299 -> 267 s the same day, paper "
-        "schedule 896 -> 665 s (2.3x OpenMVS), depth metrics unchanged, fused F1 at 1 cm -0.2..+0.4 (ACMM) "
-        "and +0.2..+1.0 (paper schedule) on tiny, small and two held-out scenes; the same margin in every "
-        "iteration lost 0.7-4.5 points of F1 at 1 cm "
+        "pixel and of the neighbours that sample it. 0.003 against 0: ACMM schedule 299 -> 267 s the same day "
+        "(OpenMVS: 285 s), paper schedule 896 -> 665 s (2.3x OpenMVS), within 1 % and fused F1 within the "
+        "seed-to-seed spread (seeds 0-2 on tiny, small and two held-out scenes; tiny with the paper schedule "
+        "89.3 -> 89.5 % within 1 %); the same margin in every iteration lost 0.7-4.5 points of F1 at 1 cm "
         "(benchmarks/results/min_improvement.json)")
     # --- view selection (§2.8)
     view_sampling: str = option("monte_carlo", "view weights: Monte-Carlo counts or deterministic weights",
