@@ -79,8 +79,8 @@ class PatchMatchOptions(Options):
         "(cost units, [0, 2]), except in the last iteration of each pass, where any lower cost wins; 0 = any lower "
         "cost throughout (ACMM, SPEC). Near convergence 80 % of the pixels still swap their plane in every "
         "iteration for a slightly cheaper one (fountain_p11 768), and each swap voids the cached costs of the "
-        "pixel and of the neighbours that sample it. 0.003 against 0: ACMM schedule 299 -> 267 s the same day "
-        "(OpenMVS: 285 s), paper schedule 896 -> 665 s (2.3x OpenMVS), within 1 % and fused F1 within the "
+        "pixel and of the neighbours that sample it. 0.003 against 0: ACMM schedule 299 -> 249-267 s the same "
+        "day (OpenMVS: 285 s), paper schedule 896 -> 570-665 s (2.0-2.3x OpenMVS), within 1 % and fused F1 within the "
         "seed-to-seed spread (seeds 0-2 on tiny, small and two held-out scenes; tiny with the paper schedule "
         "89.3 -> 89.5 % within 1 %); the same margin in every iteration lost 0.7-4.5 points of F1 at 1 cm "
         "(benchmarks/results/min_improvement.json)")
