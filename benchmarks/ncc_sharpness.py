@@ -60,6 +60,8 @@ CONFIGS: dict[str, dict[str, float]] = {
     # selection (beta_fallback 0.3 instead of ACMM's 0.4: occluded views of background beside an object)
     "fine5_edges_r8": {"fine_window": 5, "fine_edge_radius": 8},
     "fine5_edges_r8_fb3": {"fine_window": 5, "fine_edge_radius": 8, "beta_fallback": 0.3},
+    # the band also along creases (normals more than 30 degrees apart): benchmarks/results/fine_crease_angle.json
+    "fine5_crease30": {"fine_window": 5, "fine_crease_angle": 30.0},
 }
 
 

@@ -178,15 +178,53 @@ def _planes_map(cam: Camera, rng: np.random.Generator) -> tuple[np.ndarray, np.n
     return depth.astype(np.float32), normal.astype(np.float32)
 
 
-@pytest.mark.parametrize("radius", [0, 2])
-def test_depth_edge_band_matches_reference(radius: int) -> None:
+@pytest.mark.parametrize("radius,crease_angle", [(0, 0.0), (2, 0.0), (0, 3.0), (2, 3.5)])
+def test_depth_edge_band_matches_reference(radius: int, crease_angle: float) -> None:
     rng = np.random.default_rng(5)
     a, _ = _cameras()
-    depth, normal = _planes_map(a, rng)
+    depth, normal = _planes_map(a, rng)  # normals jittered by ~1 degree: pairs on both sides of the angles
     noisy = depth * (1 + rng.normal(0, 0.01, depth.shape)).astype(np.float32)  # pairs on both sides of jump
     for d in (depth, noisy):
-        got = depth_edge_band(d, normal, a.pixel_rays(), 0.02, radius)
-        np.testing.assert_array_equal(got, ref.edge_band_ref(d, normal, a.K_idx, 0.02, radius))
+        got = depth_edge_band(d, normal, a.pixel_rays(), 0.02, radius, crease_angle)
+        np.testing.assert_array_equal(got, ref.edge_band_ref(d, normal, a.K_idx, 0.02, radius, crease_angle))
+
+
+def _crease_map(cam: Camera, half_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (H, W) and camera-frame normals of a room corner: two walls meeting in a vertical line through
+    (0, 0, 5), each turned by ``half_angle_deg`` from fronto-parallel; the depth is continuous across it."""
+    rays = cam.pixel_rays().astype(np.float64)
+    phi = math.radians(half_angle_deg)
+    x0 = np.array([0.0, 0.0, 5.0])
+    depths, normals = [], []
+    for n in (np.array([math.sin(phi), 0.0, -math.cos(phi)]), np.array([-math.sin(phi), 0.0, -math.cos(phi)])):
+        t = (n @ x0) / (rays @ n)
+        depths.append(np.where(t > 0, t * rays[..., 2], np.inf))
+        normals.append(np.broadcast_to(n, rays.shape))
+    nearer = depths[0] <= depths[1]
+    depth = np.where(nearer, depths[0], depths[1])
+    normal = np.where(nearer[..., None], normals[0], normals[1])
+    return depth.astype(np.float32), normal.astype(np.float32)
+
+
+def test_depth_edge_band_finds_creases_beyond_the_angle() -> None:
+    """A room corner has no depth discontinuity; with ``crease_angle`` below the angle between its walls
+    (40 degrees) the seam is an edge and nothing else is, above it nothing is."""
+    a, _ = _cameras()
+    depth, normal = _crease_map(a, 20.0)
+    rays = a.pixel_rays()
+    seam = np.zeros(depth.shape, bool)
+    left = normal[..., 0] > 0
+    seam[:, :-1] |= left[:, :-1] != left[:, 1:]
+    seam[:, 1:] |= left[:, :-1] != left[:, 1:]
+    assert 0 < left[0].sum() < depth.shape[1] and seam.sum() == 2 * depth.shape[0]  # one seam, mid-image
+    assert not depth_edge_band(depth, normal, rays, 0.02, 0).any()
+    np.testing.assert_array_equal(depth_edge_band(depth, normal, rays, 0.02, 0, 30.0), seam)
+    assert not depth_edge_band(depth, normal, rays, 0.02, 0, 45.0).any()
+    band = depth_edge_band(depth, normal, rays, 0.02, 2, 30.0)
+    assert band.sum() == 6 * depth.shape[0]  # the two seam columns widened by 2 on each side
+    opts = PatchMatchOptions(fine_window=5, fine_edge_radius=2, fine_crease_angle=30.0)
+    np.testing.assert_array_equal(fine_window_region(depth, normal, a, opts), band)
+    assert not fine_window_region(depth, normal, a, opts.replace(fine_crease_angle=0.0)).any()  # the default
 
 
 def test_depth_edge_band_finds_occlusions_not_slants() -> None:

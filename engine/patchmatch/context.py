@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -151,15 +152,18 @@ def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, op
         return None
     if random_start:
         return np.zeros(depth.shape, bool)
-    return depth_edge_band(depth, normal, camera.pixel_rays(), options.fine_edge_jump, options.fine_edge_radius)
+    return depth_edge_band(depth, normal, camera.pixel_rays(), options.fine_edge_jump, options.fine_edge_radius,
+                           options.fine_crease_angle)
 
 
-def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jump: float, radius: int) -> np.ndarray:
+def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jump: float, radius: int,
+                    crease_angle: float = 0.0) -> np.ndarray:
     """(H, W) bool: pixels within ``radius`` px (Chebyshev) of a depth discontinuity of a hypothesis map.
 
     Neighbouring pixels p, q (4-neighbours) are a discontinuity when each one's plane predicts the other's
     depth with a relative error above ``jump``, or when either has no valid hypothesis: a slanted plane
-    (depth changing fast from pixel to pixel) is not an edge, an occlusion boundary is.
+    (depth changing fast from pixel to pixel) is not an edge, an occlusion boundary is. With
+    ``crease_angle`` > 0 (degrees), a pair whose normals differ by more than that is one too (a crease).
     depth (H, W) camera-frame depth, normal (H, W, 3) camera-frame unit normals, rays (H, W, 3) the pixels'
     rays K⁻¹ [x, y, 1] (``Camera.pixel_rays``).
     """
@@ -172,6 +176,8 @@ def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jum
         a = (slice(None, -1), slice(None)) if axis == 0 else (slice(None), slice(None, -1))
         b = (slice(1, None), slice(None)) if axis == 0 else (slice(None), slice(1, None))
         pair = _discontinuous(z[a], z[b], n[a], n[b], n_dot_own[a], n_dot_own[b], rays[a], rays[b], jump)
+        if crease_angle > 0:
+            pair |= np.einsum("...c,...c->...", n[a], n[b]) < math.cos(math.radians(crease_angle))
         edge[a] |= pair
         edge[b] |= pair
     if radius <= 0 or not edge.any():

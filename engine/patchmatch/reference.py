@@ -90,9 +90,11 @@ def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: bool = 
     return fine, options.fine_sigma_spatial, options.fine_sigma_color if colmap else sigma_c
 
 
-def edge_band_ref(depth: np.ndarray, normal: np.ndarray, K: np.ndarray, jump: float, radius: int) -> np.ndarray:
+def edge_band_ref(depth: np.ndarray, normal: np.ndarray, K: np.ndarray, jump: float, radius: int,
+                  crease_angle: float = 0.0) -> np.ndarray:
     """(H, W) bool: pixels within ``radius`` (Chebyshev) of a 4-neighbour pair where neither pixel's plane
-    predicts the other's depth within ``jump`` (relative), or either depth is <= 0 (context.depth_edge_band)."""
+    predicts the other's depth within ``jump`` (relative), or either depth is <= 0, or (``crease_angle`` > 0)
+    the two normals are more than ``crease_angle`` degrees apart (context.depth_edge_band)."""
     h, w = depth.shape
     Kinv = np.linalg.inv(K)
 
@@ -112,7 +114,9 @@ def edge_band_ref(depth: np.ndarray, normal: np.ndarray, K: np.ndarray, jump: fl
                 if q[0] >= h or q[1] >= w:
                     continue
                 p = (y, x)
-                if depth[p] <= 0 or depth[q] <= 0 or not (predicts(p, q) or predicts(q, p)):
+                cos_pq = float(normal[p].astype(np.float64) @ normal[q].astype(np.float64))
+                crease = crease_angle > 0 and cos_pq < math.cos(math.radians(crease_angle))
+                if depth[p] <= 0 or depth[q] <= 0 or not (predicts(p, q) or predicts(q, p)) or crease:
                     edge[p] = edge[q] = True
     band = np.zeros((h, w), bool)
     for y, x in np.argwhere(edge):
