@@ -4,8 +4,9 @@
         [--configs window11,w9_s2,w5_s1.5] [--seeds 0,1] [--schedule acmm|paper]
         [--json benchmarks/results/ncc_sharpness.json]
 
-Every configuration is explicit (it does not depend on the current defaults; ``fine5_edges`` is the default
-since session 11). Why: on the tiny sample scene SPEC's window (11 px, step 2, sigma_spatial 5, sigma_color 0.2)
+Every configuration is explicit (it does not depend on the current defaults; ``fine5_edges`` was the default
+from session 11, ``fine5_crease20_cratio10`` is since session 18; the others with a fine window name
+``fine_crease_angle`` 0). Why: on the tiny sample scene SPEC's window (11 px, step 2, sigma_spatial 5, sigma_color 0.2)
 misses the issue's 90 % within-1 % target; most misses are at depth edges (patchmatch_error_regions.py),
 where a window that straddles the occlusion boundary matches the background. A sharper colour weight
 with a dense, smaller window reaches ~90 % there; ``fine5`` uses such a window only at pixels whose
@@ -40,28 +41,34 @@ CONFIGS: dict[str, dict[str, float]] = {
     "w5_s1.5": {"window": 5, "window_step": 1, "sigma_spatial": 1.5, "sigma_color": 0.05, "fine_window": 0},
     # per pixel: the 5x5 dense window (sigma_s 1.5, sigma_c 0.05) where its texture test passes, else the default;
     # at the finest level only (fine_max_level 0), or at every level as in benchmarks/results/fine_window.json
-    "fine5": {"fine_window": 5, "fine_edge_radius": 0},
-    "fine5_all_levels": {"fine_window": 5, "fine_edge_radius": 0, "fine_max_level": 7},
+    "fine5": {"fine_window": 5, "fine_edge_radius": 0, "fine_crease_angle": 0.0},
+    "fine5_all_levels": {"fine_window": 5, "fine_edge_radius": 0, "fine_max_level": 7, "fine_crease_angle": 0.0},
     # the same, but only within 5 px (the standard window's radius) of the depth discontinuities of each
     # pass's starting map (the default since session 11)
-    "fine5_edges": {"fine_window": 5, "fine_edge_radius": 5},
+    "fine5_edges": {"fine_window": 5, "fine_edge_radius": 5, "fine_crease_angle": 0.0},
     # the band with a finer edge test (1 % instead of 2 %), a lower texture floor for the fine window
     # (3e-4 instead of 1e-3) and the fine window at the two finest levels
     "fine5_edges_tuned": {"fine_window": 5, "fine_edge_radius": 5, "fine_edge_jump": 0.01, "fine_min_var": 3e-4,
-                          "fine_max_level": 1},
-    "fine5_edges_jump1": {"fine_window": 5, "fine_edge_radius": 5, "fine_edge_jump": 0.01},
-    "fine5_edges_var3": {"fine_window": 5, "fine_edge_radius": 5, "fine_min_var": 3e-4},
-    "fine5_edges_l1": {"fine_window": 5, "fine_edge_radius": 5, "fine_max_level": 1},
+                          "fine_max_level": 1, "fine_crease_angle": 0.0},
+    "fine5_edges_jump1": {"fine_window": 5, "fine_edge_radius": 5, "fine_edge_jump": 0.01, "fine_crease_angle": 0.0},
+    "fine5_edges_var3": {"fine_window": 5, "fine_edge_radius": 5, "fine_min_var": 3e-4, "fine_crease_angle": 0.0},
+    "fine5_edges_l1": {"fine_window": 5, "fine_edge_radius": 5, "fine_max_level": 1, "fine_crease_angle": 0.0},
     # the band with SPEC's decaying good-cost threshold (alpha 90; every result of this benchmark before session
     # 12 ran with it, the default since then is a constant threshold, alpha 0: results/tau_g_decay.json)
-    "fine5_edges_tau_decay": {"fine_window": 5, "fine_edge_radius": 5, "alpha": 90.0},
+    "fine5_edges_tau_decay": {"fine_window": 5, "fine_edge_radius": 5, "alpha": 90.0, "fine_crease_angle": 0.0},
     # a wider band (8 px: the starting map's edges sit a few pixels off the true ones where the large window
     # fattened the foreground), and with a lower weight for views that are neither good nor bad in the view
     # selection (beta_fallback 0.3 instead of ACMM's 0.4: occluded views of background beside an object)
-    "fine5_edges_r8": {"fine_window": 5, "fine_edge_radius": 8},
-    "fine5_edges_r8_fb3": {"fine_window": 5, "fine_edge_radius": 8, "beta_fallback": 0.3},
+    "fine5_edges_r8": {"fine_window": 5, "fine_edge_radius": 8, "fine_crease_angle": 0.0},
+    "fine5_edges_r8_fb3": {"fine_window": 5, "fine_edge_radius": 8, "beta_fallback": 0.3, "fine_crease_angle": 0.0},
     # the band also along creases (normals more than 30 degrees apart): benchmarks/results/fine_crease_angle.json
-    "fine5_crease30": {"fine_window": 5, "fine_crease_angle": 30.0},
+    "fine5_crease30": {"fine_window": 5, "fine_crease_angle": 30.0, "fine_crease_min_var_ratio": 0.0},
+    # in the crease band, the fine window only where its own (sharp colour) weights keep at least 10 % of the
+    # standard window's variance: not on piecewise-constant texture, where the sharp colour weight flattens it
+    "fine5_crease30_cratio10": {"fine_window": 5, "fine_crease_angle": 30.0, "fine_crease_min_var_ratio": 0.1},
+    "fine5_crease25_cratio10": {"fine_window": 5, "fine_crease_angle": 25.0, "fine_crease_min_var_ratio": 0.1},
+    "fine5_crease20_cratio10": {"fine_window": 5, "fine_crease_angle": 20.0, "fine_crease_min_var_ratio": 0.1},
+    "fine5_crease20_cratio5": {"fine_window": 5, "fine_crease_angle": 20.0, "fine_crease_min_var_ratio": 0.05},
 }
 
 

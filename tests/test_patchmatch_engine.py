@@ -76,6 +76,7 @@ def test_options_defaults_and_validation() -> None:
                 dict(fine_window=1), dict(fine_window_step=3), dict(fine_sigma_color=0.0), dict(fine_min_var=-1.0),
                 dict(fine_max_level=8), dict(fine_edge_radius=-1), dict(fine_edge_jump=0.0), dict(alpha=-1.0),
                 dict(min_improvement=-0.1), dict(min_improvement=math.inf), dict(fine_crease_angle=-1.0),
+                dict(fine_crease_min_var_ratio=-0.1), dict(fine_crease_min_var_ratio=1.5),
                 dict(fine_crease_angle=90.0)):
         with pytest.raises(OptionsError):
             PatchMatchOptions(**bad).validate()

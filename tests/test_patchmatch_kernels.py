@@ -11,7 +11,7 @@ from engine.camera import Camera
 from engine.patchmatch import PatchMatchOptions
 from engine.patchmatch import kernels as K
 from engine.patchmatch import reference as ref
-from engine.patchmatch.context import build_context, depth_edge_band, fine_window_region
+from engine.patchmatch.context import FINE_CREASE, FINE_EDGE, build_context, depth_edge_band, fine_window_region
 from engine.patchmatch.engine import _params, _State, half_step, init_cost
 from engine.patchmatch.geometry import (
     pack_geometry,
@@ -121,16 +121,29 @@ def test_homography_and_photometric_cost_match_reference() -> None:
         assert got == pytest.approx(want, abs=5e-4)
 
 
-@pytest.mark.parametrize("weighting", ["colmap", "acmm"])
-def test_window_choice_matches_reference(weighting: str) -> None:
-    """Per-pixel window: the fine window exactly where its variance test passes, its weights in the first
-    ns[1] entries (zeros after, summing to 1), moments equal to the fine window's own; the standard window
-    elsewhere; fine_window=0 gives the standard window everywhere."""
+def _checker_texture(img: np.ndarray, period: int = 6) -> np.ndarray:
+    """The image with its right third replaced by a two-tone checker (piecewise-constant texture)."""
+    out = img.copy()
+    h, w = img.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    checker = np.where((yy // period + xx // period) % 2 == 0, 0.3, 0.7).astype(np.float32)
+    out[:, 2 * w // 3:] = checker[:, 2 * w // 3:]
+    return out
+
+
+@pytest.mark.parametrize("weighting,ratio", [("colmap", 0.0), ("acmm", 0.0), ("colmap", 0.1), ("acmm", 0.1)])
+def test_window_choice_matches_reference(weighting: str, ratio: float) -> None:
+    """Per-pixel window: the fine window exactly where its variance tests pass (the ratio test only at crease
+    codes: the lower half), its weights in the first ns[1] entries (zeros after, summing to 1), moments equal
+    to the fine window's own; the standard window elsewhere; fine_window=0 gives the standard window
+    everywhere."""
     rng = np.random.default_rng(12)
     a, b = _cameras()
-    img = _mixed_texture(_smooth_noise(rng, 20, 24))
-    opts = PatchMatchOptions(ncc_weighting=weighting, fine_window=5)
-    ctx = build_context(img, a, [img], [b], opts)
+    img = _checker_texture(_mixed_texture(_smooth_noise(rng, 20, 24)))
+    opts = PatchMatchOptions(ncc_weighting=weighting, fine_window=5, fine_crease_min_var_ratio=ratio)
+    codes = np.full((20, 24), FINE_EDGE, np.uint8)
+    codes[10:] = FINE_CREASE
+    ctx = build_context(img, a, [img], [b], opts, fine_allowed=codes)
     n_std, n_fine = len(opts.window_offsets()) ** 2, len(opts.fine_window_offsets()) ** 2
     assert ctx.ns.tolist() == [n_std, n_fine] and ctx.wgt.shape[2] == max(n_std, n_fine)
     fine_offs = window_offsets_2d(opts.fine_window_offsets())
@@ -139,13 +152,21 @@ def test_window_choice_matches_reference(weighting: str) -> None:
     n_fine_px = 0
     for y in range(20):
         for x in range(24):
-            offsets, sigma_s, sc = ref.window_choice_ref(img.astype(np.float64), x, y, opts)
+            offsets, sigma_s, sc = ref.window_choice_ref(img.astype(np.float64), x, y, opts, int(codes[y, x]))
             fine = len(offsets) == n_fine
             assert sc == (fine_c if fine else sigma_c)
             wts, vals = ref.bilateral_weights_ref(img, x, y, fine_offs, weighting, opts.fine_sigma_spatial, sigma_c)
             var_test = (wts * vals * vals).sum() - (wts * vals).sum() ** 2
             if abs(var_test - opts.fine_min_var) < 1e-6:
-                continue  # float32 kernel vs float64 reference may round either way at the threshold
+                continue  # float32 kernel vs float64 reference may round either way at the thresholds
+            if ratio > 0 and codes[y, x] == FINE_CREASE and var_test >= opts.fine_min_var:
+                v_own = _variance(*ref.bilateral_weights_ref(img, x, y, fine_offs, weighting, opts.fine_sigma_spatial,
+                                                             fine_c))
+                std_offs = window_offsets_2d(opts.window_offsets())
+                v_std = _variance(*ref.bilateral_weights_ref(img, x, y, std_offs, weighting, opts.sigma_spatial,
+                                                             sigma_c))
+                if abs(v_own - ratio * v_std) < 1e-6:
+                    continue
             assert ctx.wset[y, x] == fine, (x, y)
             n_fine_px += fine
             ox, oy = ctx.offsets_at(x, y)
@@ -154,11 +175,36 @@ def test_window_choice_matches_reference(weighting: str) -> None:
             np.testing.assert_allclose(ctx.wgt[y, x, : len(offsets)], wts, rtol=1e-4, atol=1e-7)
             assert np.all(ctx.wgt[y, x, len(offsets):] == 0)
             assert ctx.mu_a[y, x] == pytest.approx((wts * vals).sum(), abs=1e-5)
-    assert 0.3 < n_fine_px / 480 < 0.9
+    assert 0.2 < n_fine_px / 480 < 0.7
     off = build_context(img, a, [img], [b], PatchMatchOptions(ncc_weighting=weighting, fine_window=0))
     assert not off.wset.any() and off.ns.tolist() == [n_std]
     np.testing.assert_array_equal(off.wgt, bilateral_moments(img, window_offsets_2d(opts.window_offsets()),
                                                              weighting, opts.sigma_spatial, sigma_c)[0])
+
+
+def _variance(wts: np.ndarray, vals: np.ndarray) -> float:
+    return float((wts * vals * vals).sum() - (wts * vals).sum() ** 2)
+
+
+def test_crease_var_ratio_keeps_the_large_window_on_checkers() -> None:
+    """In a crease band, fine_crease_min_var_ratio refuses the sharp-colour fine window on a two-tone checker
+    (its weights keep only the centre's tone, leaving a flat window) but keeps it on most of a continuous
+    texture; in an occlusion band (code FINE_EDGE) the ratio does not apply."""
+    rng = np.random.default_rng(3)
+    a, b = _cameras(48, 40)
+    img = _checker_texture(_smooth_noise(rng, 40, 48))
+    third = 2 * 48 // 3
+    opts = PatchMatchOptions(fine_window=5, fine_crease_min_var_ratio=0.1)
+    crease = np.full((40, 48), FINE_CREASE, np.uint8)
+    off = build_context(img, a, [img], [b], opts.replace(fine_crease_min_var_ratio=0.0), fine_allowed=crease)
+    on = build_context(img, a, [img], [b], opts, fine_allowed=crease)
+    off, on = off.wset.astype(bool), on.wset.astype(bool)
+    assert off[:, third:].mean() > 0.4  # the variance test alone passes wherever a checker edge is near
+    assert on[:, third:].mean() < 0.1  # measured 0.85 -> 0.0
+    assert on[:, : third - 3].mean() > 0.6 * off[:, : third - 3].mean()  # measured 1.0 -> 0.73
+    assert not (on & ~off).any()  # the ratio only removes fine pixels
+    edge = build_context(img, a, [img], [b], opts, fine_allowed=crease // 2).wset  # all FINE_EDGE
+    np.testing.assert_array_equal(edge.astype(bool), off)
 
 
 def _planes_map(cam: Camera, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -223,8 +269,13 @@ def test_depth_edge_band_finds_creases_beyond_the_angle() -> None:
     band = depth_edge_band(depth, normal, rays, 0.02, 2, 30.0)
     assert band.sum() == 6 * depth.shape[0]  # the two seam columns widened by 2 on each side
     opts = PatchMatchOptions(fine_window=5, fine_edge_radius=2, fine_crease_angle=30.0)
-    np.testing.assert_array_equal(fine_window_region(depth, normal, a, opts), band)
-    assert not fine_window_region(depth, normal, a, opts.replace(fine_crease_angle=0.0)).any()  # the default
+    np.testing.assert_array_equal(fine_window_region(depth, normal, a, opts), band * FINE_CREASE)
+    assert not fine_window_region(depth, normal, a, opts.replace(fine_crease_angle=0.0)).any()
+    depth[:, :3] = 0.0  # a hole at the left border: its band is an occlusion band (FINE_EDGE), the seam's not
+    region = fine_window_region(depth, normal, a, opts)
+    hole_band = depth_edge_band(depth, normal, rays, 0.02, 2)
+    assert hole_band[:, :5].all() and not hole_band[band].any()
+    np.testing.assert_array_equal(region, np.where(hole_band, FINE_EDGE, band * FINE_CREASE))
 
 
 def test_depth_edge_band_finds_occlusions_not_slants() -> None:
@@ -272,7 +323,7 @@ def test_window_choice_respects_the_allowed_region() -> None:
     std = build_context(img, a, [img], [b], PatchMatchOptions(fine_window=0))
     for y in range(20):
         for x in range(24):
-            offsets = ref.window_choice_ref(img.astype(np.float64), x, y, opts, bool(allowed[y, x]))[0]
+            offsets = ref.window_choice_ref(img.astype(np.float64), x, y, opts, int(allowed[y, x]))[0]
             assert len(offsets) == ctx.ns[ctx.wset[y, x]]
             src = free if ctx.wset[y, x] else std
             np.testing.assert_array_equal(ctx.wgt[y, x, : len(offsets)], src.wgt[y, x, : len(offsets)])

@@ -89,7 +89,8 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
                   fine_allowed: np.ndarray | None = None, pool: BufferPool | None = None) -> ViewContext:
     """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1]).
 
-    ``fine_allowed`` (H, W) bool restricts the fine window to those pixels (None = no restriction); the
+    ``fine_allowed`` (H, W) bool or uint8 region codes (``fine_window_region``) restricts the fine window to
+    those pixels (None = no restriction); the
     window terms' arrays come from ``pool`` when given (see :meth:`ViewContext.release`)."""
     wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options, fine_allowed,
                                                             np.empty if pool is None else pool.take)
@@ -121,7 +122,11 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     A pixel takes the fine window when the intensity variance under the fine window's spatial weights
     and the standard colour sigma reaches ``fine_min_var``: there the small window holds enough texture
     for a stable NCC and no longer straddles depth edges the way the large one does (foreground
-    fattening); weakly textured pixels keep the large window.
+    fattening); weakly textured pixels keep the large window. At FINE_CREASE pixels of ``fine_allowed`` the
+    variance under the fine window's own weights (its sharper colour sigma) must also reach
+    ``fine_crease_min_var_ratio`` times the standard window's: on piecewise-constant texture the sharp colour
+    weight keeps little more than the centre's colour and the small window is nearly flat, while the large
+    one still sees the pattern.
     Returns wgt, wa (H, W, S) f32, mu_a, var_a (H, W) f32, wset (H, W) u8 and the offset sets.
     """
     offs = window_offsets_2d(options.window_offsets())
@@ -131,29 +136,39 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
     wgt, wa, mu_a, var_a, wset = window_terms(ref_img, offs, offs_f, options.ncc_weighting, options.sigma_spatial,
                                               sigma_c, options.fine_sigma_spatial, fine_c, options.fine_min_var,
-                                              fine_allowed, alloc)
+                                              fine_allowed, alloc, options.fine_crease_min_var_ratio)
     return wgt, wa, mu_a, var_a, wset, [offs, offs_f] if use_fine else [offs]
+
+
+FINE_OFF, FINE_EDGE, FINE_CREASE = 0, 1, 2  # codes of a fine-window region map (fine_window_region)
 
 
 def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, options: PatchMatchOptions,
                        random_start: bool = False, level: int = 0) -> np.ndarray | None:
-    """(H, W) bool where matching may use the fine window, or None for no restriction.
+    """(H, W) uint8 where matching may use the fine window, or None for no restriction.
 
     Nowhere at levels coarser than ``fine_max_level``; up to it, None with ``fine_edge_radius`` 0, else the
     band around the depth discontinuities of the map a pass starts from (or of the final map, for the
     counter maps): occlusion edges are where the large window fattens the foreground, and only there does
     the fine window repay its lower precision inside textured surfaces. A random start has no edges yet,
-    so its pass uses the standard window only. depth (H, W), normal (H, W, 3) camera frame."""
+    so its pass uses the standard window only. Codes: FINE_OFF (standard window), FINE_EDGE (the fine window
+    where the texture test passes), FINE_CREASE (band of a crease only, ``fine_crease_angle``: the fine window
+    where the texture test and ``fine_crease_min_var_ratio`` pass). depth (H, W), normal (H, W, 3) camera
+    frame."""
     if not options.fine_window:
         return None
     if level > options.fine_max_level:
-        return np.zeros(depth.shape, bool)
+        return np.zeros(depth.shape, np.uint8)
     if options.fine_edge_radius <= 0:
         return None
     if random_start:
-        return np.zeros(depth.shape, bool)
-    return depth_edge_band(depth, normal, camera.pixel_rays(), options.fine_edge_jump, options.fine_edge_radius,
-                           options.fine_crease_angle)
+        return np.zeros(depth.shape, np.uint8)
+    edge, crease = _edge_seeds(depth, normal, camera.pixel_rays(), options.fine_edge_jump, options.fine_crease_angle)
+    edge_band = _dilate(edge, options.fine_edge_radius)
+    region = edge_band.view(np.uint8) * np.uint8(FINE_EDGE)
+    if crease.any():
+        region[_dilate(crease, options.fine_edge_radius) & ~edge_band] = FINE_CREASE
+    return region
 
 
 def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jump: float, radius: int,
@@ -167,24 +182,38 @@ def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jum
     depth (H, W) camera-frame depth, normal (H, W, 3) camera-frame unit normals, rays (H, W, 3) the pixels'
     rays K⁻¹ [x, y, 1] (``Camera.pixel_rays``).
     """
+    edge, crease = _edge_seeds(depth, normal, rays, jump, crease_angle)
+    return _dilate(edge | crease, radius)
+
+
+def _edge_seeds(depth, normal, rays, jump, crease_angle):
+    """(H, W) bool pixels of discontinuous pairs, and of crease pairs (normals more than ``crease_angle``
+    apart; none at 0) that are not discontinuous."""
     h, w = depth.shape
     z = depth.astype(np.float64)
     n = normal.astype(np.float64)
     n_dot_own = np.einsum("hwc,hwc->hw", n, rays)
     edge = np.zeros((h, w), bool)
+    crease = np.zeros((h, w), bool)
     for axis in (0, 1):
         a = (slice(None, -1), slice(None)) if axis == 0 else (slice(None), slice(None, -1))
         b = (slice(1, None), slice(None)) if axis == 0 else (slice(None), slice(1, None))
         pair = _discontinuous(z[a], z[b], n[a], n[b], n_dot_own[a], n_dot_own[b], rays[a], rays[b], jump)
-        if crease_angle > 0:
-            pair |= np.einsum("...c,...c->...", n[a], n[b]) < math.cos(math.radians(crease_angle))
         edge[a] |= pair
         edge[b] |= pair
-    if radius <= 0 or not edge.any():
-        return edge
+        if crease_angle > 0:
+            bent = ~pair & (np.einsum("...c,...c->...", n[a], n[b]) < math.cos(math.radians(crease_angle)))
+            crease[a] |= bent
+            crease[b] |= bent
+    return edge, crease & ~edge
+
+
+def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    if radius <= 0 or not mask.any():
+        return mask
     # a square dilation is a maximum filter, which scipy applies axis by axis (binary_dilation visits the
     # whole (2r+1)^2 structure per pixel)
-    return ndimage.maximum_filter(edge.view(np.uint8), size=2 * radius + 1, mode="constant", cval=0).astype(bool)
+    return ndimage.maximum_filter(mask.view(np.uint8), size=2 * radius + 1, mode="constant", cval=0).astype(bool)
 
 
 def _discontinuous(zp, zq, n_p, n_q, np_rp, nq_rq, rp, rq, jump):

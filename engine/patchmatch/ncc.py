@@ -63,10 +63,12 @@ def _pixel_moments(img, x, y, offs, n_off, mode, sigma_s, sigma_c, wrow, warow):
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, sigma_c_f, min_var_f, allowed,
-                         wgt, wa, mu_a, var_a, wset):
-    """Per pixel: the fine window where ``allowed`` and its variance test (fine offsets, sigma_s_f,
-    the standard sigma_c) reaches ``min_var_f``, else the standard window; unused entries are 0."""
+def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, sigma_c_f, min_var_f, min_ratio_f,
+                         allowed, wgt, wa, mu_a, var_a, wset):
+    """Per pixel: the fine window where ``allowed`` (u8 code > 0) and its variance test (fine offsets, sigma_s_f,
+    the standard sigma_c) reaches ``min_var_f`` and, at code 2 with ``min_ratio_f`` > 0, its variance under its
+    own weights reaches ``min_ratio_f`` times the standard window's; else the standard window; unused entries
+    are 0."""
     h, w = img.shape
     n_std = offs.shape[0]
     n_fine = offs_f.shape[0]
@@ -76,9 +78,13 @@ def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, s
             wrow = wgt[y, x]
             warow = wa[y, x]
             fine = False
-            if n_fine > 0 and allowed[y, x]:
+            if n_fine > 0 and allowed[y, x] > 0:
                 v_test = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c, wrow, warow)[1]
                 fine = np.float32(v_test) >= min_var_f
+                if fine and allowed[y, x] == 2 and min_ratio_f > 0:
+                    v_std = _pixel_moments(img, x, y, offs, n_std, mode, sigma_s, sigma_c, wrow, warow)[1]
+                    v_own = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)[1]
+                    fine = np.float32(v_own) >= min_ratio_f * np.float32(v_std)
             if fine:
                 m, v = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)
                 n = n_fine
@@ -113,13 +119,15 @@ def bilateral_moments(img: np.ndarray, offs: np.ndarray, weighting: str, sigma_s
 
 def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weighting: str, sigma_s: float,
                  sigma_c: float, sigma_s_fine: float, sigma_c_fine: float, min_var_fine: float,
-                 allowed: np.ndarray | None, alloc: Callable[..., np.ndarray] = np.empty
+                 allowed: np.ndarray | None, alloc: Callable[..., np.ndarray] = np.empty, min_ratio_fine: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Reference-side NCC terms with a per-pixel choice between two windows (see
     ``context.reference_terms``): wgt, wa (H, W, max(S, S_fine)) f32 (zero past the pixel's window),
     mu_a, var_a (H, W) f32 and wset (H, W) u8 (1 = fine). ``offs_fine`` (0, 2) disables the fine
-    window; ``allowed`` (H, W) bool or None (everywhere). ``alloc(shape, dtype)`` gives the output arrays
-    (``np.empty`` or a ``buffers.BufferPool``'s take)."""
+    window; ``allowed`` (H, W) bool, uint8 codes (0 none, 1 fine window allowed, 2 allowed subject to
+    ``min_ratio_fine``: its variance under its own weights must reach that fraction of the standard window's)
+    or None (everywhere, code 1). ``alloc(shape, dtype)`` gives the output arrays (``np.empty`` or a
+    ``buffers.BufferPool``'s take)."""
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
     s = max(offs.shape[0], offs_fine.shape[0])
@@ -129,11 +137,11 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     var_a = alloc((h, w), np.float32)
     wset = np.empty((h, w), np.uint8)
     if allowed is None:
-        allowed = np.ones((h, w), np.bool_)
+        allowed = np.ones((h, w), np.uint8)
     _window_terms_kernel(img, offs, np.ascontiguousarray(offs_fine, dtype=np.int32), WEIGHTING_CODES[weighting],
                          float(sigma_s), float(sigma_c), float(sigma_s_fine), float(sigma_c_fine),
-                         np.float32(min_var_fine), np.ascontiguousarray(allowed, dtype=np.bool_), wgt, wa, mu_a,
-                         var_a, wset)
+                         np.float32(min_var_fine), np.float32(min_ratio_fine),
+                         np.ascontiguousarray(allowed, dtype=np.uint8), wgt, wa, mu_a, var_a, wset)
     return wgt, wa, mu_a, var_a, wset
 
 

@@ -52,11 +52,19 @@ class PatchMatchOptions(Options):
     fine_edge_jump: float = option(0.02, "a pair of neighbouring pixels is a depth discontinuity when each one's "
                                    "plane predicts the other's depth with a relative error above this")
     fine_crease_angle: float = option(
-        0.0, "with fine_window: neighbouring pixels whose planes' normals differ by more than this (degrees) are "
+        20.0, "with fine_window: neighbouring pixels whose planes' normals differ by more than this (degrees) are "
         "an edge too (a crease: wall meets floor, box stands on ground), where the 11 px window also straddles two "
-        "planes; 0 = depth discontinuities only. 30: tiny 89.5 -> 90.0 % within 1 %, small +0.2 points and F1 at "
-        "1 cm +0.7, but on the weakly textured synth_01000 F1 at 1 cm -8 points (noisy normals there make "
-        "'creases' everywhere): for strongly textured scenes (benchmarks/results/fine_crease_angle.json)")
+        "planes; 0 = depth discontinuities only (SPEC). With fine_crease_min_var_ratio 0.1: tiny 89.5 -> 90.1 % "
+        "within 1 %, small +0.2 points and fused F1 at 1 cm +0.6, fountain_p11 at 192 px +0.8 and F1 at 2 cm +0.8; "
+        "the held-out synthetic scenes -0.2 and -0.4 F1 at 1 cm (their seed spread), nothing at 2 cm "
+        "(benchmarks/results/fine_crease_angle.json)")
+    fine_crease_min_var_ratio: float = option(
+        0.1, "with fine_crease_angle: in the band of a crease (not of a depth discontinuity) a pixel also needs the "
+        "variance under the fine window's own weights (its sharp fine_sigma_color) to reach this fraction of the "
+        "standard window's; 0 = no such test. On piecewise-constant texture (checkers, print) the sharp colour "
+        "weight keeps little but the centre's colour, so the small window is nearly flat while the large one "
+        "sees the pattern; without the test, noisy normals in such scenes make 'creases' everywhere and cost "
+        "synth_01000 8 points of F1 at 1 cm")
     ncc_weighting: str = option("colmap", "bilateral weights: 'colmap' (squared Gaussian, sigma_color on "
                                 "[0,1]) or 'acmm' (non-squared, acmm_sigma_color on 0-255)", choices=WEIGHTINGS)
     sigma_spatial: float = option(5.0, "bilateral spatial sigma (pixels)")
@@ -142,6 +150,8 @@ class PatchMatchOptions(Options):
         check(1 <= self.fine_window_step <= max(1, self.fine_window // 2), "fine_window_step",
               self.fine_window_step, "must be in 1..fine_window//2")
         check(self.fine_min_var >= 0, "fine_min_var", self.fine_min_var, "must be >= 0")
+        check(0 <= self.fine_crease_min_var_ratio <= 1, "fine_crease_min_var_ratio", self.fine_crease_min_var_ratio,
+              "must be in [0, 1]")
         check(0 <= self.fine_max_level <= 7, "fine_max_level", self.fine_max_level, "must be in 0..7")
         check(0 <= self.fine_edge_radius <= 32, "fine_edge_radius", self.fine_edge_radius, "must be in 0..32")
         check(self.fine_edge_jump > 0, "fine_edge_jump", self.fine_edge_jump, "must be > 0")

@@ -69,12 +69,13 @@ def ncc_cost_ref(ref_img: np.ndarray, src_img: np.ndarray, H: np.ndarray, x: int
     return float(min(max(1.0 - cov / math.sqrt(var_a * var_b), 0.0), 2.0))
 
 
-def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: bool = True
+def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: int = 1
                       ) -> tuple[np.ndarray, float, float]:
     """Offsets (S, 2), spatial and colour sigma of the window reference pixel (x, y) matches with: the fine
-    window when ``allowed`` (the pixel lies in the pass's fine-window region) and the intensity variance
-    under its spatial weights and the standard colour sigma reaches ``options.fine_min_var``, else the
-    standard window (PatchMatchOptions.fine_window)."""
+    window when ``allowed`` (the pixel's code in the pass's fine-window region, > 0) and the intensity variance
+    under its spatial weights and the standard colour sigma reaches ``options.fine_min_var`` (and, at code 2
+    with ``options.fine_crease_min_var_ratio`` > 0, the variance under its own weights reaches that fraction of
+    the standard window's), else the standard window (PatchMatchOptions.fine_window)."""
     colmap = options.ncc_weighting == "colmap"
     sigma_c = options.sigma_color if colmap else options.acmm_sigma_color
     std = options.window_offsets()
@@ -84,10 +85,22 @@ def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: bool = 
     f1 = options.fine_window_offsets()
     fine = np.array([(dx, dy) for dy in f1 for dx in f1])
     wts, a = bilateral_weights_ref(img, x, y, fine, options.ncc_weighting, options.fine_sigma_spatial, sigma_c)
-    mu = float((wts * a).sum())
-    if float((wts * a * a).sum()) - mu * mu < options.fine_min_var:
+    if _variance(wts, a) < options.fine_min_var:
         return standard
-    return fine, options.fine_sigma_spatial, options.fine_sigma_color if colmap else sigma_c
+    fine_c = options.fine_sigma_color if colmap else sigma_c
+    if allowed == 2 and options.fine_crease_min_var_ratio > 0:
+        v_own = _variance(*bilateral_weights_ref(img, x, y, fine, options.ncc_weighting,
+                                                 options.fine_sigma_spatial, fine_c))
+        v_std = _variance(*bilateral_weights_ref(img, x, y, standard[0], options.ncc_weighting,
+                                                 options.sigma_spatial, sigma_c))
+        if v_own < options.fine_crease_min_var_ratio * v_std:
+            return standard
+    return fine, options.fine_sigma_spatial, fine_c
+
+
+def _variance(wts: np.ndarray, a: np.ndarray) -> float:
+    mu = float((wts * a).sum())
+    return float((wts * a * a).sum()) - mu * mu
 
 
 def edge_band_ref(depth: np.ndarray, normal: np.ndarray, K: np.ndarray, jump: float, radius: int,
