@@ -33,6 +33,8 @@ class _Interrupt:
         self.after, self.calls = after, 0
 
     def __call__(self, description: str, done: int, total: int) -> None:
+        if done == 0:  # a pass starting, not a view-pass done
+            return
         self.calls += 1
         if self.calls == self.after:
             raise KeyboardInterrupt

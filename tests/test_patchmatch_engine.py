@@ -111,6 +111,8 @@ def test_no_observer_and_observer_list_give_same_maps(small_scene) -> None:
     assert _maps_equal(a, b)
     assert len(r1.events) == len(r2.events) > 0
     assert progress[-1] == ("level 0 geometric", 3, 3)
+    starts = [i for i, (_, done, _) in enumerate(progress) if done == 0]  # each pass: 0, then a call per view
+    assert len(starts) * 4 == len(progress) and all(progress[i + 3][1] == 3 for i in starts)
     for m, v in zip(a, views, strict=True):
         assert m.depth.dtype == np.float32 and m.normal.shape == v.image_gray.shape + (3,)
         assert m.selected_views.dtype == np.uint32

@@ -8,7 +8,10 @@ from tqdm import tqdm
 
 
 class PassProgress:
-    """``progress(description, done, total)`` callback that draws a bar per pass (e.g. "level 2 photometric")."""
+    """``progress(description, done, total)`` callback that draws a bar per pass (e.g. "level 2 photometric").
+
+    A call with done 0 starts a pass's bar (its clock starts then, so the first view's time counts) and the
+    call with done == total closes it (so its elapsed time ends with the pass's last view)."""
 
     def __init__(self, enabled: bool = True):
         self.enabled = enabled
@@ -19,13 +22,15 @@ class PassProgress:
         if not self.enabled:
             return
         restarted = self._bar is not None and done < self._bar.n  # e.g. the second geometric pass
-        if description != self._description or self._bar is None or restarted:
+        if done == 0 or description != self._description or self._bar is None or restarted:
             self.close()
             self._bar = tqdm(total=total, desc=f"{description:<22}", unit="view", file=sys.stderr,
                              leave=True, dynamic_ncols=True)
             self._description = description
         self._bar.n = done
         self._bar.refresh()
+        if done >= total:
+            self.close()
 
     def close(self) -> None:
         if self._bar is not None:

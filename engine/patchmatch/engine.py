@@ -312,8 +312,8 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
         options: settings (defaults: SPEC.md §12).
         observer: optional; ``on_iteration(IterationEvent)`` after every red-black iteration of every
             view, pass and level, ``on_stage(name, **info)`` at pass boundaries. Either may be absent.
-        progress: optional ``progress(description, done, total)``, called after each view finishes a
-            pass, e.g. ``("level 2 photometric", 3, 11)``.
+        progress: optional ``progress(description, done, total)``, called with done 0 when a pass starts
+            and after each view finishes it, e.g. ``("level 2 photometric", 3, 11)``.
         checkpoint: optional :class:`engine.checkpoint.PatchMatchCheckpoint`: every view's state is saved
             after each pass, and states saved by an interrupted run with the same inputs are reused.
 
@@ -407,6 +407,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if on_stage is not None:
                 on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
             snapshot = [s.Z.copy() for s in states] if geometric else None
+            if progress is not None:
+                progress(f"level {level} {kind}", 0, n_views)
             for i, v in enumerate(views):
                 check_interrupt()
                 saved = None if checkpoint is None else checkpoint.load(level, pass_index, i, states[i].Z.shape)
