@@ -21,8 +21,7 @@ class PassProgress:
     def __call__(self, description: str, done: int, total: int) -> None:
         if not self.enabled:
             return
-        restarted = self._bar is not None and done < self._bar.n  # e.g. the second geometric pass
-        if done == 0 or description != self._description or self._bar is None or restarted:
+        if done == 0 or description != self._description or self._bar is None:
             self.close()
             self._bar = tqdm(total=total, desc=f"{description:<22}", unit="view", file=sys.stderr,
                              leave=True, dynamic_ncols=True)

@@ -12,7 +12,15 @@ from scipy import ndimage
 from engine.camera import Camera
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.geometry import pack_geometry, relative_geometry
-from engine.patchmatch.ncc import load_window, pad_sources, window_offsets_2d, window_terms
+from engine.patchmatch.ncc import (
+    FINE_CREASE,
+    FINE_EDGE,
+    FINE_OFF,
+    load_window,
+    pad_sources,
+    window_offsets_2d,
+    window_terms,
+)
 from engine.patchmatch.options import PatchMatchOptions
 
 
@@ -140,9 +148,6 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     return wgt, wa, mu_a, var_a, wset, [offs, offs_f] if use_fine else [offs]
 
 
-FINE_OFF, FINE_EDGE, FINE_CREASE = 0, 1, 2  # codes of a fine-window region map (fine_window_region)
-
-
 def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, options: PatchMatchOptions,
                        random_start: bool = False, level: int = 0) -> np.ndarray | None:
     """(H, W) uint8 where matching may use the fine window, or None for no restriction.
@@ -158,11 +163,11 @@ def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, op
     if not options.fine_window:
         return None
     if level > options.fine_max_level:
-        return np.zeros(depth.shape, np.uint8)
+        return np.full(depth.shape, FINE_OFF, np.uint8)
     if options.fine_edge_radius <= 0:
         return None
     if random_start:
-        return np.zeros(depth.shape, np.uint8)
+        return np.full(depth.shape, FINE_OFF, np.uint8)
     edge, crease = _edge_seeds(depth, normal, camera.pixel_rays(), options.fine_edge_jump, options.fine_crease_angle)
     edge_band = _dilate(edge, options.fine_edge_radius)
     region = edge_band.view(np.uint8) * np.uint8(FINE_EDGE)
@@ -188,7 +193,8 @@ def depth_edge_band(depth: np.ndarray, normal: np.ndarray, rays: np.ndarray, jum
 
 def _edge_seeds(depth, normal, rays, jump, crease_angle):
     """(H, W) bool pixels of discontinuous pairs, and of crease pairs (normals more than ``crease_angle``
-    apart; none at 0) that are not discontinuous."""
+    apart; none at 0). Both consumers take the union or the crease part outside the edges' band, so a
+    pixel may be in both."""
     h, w = depth.shape
     z = depth.astype(np.float64)
     n = normal.astype(np.float64)
@@ -202,10 +208,10 @@ def _edge_seeds(depth, normal, rays, jump, crease_angle):
         edge[a] |= pair
         edge[b] |= pair
         if crease_angle > 0:
-            bent = ~pair & (np.einsum("...c,...c->...", n[a], n[b]) < math.cos(math.radians(crease_angle)))
+            bent = np.einsum("...c,...c->...", n[a], n[b]) < math.cos(math.radians(crease_angle))
             crease[a] |= bent
             crease[b] |= bent
-    return edge, crease & ~edge
+    return edge, crease
 
 
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:

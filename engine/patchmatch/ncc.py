@@ -19,6 +19,9 @@ import numpy as np
 from numba import njit, prange
 
 WEIGHTING_CODES = {"colmap": 0, "acmm": 1}
+# where a pixel may use the fine window (context.fine_window_region): not at all; where its texture test
+# passes (occlusion band); where also its own variance keeps min_ratio_fine of the standard window's (crease band)
+FINE_OFF, FINE_EDGE, FINE_CREASE = 0, 1, 2
 
 
 def window_offsets_2d(offsets_1d: list[int]) -> np.ndarray:
@@ -65,10 +68,10 @@ def _pixel_moments(img, x, y, offs, n_off, mode, sigma_s, sigma_c, wrow, warow):
 @njit(cache=True, parallel=True, fastmath=True)
 def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, sigma_c_f, min_var_f, min_ratio_f,
                          allowed, wgt, wa, mu_a, var_a, wset):
-    """Per pixel: the fine window where ``allowed`` (u8 code > 0) and its variance test (fine offsets, sigma_s_f,
-    the standard sigma_c) reaches ``min_var_f`` and, at code 2 with ``min_ratio_f`` > 0, its variance under its
-    own weights reaches ``min_ratio_f`` times the standard window's; else the standard window; unused entries
-    are 0."""
+    """Per pixel: the fine window where ``allowed`` (code > FINE_OFF) and its variance test (fine offsets,
+    sigma_s_f, the standard sigma_c) reaches ``min_var_f`` and, at FINE_CREASE with ``min_ratio_f`` > 0, its
+    variance under its own weights reaches ``min_ratio_f`` times the standard window's; else the standard
+    window; unused entries are 0."""
     h, w = img.shape
     n_std = offs.shape[0]
     n_fine = offs_f.shape[0]
@@ -78,15 +81,19 @@ def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, s
             wrow = wgt[y, x]
             warow = wa[y, x]
             fine = False
-            if n_fine > 0 and allowed[y, x] > 0:
+            done = False  # the chosen window's weights and moments are already in wrow / m, v
+            m = v = 0.0
+            if n_fine > 0 and allowed[y, x] != FINE_OFF:
                 v_test = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c, wrow, warow)[1]
                 fine = np.float32(v_test) >= min_var_f
-                if fine and allowed[y, x] == 2 and min_ratio_f > 0:
+                if fine and allowed[y, x] == FINE_CREASE and min_ratio_f > 0:
                     v_std = _pixel_moments(img, x, y, offs, n_std, mode, sigma_s, sigma_c, wrow, warow)[1]
-                    v_own = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)[1]
-                    fine = np.float32(v_own) >= min_ratio_f * np.float32(v_std)
+                    m, v = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)
+                    fine = np.float32(v) >= min_ratio_f * np.float32(v_std)
+                    done = fine
             if fine:
-                m, v = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)
+                if not done:
+                    m, v = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)
                 n = n_fine
             else:
                 m, v = _pixel_moments(img, x, y, offs, n_std, mode, sigma_s, sigma_c, wrow, warow)
@@ -124,9 +131,9 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     """Reference-side NCC terms with a per-pixel choice between two windows (see
     ``context.reference_terms``): wgt, wa (H, W, max(S, S_fine)) f32 (zero past the pixel's window),
     mu_a, var_a (H, W) f32 and wset (H, W) u8 (1 = fine). ``offs_fine`` (0, 2) disables the fine
-    window; ``allowed`` (H, W) bool, uint8 codes (0 none, 1 fine window allowed, 2 allowed subject to
-    ``min_ratio_fine``: its variance under its own weights must reach that fraction of the standard window's)
-    or None (everywhere, code 1). ``alloc(shape, dtype)`` gives the output arrays (``np.empty`` or a
+    window; ``allowed`` (H, W) bool, uint8 codes (FINE_OFF, FINE_EDGE, FINE_CREASE: subject to
+    ``min_ratio_fine`` too, its variance under its own weights must reach that fraction of the standard
+    window's) or None (everywhere, FINE_EDGE). ``alloc(shape, dtype)`` gives the output arrays (``np.empty`` or a
     ``buffers.BufferPool``'s take)."""
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
@@ -137,7 +144,7 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     var_a = alloc((h, w), np.float32)
     wset = np.empty((h, w), np.uint8)
     if allowed is None:
-        allowed = np.ones((h, w), np.uint8)
+        allowed = np.full((h, w), FINE_EDGE, np.uint8)
     _window_terms_kernel(img, offs, np.ascontiguousarray(offs_fine, dtype=np.int32), WEIGHTING_CODES[weighting],
                          float(sigma_s), float(sigma_c), float(sigma_s_fine), float(sigma_c_fine),
                          np.float32(min_var_fine), np.float32(min_ratio_fine),

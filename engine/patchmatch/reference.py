@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from engine.patchmatch import rng
+from engine.patchmatch.ncc import FINE_CREASE, FINE_EDGE
 
 # ----------------------------------------------------------------------------- NCC (§2.3)
 
@@ -69,13 +70,13 @@ def ncc_cost_ref(ref_img: np.ndarray, src_img: np.ndarray, H: np.ndarray, x: int
     return float(min(max(1.0 - cov / math.sqrt(var_a * var_b), 0.0), 2.0))
 
 
-def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: int = 1
+def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: int = FINE_EDGE
                       ) -> tuple[np.ndarray, float, float]:
     """Offsets (S, 2), spatial and colour sigma of the window reference pixel (x, y) matches with: the fine
-    window when ``allowed`` (the pixel's code in the pass's fine-window region, > 0) and the intensity variance
-    under its spatial weights and the standard colour sigma reaches ``options.fine_min_var`` (and, at code 2
-    with ``options.fine_crease_min_var_ratio`` > 0, the variance under its own weights reaches that fraction of
-    the standard window's), else the standard window (PatchMatchOptions.fine_window)."""
+    window when ``allowed`` (the pixel's code in the pass's fine-window region, not FINE_OFF) and the intensity
+    variance under its spatial weights and the standard colour sigma reaches ``options.fine_min_var`` (and, at
+    FINE_CREASE with ``options.fine_crease_min_var_ratio`` > 0, the variance under its own weights reaches that
+    fraction of the standard window's), else the standard window (PatchMatchOptions.fine_window)."""
     colmap = options.ncc_weighting == "colmap"
     sigma_c = options.sigma_color if colmap else options.acmm_sigma_color
     std = options.window_offsets()
@@ -88,7 +89,7 @@ def window_choice_ref(img: np.ndarray, x: int, y: int, options, allowed: int = 1
     if _variance(wts, a) < options.fine_min_var:
         return standard
     fine_c = options.fine_sigma_color if colmap else sigma_c
-    if allowed == 2 and options.fine_crease_min_var_ratio > 0:
+    if allowed == FINE_CREASE and options.fine_crease_min_var_ratio > 0:
         v_own = _variance(*bilateral_weights_ref(img, x, y, fine, options.ncc_weighting,
                                                  options.fine_sigma_spatial, fine_c))
         v_std = _variance(*bilateral_weights_ref(img, x, y, standard[0], options.ncc_weighting,
