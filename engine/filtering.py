@@ -14,6 +14,7 @@ import dataclasses
 
 import numpy as np
 
+from engine.confidence.options import ConfidenceOptions
 from engine.options import Options, check, option
 
 
@@ -21,8 +22,8 @@ from engine.options import Options, check, option
 class FilterOptions(Options):
     """Which pixels survive into fusion (SPEC.md §12 ``filter``)."""
 
-    conf_tau: float = option(0.05, "keep pixels whose predicted confidence is at least this (0 keeps all)",
-                             metavar="TAU")
+    conf_tau: float = option(ConfidenceOptions().tau, "keep pixels whose predicted confidence is at least this "
+                             "(0 keeps all; default: confidence.tau)", metavar="TAU")
     mask_k: int | None = option(None, "keep pixels with at least this many consistent source views "
                                       "(counter map); unset = no counter filter", metavar="K")
 

@@ -160,3 +160,37 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
     assert not refine_run(out, options=options).reused
     for (kind, name), array in saved.items():
         np.testing.assert_array_equal(read_map(out, kind, name), array, err_msg=f"{kind} {name}")
+
+
+def test_views_are_drawn_by_their_probabilities(noisy_run):
+    from engine.confidence.training import crop_size, draw_batch
+
+    samples = load_run(noisy_run)
+    options = TrainOptions(batch=1, crop=32, flip=False, normal_noise=0, color_jitter=0, min_labelled=0)
+    rng = np.random.default_rng(0)
+    probabilities = np.array([0.0, 0.0, 1.0, 0.0, 0.0])
+    size = crop_size(options, samples)
+    target = samples[2].inputs.astype(np.float32)
+    for _ in range(5):  # every crop comes from view 2, the only one with a non-zero probability
+        x, _ = draw_batch(samples, options, size, rng, probabilities)
+        crop = x[0].numpy()
+        windows = np.lib.stride_tricks.sliding_window_view(target[0], crop.shape[1:])
+        assert np.any(np.all(windows == crop[0], axis=(-1, -2)))
+
+
+def test_training_on_a_missing_gpu_is_a_clear_error(noisy_run, tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    samples = load_run(noisy_run)
+    with pytest.raises(DeepCError, match="no CUDA GPU"):
+        train(samples, [], OPTIONS.replace(device="cuda"), tmp_path / "c.ckpt")
+    assert not (tmp_path / "c.ckpt").exists()
+
+
+def test_training_width_sets_the_architecture(noisy_run, tmp_path):
+    from engine.confidence.weights import load_weights
+
+    samples = load_run(noisy_run)
+    train(samples, [], OPTIONS.replace(base_width=4, epochs=1, steps_per_epoch=1), tmp_path / "d.ckpt",
+          tmp_path / "d.pt")
+    assert load_weights(tmp_path / "d.pt").widths == (4, 8, 16, 32)

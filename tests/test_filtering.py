@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from engine.confidence.options import ConfidenceOptions
 from engine.errors import OptionsError
 from engine.filtering import FilterOptions, apply_filters, filter_by_confidence, filter_by_counter
 
@@ -71,4 +72,4 @@ def test_apply_filters_combines():
     np.testing.assert_array_equal(d > 0, (conf >= 0.3) & (counter >= 1) & (depth > 0))
     d, _ = apply_filters(depth, normal, FilterOptions(conf_tau=0.3), None, None)  # no maps: nothing to filter
     np.testing.assert_array_equal(d, depth)
-    assert FilterOptions().conf_tau == 0.05 and FilterOptions().mask_k is None
+    assert FilterOptions().conf_tau == ConfidenceOptions().tau and FilterOptions().mask_k is None

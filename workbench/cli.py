@@ -267,7 +267,7 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weights", metavar="FILE", default=None,
                         help="confidence-network weights for --pipeline fast and full (default: the shipped "
                              "engine/confidence/weights/deepc_middle.pt); the filter threshold is "
-                             "--set confidence.tau=0.05")
+                             "--set confidence.tau=0.1")
     parser.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
                         help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
                              "--set fusion.check_num_images=20, "

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from engine.confidence.options import ConfidenceOptions
 from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
@@ -42,7 +43,7 @@ class ViewParams:
     """Everything downstream of PatchMatch that the viewer lets a user tune."""
 
     pipeline: str = "vanilla"
-    conf_tau: float = 0.05
+    conf_tau: float = ConfidenceOptions().tau  # the pipeline's threshold
     mask_k: int = 0  # 0 = no counter filter
     fusion: FusionOptions = dataclasses.field(default_factory=lambda: FUSION_PRESETS[VIEWER_DEFAULT_PRESET])
 

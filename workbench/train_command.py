@@ -41,6 +41,11 @@ def add_train_arguments(train: argparse.ArgumentParser) -> None:
 
     train.add_argument("scenes", nargs="*", metavar="SCENE_OR_RUN",
                        help="training scenes with GT depth maps, or finished run folders of such scenes")
+    train.add_argument("--recipe", default=None, metavar="FILE.toml",
+                       help="train as the recipe says (scenes, split, engine runs, options; see "
+                            "engine/confidence/recipes/); flags given explicitly override its [training]")
+    train.add_argument("--data", default=None, metavar="DIR",
+                       help="with --recipe: the folder its scene paths are relative to (default: its [data] root)")
     train.add_argument("--synthetic", type=parse_seeds, default=[], metavar="SEEDS",
                        help="also train on these randomised synthetic scenes, e.g. 0-59")
     train.add_argument("--validation", nargs="*", default=[], metavar="SCENE_OR_RUN",
@@ -175,7 +180,102 @@ def _subset(samples: list, count: int) -> list:
     return [samples[int(i)] for i in np.linspace(0, len(samples) - 1, count).round()]
 
 
+def recipe_run(entry, cache: Path) -> Path:
+    """The cached engine run of one recipe scene (rendered first when synthetic)."""
+    from engine.confidence.data import ensure_run
+    from engine.patchmatch import PatchMatchOptions
+    from engine.pipeline import PipelineOptions
+    from engine.scene import SceneOptions
+    from engine.synthetic.dataset import write_training_scenes
+
+    folder = entry.path or write_training_scenes(cache / "scenes", [entry.seed])[0]
+    scene_options = SceneOptions(num_source_views=entry.engine.get("num_source_views", 4),
+                                 max_image_size=entry.engine.get("max_image_size", 0))
+    pipeline_options = PipelineOptions(pipeline="vanilla", patchmatch=PatchMatchOptions(
+        schedule=entry.engine.get("schedule", "acmm"), iterations=entry.engine.get("iterations"), seed=0)).validate()
+    return ensure_run(folder, cache / "runs", scene_options, pipeline_options, log=_log, name=entry.run_name,
+                      require_gt=False)
+
+
+def cmd_train_recipe(args: argparse.Namespace) -> int:
+    """``deepc train --recipe FILE``: the recipe's training and validation scenes, options and sampling."""
+    from engine.confidence.options import TrainOptions
+    from engine.confidence.recipe import load_recipe
+    from engine.confidence.training import ValidationSet, train
+    from workbench.flags import given_flags
+
+    if (args.scenes or args.synthetic or args.validation or args.validation_synthetic or args.refined
+            or args.refine_weights or args.set or args.init):
+        raise DeepCError("deepc train --recipe: the recipe names the scenes and maps; give no SCENE, --synthetic, "
+                         "--validation, --refined, --refine-weights, --set or --init")
+    recipe = load_recipe(args.recipe, args.data)
+    refiner = None
+    if recipe.refined is not None:
+        refiner = Refiner(recipe.refined.get("weights") or None, refine_options(recipe.refined.get("set", [])))
+    options: TrainOptions = recipe.options.replace(**given_flags(TrainOptions, args)).validate()
+    cache = Path(args.cache)
+    out = Path(args.out) if args.out else Path("runs/train") / recipe.name / f"{recipe.name}.pt"
+    checkpoint = Path(args.checkpoint) if args.checkpoint else out.with_name(out.stem + ".checkpoint.pt")
+    t = time.perf_counter()
+    train_samples, probabilities, real_views = [], [], 0
+    runs = {}
+    for entry in recipe.scenes("train"):
+        runs[entry.name] = recipe_run(entry, cache)
+        views = _load([runs[entry.name]], refiner)
+        train_samples += views
+        probabilities += [0.0 if entry.synthetic else 1.0] * len(views)
+        real_views += 0 if entry.synthetic else len(views)
+    weights = np.asarray(probabilities)
+    synthetic_views = len(weights) - real_views
+    share = recipe.real_share if real_views and synthetic_views else float(real_views > 0)
+    weights = np.where(weights > 0, share / max(1, real_views), (1 - share) / max(1, synthetic_views))
+    validation = []
+    for entry in recipe.scenes("validation"):
+        runs[entry.name] = recipe_run(entry, cache)
+        validation.append(ValidationSet(entry.name, _subset(_load([runs[entry.name]], refiner),
+                                                            args.validation_max_views)))
+    labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
+    maps = "refined" if refiner else "vanilla"
+    _log(f"recipe {recipe.name} ({maps} maps): {len(recipe.scenes('train'))} training scenes ({real_views} real views, "
+         f"{synthetic_views} synthetic; {100 * share:.0f} % of crops from real views), {labelled:,} labelled "
+         f"pixels; validation: {', '.join(v.name for v in validation) or 'none'} ({time.perf_counter() - t:.0f} s)")
+    result = train(train_samples, validation, options, checkpoint, out, progress=_progress_logger(options, checkpoint),
+                   data_names=sorted({s.scene for s in train_samples}), max_epochs=args.max_epochs,
+                   probabilities=weights, inputs=refiner.description() if refiner else None)
+    result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
+    result["recipe"] = {"name": recipe.name, "text": recipe.text}
+    write_json(out.with_name(out.stem + ".history.json"), result)
+    card = Path(args.model_card) if args.model_card else out.with_name("MODEL_CARD.md")
+    from workbench.model_card import write_recipe_model_card
+    write_recipe_model_card(card, out, result, recipe)
+    best = result["best"]
+    print(json.dumps({"weights": str(out), "model_card": str(card), "best_epoch": best["epoch"],
+                      "score": best["score"], "epochs_done": result["epochs_done"]}))
+    return 0
+
+
+def _progress_logger(options, checkpoint: Path):
+    start = time.perf_counter()
+
+    def progress(event: dict) -> None:
+        if event["kind"] == "resume":
+            _log(f"resuming from {checkpoint} after epoch {event['epoch']}")
+        elif event["kind"] == "step" and (event["step"] % 10 == 0 or event["step"] + 1 == event["steps"]):
+            _log(f"epoch {event['epoch'] + 1}/{options.epochs} step {event['step'] + 1}/{event['steps']} "
+                 f"loss {event['loss']:.4f} ({time.perf_counter() - start:.0f} s)")
+        elif event["kind"] == "epoch":
+            aucs = ", ".join(f"{k} {v['auc']:.2f}" for k, v in event["validation"]["sets"].items())
+            _log(f"epoch {event['epoch']}: loss {event['loss']:.4f}, ROC-AUC {aucs or '-'}"
+                 f"{' (best so far, saved)' if event['improved'] else ''}; train {event['train_seconds']:.0f} s, "
+                 f"validation {event['validation_seconds']:.0f} s")
+    return progress
+
+
 def cmd_train(args: argparse.Namespace) -> int:
+    if args.recipe:
+        return cmd_train_recipe(args)
+    if args.data:
+        raise DeepCError("deepc train: --data only makes sense with --recipe")
     from engine.confidence.training import TrainOptions, ValidationSet, train
     from engine.patchmatch import PatchMatchOptions
     from engine.pipeline import PipelineOptions
@@ -216,20 +316,7 @@ def cmd_train(args: argparse.Namespace) -> int:
          f"validation: {', '.join(f'{v.name} ({len(v.samples)} views)' for v in validation) or 'none'} "
          f"({time.perf_counter() - t:.0f} s)")
 
-    start = time.perf_counter()
-
-    def progress(event: dict) -> None:
-        if event["kind"] == "resume":
-            _log(f"resuming from {checkpoint} after epoch {event['epoch']}")
-        elif event["kind"] == "step" and (event["step"] % 10 == 0 or event["step"] + 1 == event["steps"]):
-            _log(f"epoch {event['epoch'] + 1}/{options.epochs} step {event['step'] + 1}/{event['steps']} "
-                 f"loss {event['loss']:.4f} ({time.perf_counter() - start:.0f} s)")
-        elif event["kind"] == "epoch":
-            aucs = ", ".join(f"{k} {v['auc']:.2f}" for k, v in event["validation"]["sets"].items())
-            _log(f"epoch {event['epoch']}: loss {event['loss']:.4f}, ROC-AUC {aucs or '-'}"
-                 f"{' (best so far, saved)' if event['improved'] else ''}; train {event['train_seconds']:.0f} s, "
-                 f"validation {event['validation_seconds']:.0f} s")
-
+    progress = _progress_logger(options, checkpoint)
     data_names = sorted({s.scene for s in train_samples})
     init = None
     if args.init:

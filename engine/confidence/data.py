@@ -144,16 +144,17 @@ def _model_image_names(metrics: dict) -> list[str] | None:
 
 
 def ensure_run(scene_dir: str | Path, runs_root: str | Path, scene_options: SceneOptions, pipeline_options,
-               log: Callable[[str], None] = print) -> Path:
-    """The cached vanilla run of ``scene_dir`` under ``runs_root/<scene name>``; runs the engine when the
-    cache is missing, incomplete or made with other options."""
+               log: Callable[[str], None] = print, name: str | None = None,
+               require_gt: bool = True) -> Path:
+    """The cached vanilla run of ``scene_dir`` under ``runs_root/<name>`` (default: the scene's name); runs the
+    engine when the cache is missing, incomplete or made with other options."""
     from engine.pipeline import run_pipeline
 
     scene = load_scene(scene_dir, scene_options)
-    if not scene.has_gt_depth:
+    if require_gt and not scene.has_gt_depth:
         raise DeepCError("scene has no ground-truth depth maps (ground_truth/depth_maps/): "
                          "it cannot give training labels", scene.root)
-    run_dir = Path(runs_root) / scene.name
+    run_dir = Path(runs_root) / (name or scene.name)
     expected = {"scene": scene_options.to_dict(), **pipeline_options.to_dict()}
     if run_is_complete(run_dir, scene.root, expected):
         return run_dir

@@ -18,9 +18,9 @@ from engine.confidence.network import ConfidenceNet, pad_to_multiple
 from engine.interrupt import check_interrupt
 
 
-def _autocast(bf16: bool):
-    if bf16 and torch.backends.mkldnn.is_available():
-        return torch.autocast("cpu", dtype=torch.bfloat16)
+def _autocast(bf16: bool, device: str = "cpu"):
+    if bf16 and (device == "cuda" or torch.backends.mkldnn.is_available()):
+        return torch.autocast(device, dtype=torch.bfloat16)
     return contextlib.nullcontext()
 
 
@@ -52,7 +52,7 @@ def predict_confidence(model: ConfidenceNet, inputs: np.ndarray, tile: int = 102
 
 
 def _predict(model: ConfidenceNet, inputs: np.ndarray, tile: int, overlap: int, bf16: bool) -> np.ndarray:
-    model.eval()
+    model.eval().cpu()  # a model trained on a GPU predicts on the CPU, as the pipeline does
     _, h, w = inputs.shape
     out = np.empty((h, w), np.float32)
     with torch.inference_mode():

@@ -8,25 +8,26 @@ from engine.options import Options, check, option
 
 LOSSES = ("deepc_squared", "deepc_l2", "bce", "wbce")
 FUSIONS = ("middle", "early")
+DEVICES = ("auto", "cpu", "cuda")
 
 
 @dataclasses.dataclass
 class ConfidenceOptions(Options):
     """Confidence stage of ``--pipeline fast`` (SPEC.md §4, §5, §12 ``filter``)."""
 
-    tau: float = option(0.05, "keep pixels whose confidence is at least this before fusion", metavar="TAU")
+    tau: float = option(0.1, "keep pixels whose confidence is at least this before fusion (paper: 0.05-0.5; "
+                        "ours, docs/decisions.md)", metavar="TAU")
     weights: str = option("", "weights file (default: the shipped engine/confidence/weights/deepc_middle.pt)",
                           metavar="FILE")
     refined_weights: str = option("", "weights for the confidence of refined maps (full pipeline; default: the "
                                   "shipped engine/confidence/weights/deepc_refined.pt, trained on refined maps)",
                                   metavar="FILE")
-    tile: int = option(512, "largest tile side for inference, multiple of 16 (bounds memory; 512 is also the "
-                       "fastest on 2 cores)", metavar="PX")
+    tile: int = option(512, "largest tile side for inference in pixels, multiple of 16 (bounds memory)",
+                       metavar="PX")
     overlap: int = option(64, "context pixels on each side of a tile", metavar="PX")
     bf16: bool = option(True, "bfloat16 autocast on CPUs that support it (faster, half the memory)")
-    zero_backfacing: bool = option(True, "confidence 0 where the estimated normal faces away from the camera "
-                                   "(an unobservable surface: the counter map's front-facing check, applied to "
-                                   "the network output)")
+    zero_backfacing: bool = option(False, "confidence 0 where the estimated normal faces away from the camera "
+                                   "(ours, off by default: docs/decisions.md)")
     num_threads: int = option(0, "torch threads (0 = torch's default)", metavar="N")
 
     def validate(self) -> ConfidenceOptions:
@@ -45,6 +46,7 @@ class TrainOptions(Options):
     loss: str = option("deepc_squared", "training loss", choices=LOSSES)
     fusion: str = option("middle", "middle: one encoder per stream (paper); early: one encoder on 6 channels",
                          choices=FUSIONS)
+    base_width: int = option(32, "channels of the first U-Net level, doubled per level (paper: 32)", metavar="N")
     epochs: int = option(20, "epochs", metavar="N")
     steps_per_epoch: int = option(40, "optimiser steps per epoch", metavar="N")
     batch: int = option(4, "crops per step", metavar="N")
@@ -61,12 +63,14 @@ class TrainOptions(Options):
     bf16: bool = option(True, "bfloat16 autocast for the forward pass (about 2x faster on AVX-512 CPUs)")
     seed: int = option(0, "seed of initialisation and crop sampling", metavar="N")
     num_threads: int = option(0, "torch threads (0 = torch's default)", metavar="N")
+    device: str = option("auto", "where to train: auto (a CUDA GPU when present), cpu or cuda", choices=DEVICES)
 
     def validate(self) -> TrainOptions:
         super().validate()
         for name in ("epochs", "steps_per_epoch", "batch"):
             check(getattr(self, name) >= 1, name, getattr(self, name), "must be >= 1")
         check(self.crop >= 32 and self.crop % 16 == 0, "crop", self.crop, "must be a multiple of 16, at least 32")
+        check(1 <= self.base_width <= 256, "base_width", self.base_width, "must be in 1..256")
         check(0.0 <= self.normal_noise <= 2.0, "normal_noise", self.normal_noise, "must be in [0, 2]")
         check(0.0 <= self.color_jitter < 1.0, "color_jitter", self.color_jitter, "must be in [0, 1)")
         check(0.0 <= self.min_labelled < 1.0, "min_labelled", self.min_labelled, "must be in [0, 1)")

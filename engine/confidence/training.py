@@ -61,14 +61,16 @@ def crop_size(options: TrainOptions, samples: list[ViewSample]) -> tuple[int, in
 
 
 def draw_batch(samples: list[ViewSample], options: TrainOptions, size: tuple[int, int],
-               rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """A batch of random crops with at least ``min_labelled`` labelled pixels (best of 20 tries)."""
+               rng: np.random.Generator, probabilities: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """A batch of random crops with at least ``min_labelled`` labelled pixels (best of 20 tries); views are
+    drawn uniformly, or with ``probabilities`` (one per sample, summing to 1)."""
     ch, cw = size
     xs, ys = [], []
     for _ in range(options.batch):
         best = None
         for _ in range(20):
-            s = samples[int(rng.integers(len(samples)))]
+            index = rng.integers(len(samples)) if probabilities is None else rng.choice(len(samples), p=probabilities)
+            s = samples[int(index)]
             h, w = s.labels.shape
             y0, x0 = int(rng.integers(h - ch + 1)), int(rng.integers(w - cw + 1))
             labels = s.labels[y0:y0 + ch, x0:x0 + cw]
@@ -107,6 +109,18 @@ def perturb_normals(x: np.ndarray, sigma: float, rng: np.random.Generator) -> No
     x[NORMAL] = np.where(valid, np.moveaxis(enc, -1, 0), 0)
 
 
+def network_widths(options: TrainOptions) -> tuple[int, ...]:
+    """Channels of the four U-Net levels: ``base_width`` doubled per level."""
+    return tuple(options.base_width * 2 ** k for k in range(4))
+
+
+def training_device(name: str) -> torch.device:
+    """``auto``: a CUDA GPU when torch sees one, else the CPU."""
+    if name == "cuda" and not torch.cuda.is_available():
+        raise DeepCError("--device cuda: torch sees no CUDA GPU on this machine")
+    return torch.device("cuda" if name == "cuda" or (name == "auto" and torch.cuda.is_available()) else "cpu")
+
+
 def validate_model(model: ConfidenceNet, sets: list[ValidationSet], bf16: bool = True) -> dict[str, Any]:
     """Pooled ROC-AUC ×100 per validation set, per view, and their mean (the selection score)."""
     result: dict[str, Any] = {"sets": {}}
@@ -136,7 +150,8 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
           checkpoint: str | Path, weights_out: str | Path | None = None,
           progress: Callable[[dict], None] | None = None, data_names: list[str] | None = None,
           max_epochs: int | None = None, init: ConfidenceNet | None = None,
-          init_name: str = "", inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+          init_name: str = "", inputs: dict[str, Any] | None = None,
+          probabilities: np.ndarray | None = None) -> dict[str, Any]:
     """Train (or resume from ``checkpoint``) and write the best model to ``weights_out`` (fp16).
 
     ``data_names`` identify the training data in the checkpoint: resuming with other data or options is
@@ -145,6 +160,7 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
     seeded random initialisation; it must have the architecture ``options.fusion`` asks for.
     ``inputs`` describes maps other than vanilla PatchMatch ones (e.g. refined maps and the weights that guided
     the refinement); it is part of the checkpoint's identity and of the weights' meta (``meta["inputs"]``).
+    ``probabilities``: how often each training view is drawn (default: uniformly); part of the identity.
     Returns the history (per-epoch loss, validation, seconds) and the best epoch."""
     options = options.validate()
     progress = progress or (lambda event: None)
@@ -155,16 +171,23 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
     if options.num_threads:
         torch.set_num_threads(options.num_threads)
     torch.manual_seed(options.seed)
-    model = ConfidenceNet(options.fusion)
+    device = training_device(options.device)
+    model = ConfidenceNet(options.fusion, network_widths(options))
     if init is not None:
         if init.architecture != model.architecture:
             raise DeepCError(f"initial weights are for {init.architecture}, training asks for {model.architecture}",
                              init_name or None)
         model.load_state_dict(init.state_dict())
+    model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=options.lr, betas=(0.9, 0.999))
     loss_fn = loss_function(options.loss)
     checkpoint = Path(checkpoint)
-    identity = {"options": options.to_dict(), "data": list(data_names or []), "init": init_name}
+    # where it trains is not part of what it learns: a checkpoint resumes on another device
+    identity = {"options": {k: v for k, v in options.to_dict().items() if k != "device"},
+                "data": list(data_names or []), "init": init_name}
+    if probabilities is not None:
+        probabilities = np.asarray(probabilities, np.float64) / np.sum(probabilities)
+        identity["sampling"] = [round(float(p), 9) for p in probabilities]
     if inputs:  # only then, so checkpoints of trainings on vanilla maps stay resumable
         identity["inputs"] = inputs
     state: dict[str, Any] = {"epoch": 0, "history": [], "best": None}
@@ -178,7 +201,7 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
             raise DeepCError("checkpoint was made with other training options or data; use another "
                              "--checkpoint or delete it to start over", checkpoint)
         model.load_state_dict(saved["model"])
-        optimizer.load_state_dict(saved["optimizer"])
+        optimizer.load_state_dict(saved["optimizer"])  # Adam moves its state to the parameters' device
         state = {k: saved[k] for k in ("epoch", "history", "best")}
         progress({"kind": "resume", "epoch": state["epoch"]})
     size = crop_size(options, train_samples)
@@ -191,8 +214,9 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
             step = epoch * options.steps_per_epoch + i
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(options, step)
-            x, y = draw_batch(train_samples, options, size, rng)
-            with _autocast(options.bf16):
+            x, y = draw_batch(train_samples, options, size, rng, probabilities)
+            x, y = x.to(device), y.to(device)
+            with _autocast(options.bf16, device.type):
                 logits = model(x.contiguous(memory_format=torch.channels_last))
             loss = loss_fn(logits.float(), y)
             optimizer.zero_grad(set_to_none=True)
@@ -203,6 +227,7 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
                       "loss": losses[-1]})
         train_seconds = time.perf_counter() - t0
         val = validate_model(model, validation, options.bf16) if validation else {"score": float("nan"), "sets": {}}
+        model.to(device)  # validation runs on the CPU, as inference does
         entry = {"epoch": epoch + 1, "loss": float(np.mean(losses)), "lr": learning_rate(options, step),
                  "train_seconds": train_seconds, "validation_seconds": time.perf_counter() - t0 - train_seconds,
                  "validation": val}
@@ -228,4 +253,5 @@ def _meta(options: TrainOptions, state: dict, data_names: list[str] | None, mode
     return {"trained": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "options": options.to_dict(), "epoch": state["best"]["epoch"], "validation": state["best"]["validation"],
             "train_data": list(data_names or []), "init": identity_init, "parameters": parameter_count(model),
-            "train_seconds": float(sum(h["train_seconds"] for h in state["history"]))}
+            "train_seconds": float(sum(h["train_seconds"] for h in state["history"])),
+            "device": str(next(model.parameters()).device)}
