@@ -134,11 +134,14 @@ def score_scene(run: Path, models: dict, taus: list[float], rules: list[bool], p
 
 def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights: Path, preset: str) -> dict:
     """What ``--pipeline full`` computes from this run with these networks (default options): refinement guided
-    by network 1 (cached in RUN/refined/), the refined maps' confidence from network 2, the filter at
-    ``refinement.refined_conf_tau`` and the sky filter; plus the depth of vanilla and refined maps against GT."""
+    by network 1 (cached in RUN/refined/), the refined maps' confidence from network 2, PatchMatch's confident
+    estimates kept (``refinement.keep_confident``), the filter at ``refinement.refined_conf_tau`` and the sky
+    filter; plus the depth of vanilla, refined and fused-by-full maps against GT. Row ``refined + conf``: the
+    refined maps alone, filtered (the paper's Table 3 row)."""
     from engine.confidence.data import load_run as load_samples
     from engine.io.outputs import read_map
     from engine.pipeline import PipelineOptions, _depth_block
+    from engine.refinement.guard import keep_confident
     from engine.refinement.runs import refine_run
     from engine.refinement.views import sky_filter_views
 
@@ -152,7 +155,10 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
     conf2 = predict_samples(load_weights(refined_weights), samples, options.confidence)
     conf1 = predict_samples(load_weights(weights), load_run(run), options.confidence)
     tau2 = options.refinement.refined_conf_tau
-    kept = [filter_by_confidence(d, n, c, tau2) for (d, n), c in zip(refined, conf2, strict=True)]
+    guarded = [keep_confident(v.depth, v.normal, c1, d, n, c2, options.refinement.keep_confident)
+               for v, c1, (d, n), c2 in zip(data, conf1, refined, conf2, strict=True)]
+    unguarded = [filter_by_confidence(d, n, c, tau2) for (d, n), c in zip(refined, conf2, strict=True)]
+    kept = [filter_by_confidence(d, n, c, tau2) for d, n, c in guarded]
     sky_d, sky_n, _ = sky_filter_views(scene, [k[0] for k in kept], [k[1] for k in kept], [d.depth for d in data],
                                        conf1)
 
@@ -162,12 +168,14 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
 
     out = {"refine_seconds": done.seconds, "reused": done.reused,
            "refined": fused_row(session, [d for d, _ in refined], [n for _, n in refined], preset),
-           f"refined + conf {tau2}": fused_row(session, [k[0] for k in kept], [k[1] for k in kept], preset),
+           f"refined + conf {tau2}": fused_row(session, [k[0] for k in unguarded], [k[1] for k in unguarded],
+                                              preset),
            "full": fused_row(session, sky_d, sky_n, preset),
            "auc_refined": auc_report(samples, conf2)["auc"] if any((s.labels >= 0).any() for s in samples) else None}
     if scene.has_gt_depth:
         out["depth_vanilla"] = _depth_block(scene, [_Maps(d.depth) for d in data])[0]
         out["depth_refined"] = _depth_block(scene, [_Maps(d) for d, _ in refined])[0]
+        out["depth_full"] = _depth_block(scene, [_Maps(g[0]) for g in guarded])[0]
     out["seconds"] = time.perf_counter() - t
     return out
 
@@ -191,7 +199,8 @@ def print_scene(name: str, result: dict) -> None:
                       f"acc {r['accuracy@0.02']:6.2f} compl {r['completeness@0.02']:6.2f} | F1@5cm {r['f1@0.05']:6.2f}")
             if "depth_refined" in f:
                 print(f"  [{vname}] depth within 1 %: vanilla {f['depth_vanilla']['within_1pct']:.2f}, refined "
-                      f"{f['depth_refined']['within_1pct']:.2f}; refined-map ROC-AUC (network 2) "
+                      f"{f['depth_refined']['within_1pct']:.2f}, full {f['depth_full']['within_1pct']:.2f}; "
+                      "refined-map ROC-AUC (network 2) "
                       f"{f['auc_refined']:.2f}")
         if "auc_network_offground" in row:
             print(f"  [{vname}] off the GT ground plane ({result['ground_pct']:.1f} % of the labels): network alone "
@@ -252,6 +261,7 @@ def main() -> None:
     parser.add_argument("--rule", choices=("both", "on", "off"), default="on",
                         help="fuse with the back-facing rule on, off or both")
     parser.add_argument("--preset", choices=sorted(FUSION_PRESETS), default=DEFAULT_PRESET)
+    parser.add_argument("--auc-only", action="store_true", help="ROC-AUC only: no fusion rows")
     parser.add_argument("--full", type=Path, default=None, metavar="NET2.pt",
                         help="also what --pipeline full makes of each run: the first variant guides the refinement, "
                              "these weights score the refined maps")
@@ -283,7 +293,8 @@ def main() -> None:
             if e.name in model.meta.get("train_data", []):
                 raise SystemExit(f"variant {name} was trained on {e.name}: not a held-out scene")
         run = recipe_run(e, args.cache)
-        table["scenes"][e.run_name] = score_scene(run, models, taus, rules, args.preset, fusion=not e.synthetic,
+        table["scenes"][e.run_name] = score_scene(run, models, taus, rules, args.preset,
+                                                  fusion=not (e.synthetic or args.auc_only),
                                                   exclude_ground=e.name in args.exclude_ground,
                                                   full=(Path(args.variant[0].partition("=")[2]), args.full)
                                                   if args.full else None)

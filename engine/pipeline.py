@@ -35,6 +35,7 @@ from engine.io.ply import read_points
 from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
+from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
 from engine.refinement.runs import file_sha256, maps_digest, refinement_key, write_refined_maps, write_stamp
 from engine.scene import Scene
@@ -146,15 +147,18 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering; all are
         # written, with a stamp, so the run also serves as training data of that second network
         refined_counter = compute_counter_maps(views, refined, options.counter)
-        fusion_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
+        refined_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
         names = [v.name for v in scene.views]
-        write_refined_maps(out_dir, names, refined, refined_counter, fusion_confidence)
+        write_refined_maps(out_dir, names, refined, refined_counter, refined_confidence)
         inputs = maps_digest(names, [m.depth for m in maps], [m.normal for m in maps], counter)
         key = refinement_key(scene, weights_sha256, options, inputs)
         write_stamp(out_dir, key, options.confidence.weights or DEFAULT_WEIGHTS,
                     {"refinement": seconds["refinement"], "counter_and_confidence": time.perf_counter() - t})
-        filtered = [filter_by_confidence(r.depth, r.normal, c, options.refinement.refined_conf_tau)
-                    for r, c in zip(refined, fusion_confidence, strict=True)]
+        fused_maps = [keep_confident(m.depth, m.normal, c1, r.depth, r.normal, c2,
+                                     options.refinement.keep_confident)
+                      for m, c1, r, c2 in zip(maps, confidence, refined, refined_confidence, strict=True)]
+        fusion_confidence = [f[2] for f in fused_maps]
+        filtered = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused_maps]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         if options.refinement.sky_filter:
             from engine.refinement.views import sky_filter_views
@@ -193,7 +197,9 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             metrics["confidence_auc_per_view"] = auc["per_view"]
         if refined is not None:
             metrics["refined_depth"], metrics["refined_depth_per_view"] = _depth_block(scene, refined)
-            auc = confidence_auc(scene, [r.depth for r in refined], fusion_confidence)
+            metrics["full_depth"], _ = _depth_block(scene, [ViewMaps(f[0], f[1], m.cost, m.selected_views)
+                                                            for f, m in zip(fused_maps, maps, strict=True)])
+            auc = confidence_auc(scene, [r.depth for r in refined], refined_confidence)
             metrics["refined_confidence_auc"] = auc["pooled"]
             metrics["refined_confidence_auc_per_view"] = auc["per_view"]
     if confidence is not None:

@@ -130,6 +130,9 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
     # refinement fills holes: every GT pixel has a refined estimate, while PatchMatch's own maps stay as they were
     assert metrics["refined_depth"]["valid_fraction"] > 99.0
     assert metrics["refined_depth"]["within_5pct"] >= metrics["depth"]["within_5pct"] - 5.0
+    # what full fuses: PatchMatch's confident estimates, refined ones elsewhere (refinement.keep_confident)
+    assert metrics["full_depth"]["valid_fraction"] >= metrics["depth"]["valid_fraction"]
+    assert metrics["full_depth"]["within_1pct"] != metrics["refined_depth"]["within_1pct"]
     from engine.io.outputs import read_map
     from engine.io.ply import read_points
     from engine.scene import load_scene

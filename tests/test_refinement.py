@@ -305,3 +305,23 @@ def test_refine_views_leaves_no_data_views_empty_with_a_warning():
         gt = depths[i]
         assert np.all(out[i].depth > 0)
         assert np.median(np.abs(out[i].depth[gt > 0] - gt[gt > 0]) / gt[gt > 0]) < 0.01
+
+
+def test_full_keeps_confident_patchmatch_estimates_and_refines_the_rest():
+    from engine.refinement.guard import keep_confident
+
+    depth = np.array([[1.0, 2.0], [0.0, 4.0]], np.float32)
+    normal = np.zeros((2, 2, 3), np.float32)
+    normal[..., 2] = -1
+    confidence = np.array([[0.9, 0.05], [0.9, 0.1]], np.float32)
+    refined = np.full((2, 2), 7.0, np.float32)
+    refined_normal = np.zeros((2, 2, 3), np.float32)
+    refined_normal[..., 0] = 1
+    refined_confidence = np.full((2, 2), 0.3, np.float32)
+    d, n, c = keep_confident(depth, normal, confidence, refined, refined_normal, refined_confidence, 0.1)
+    # kept: confident estimates (c >= 0.1) that exist; a confident pixel without an estimate is refined
+    np.testing.assert_array_equal(d, [[1.0, 7.0], [7.0, 4.0]])
+    np.testing.assert_allclose(c, [[0.9, 0.3], [0.3, 0.1]], rtol=1e-6)
+    assert n[0, 0, 2] == -1 and n[0, 1, 0] == 1 and n[1, 1, 2] == -1
+    d, n, c = keep_confident(depth, normal, confidence, refined, refined_normal, refined_confidence, None)
+    assert (d == 7.0).all() and (c == 0.3).all()  # the paper: refined everywhere

@@ -148,6 +148,11 @@ def test_bad_suite_files_give_one_line_naming_the_file(tmp_path, text, fragments
     assert not (tmp_path / "r").exists()  # nothing ran, nothing was written
 
 
+def test_a_reason_without_update_baseline_is_refused(tmp_path):
+    code, out, err = deepc("regress", "--suite", write_suite(tmp_path / "s"), "--reason", "why")
+    assert code == 2 and "--reason" in err and "--update-baseline" in err and not out
+
+
 def test_missing_suite_bad_baseline_and_foreign_report_folders_are_refused(tmp_path):
     _one_line_error(deepc("regress", "--suite", tmp_path / "none.toml"), "none.toml", "no such suite file")
     suite = write_suite(tmp_path / "s")
@@ -239,7 +244,7 @@ def _regress_runs(tmp_path_factory) -> dict:
     runs["clean"] = deepc("regress", "--suite", clean, "--report", root / "clean", *common)
     runs["degraded"] = deepc("regress", "--suite", degraded, "--report", root / "degraded_report", *common)
     runs["accept"] = deepc("regress", "--suite", degraded, "--report", root / "accept", "--update-baseline", "--record",
-                           *common)
+                           "--reason", "one iteration per pass, on purpose", *common)
     runs["accepted_file"] = json.loads((baselines / "tiny" / "vanilla.json").read_text())
     runs["root"] = root
     return runs
@@ -306,6 +311,11 @@ def test_update_baseline_rewrites_it_and_says_what_changed(regress_runs):
     before, after = regress_runs["baseline_file"]["metrics"], regress_runs["accepted_file"]["metrics"]
     assert after["options"]["patchmatch"]["iterations"] == 1 and before["options"]["patchmatch"]["iterations"] is None
     assert after["eval"]["f1"] != before["eval"]["f1"]
+    # --reason: stored with the baseline and shown in the report; the first baseline had none
+    assert regress_runs["accepted_file"]["reason"] == "one iteration per pass, on purpose"
+    assert "reason" not in regress_runs["baseline_file"]
+    assert "Baseline remade on purpose: one iteration per pass, on purpose" in (
+        regress_runs["root"] / "accept" / "report.html").read_text()
     # --record: a rerun recording per run, linked from the report
     accept = regress_runs["root"] / "accept"
     assert (accept / "tiny" / "vanilla" / "recording.rrd").stat().st_size > 10_000

@@ -340,6 +340,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "tests/baselines for the default suite)")
     regress.add_argument("--update-baseline", action="store_true",
                          help="rewrite the baselines with this run's metrics and print what changed")
+    regress.add_argument("--reason", metavar="TEXT", default=None,
+                         help="with --update-baseline: why they are remade (stored with them, shown in the report)")
     regress.add_argument("--report", metavar="DIR", help="folder for report.html, summary.json and the runs' "
                          "outputs (default: runs/regress)")
     regress.add_argument("--record", action="store_true",

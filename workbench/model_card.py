@@ -33,6 +33,17 @@ def scene_citation(entry: SceneEntry) -> str:
     return "README.txt has no citation paragraph"
 
 
+def inputs_line(inputs: dict | None) -> str:
+    """The model card's line on what the network's inputs are (``meta["inputs"]`` of a weights file)."""
+    if not inputs or inputs.get("maps") != "refined":
+        return "- Network inputs: vanilla PatchMatch maps (network 1: `confidence.weights` of --pipeline fast, full)."
+    refinement = inputs["refinement"]
+    return ("- Network inputs: refined maps (network 2, `confidence.refined_weights` of --pipeline full): every run "
+            f"refined as the full pipeline does, guided by network 1 `{Path(inputs['refine_weights']).name}` "
+            f"(sha256 {inputs['refine_weights_sha256'][:12]}; {refinement['solver']} solver, {refinement['scales']} "
+            "scales), counter maps recomputed on the refined maps; labels compare the refined depth with GT depth.")
+
+
 def write_recipe_model_card(path: Path, weights: Path, result: dict, recipe: Recipe) -> None:
     """A Markdown card: recipe, split with citations, options, training time, validation history."""
     from engine.confidence.weights import load_weights
@@ -52,7 +63,8 @@ def write_recipe_model_card(path: Path, weights: Path, result: dict, recipe: Rec
         f"{meta.get('device', 'cpu')} (engine runs of the scenes not included; they are cached).",
         "- Options: " + ", ".join(f"{k}={v}" for k, v in meta.get("options", {}).items()),
         f"- Sampling: {100 * recipe.real_share:.0f} % of the training crops from real views, the rest from "
-        "synthetic ones, uniformly over the views within each group.", "",
+        "synthetic ones, uniformly over the views within each group.",
+        inputs_line(meta.get("inputs")), "",
         "## Scenes (split chosen before training)", "",
         "| split | scene | engine run | citation |", "|---|---|---|---|",
     ]

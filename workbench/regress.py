@@ -456,6 +456,7 @@ class RunResult:
     deltas: list[Delta]
     load_average: tuple[float, float]  # 1-minute load average before and after the run
     recording: Path | None
+    baseline_reason: str | None = None  # why the baseline was last remade (deepc regress --reason)
 
     @property
     def failures(self) -> list[Delta]:
@@ -566,10 +567,23 @@ def read_baseline(path: Path) -> dict[str, Any] | None:
 
 
 def write_baseline(path: Path, spec: RunSpec, metrics: dict[str, Any], env: dict[str, Any],
-                   load_average: tuple[float, float]) -> None:
+                   load_average: tuple[float, float], reason: str | None = None) -> None:
     stored = {k: v for k, v in metrics.items() if k != "scene_path"}  # machine-specific
     write_json(path, {"run": spec.key, "flags": spec.flags, "metrics": stored,
-                      "measured": {**env, "load_average_during_run": list(load_average)}})
+                      "measured": {**env, "load_average_during_run": list(load_average)},
+                      **({"reason": reason} if reason else {})})
+
+
+def read_baseline_reason(path: Path) -> str | None:
+    """Why the baseline at ``path`` was remade, with its date and git revision; None when it does not say."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or not data.get("reason"):
+        return None
+    measured = data.get("measured") or {}
+    return f"{data['reason']} ({measured.get('date', 'date unknown')}, git {measured.get('git', 'unknown')})"
 
 
 def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
@@ -613,6 +627,8 @@ def _changes(result: RunResult) -> str:
 # ---- the command -------------------------------------------------------------------------------------
 
 def cmd_regress(args: argparse.Namespace) -> int:
+    if getattr(args, "reason", None) and not args.update_baseline:
+        raise DeepCError("deepc regress: --reason says why baselines are remade; it needs --update-baseline")
     suite = load_suite(args.suite or DEFAULT_SUITE)
     baseline_dir = Path(args.baseline).resolve() if args.baseline else suite.baseline_dir
     report_dir = Path(args.report) if args.report else DEFAULT_REPORT
@@ -634,7 +650,7 @@ def cmd_regress(args: argparse.Namespace) -> int:
         if changed:
             print(f"note: {result.spec.key} ran with options that differ from its baseline's: {'; '.join(changed)}")
     if args.update_baseline:
-        _update_baselines(results, baseline_dir, env)
+        _update_baselines(results, baseline_dir, env, getattr(args, "reason", None))
 
     from workbench.report import write_report
     summary = write_json(report_dir / "summary.json", {
@@ -660,16 +676,19 @@ def _run_and_compare(i: int, suite: Suite, spec: RunSpec, baseline_dir: Path, re
     if record:  # logging every iteration costs time that the baseline's run did not spend
         tolerances = {k: None if METRIC_BY_NAME[k].relative else v for k, v in tolerances.items()}
     result = RunResult(spec, out_dir, metrics, baseline, compare(spec.key, metrics, baseline, tolerances),
-                       (round(load_before, 2), round(os.getloadavg()[0], 2)), recording)
+                       (round(load_before, 2), round(os.getloadavg()[0], 2)), recording,
+                       read_baseline_reason(baseline_path(baseline_dir, spec)))
     print(f"[{i}/{len(suite.runs)}] {spec.key}: {metrics['seconds']['total']:.1f} s "
           f"({metrics['seconds_cpu']:.1f} s CPU), {len(result.failures)} regressed", file=sys.stderr, flush=True)
     return result
 
 
-def _update_baselines(results: list[RunResult], baseline_dir: Path, env: dict[str, Any]) -> None:
+def _update_baselines(results: list[RunResult], baseline_dir: Path, env: dict[str, Any],
+                      reason: str | None = None) -> None:
     for result in results:
         write_baseline(baseline_path(baseline_dir, result.spec), result.spec, result.metrics, env,
-                       result.load_average)
+                       result.load_average, reason)
+        result.baseline_reason = read_baseline_reason(baseline_path(baseline_dir, result.spec))
     print(f"baselines rewritten in {baseline_dir}:")
     for result in results:
         print(f"  {_changes(result)}")

@@ -365,6 +365,8 @@ def run_section(result: RunResult, analysis: RunAnalysis, report_dir: Path) -> s
     if result.baseline is None:
         parts.append("<p class=note>No baseline for this run: make one with <code>deepc regress "
                      "--update-baseline</code>.</p>")
+    if result.baseline_reason:
+        parts.append("<p class=note>Baseline remade on purpose: " + _e(result.baseline_reason) + "</p>")
     changes = option_changes(m, result.baseline)
     if changes:
         parts.append("<p class=note>Options differ from the baseline's: " + _e("; ".join(changes)) + "</p>")

@@ -25,6 +25,8 @@ from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.outputs import read_map, read_metrics
 from engine.io.ply import read_points
+from engine.refinement.guard import keep_confident, kept_estimates
+from engine.refinement.options import RefinementOptions
 from engine.scene import Scene, SceneOptions, load_scene
 
 COLOR_MODES = ("rgb", "confidence", "views", "error")
@@ -70,12 +72,19 @@ class ViewData:
 
     def maps(self, pipeline: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """(depth, normal, confidence, counter) that ``pipeline`` filters and fuses: ``full`` takes the refined
-        maps with their own confidence and counter maps (the first network's for older full runs)."""
+        maps with their own confidence and counter maps (the first network's for older full runs), except where
+        network 1 trusts the PatchMatch estimate (``refinement.keep_confident``, as the pipeline fuses them)."""
         if pipeline != "full":
             return self.depth, self.normal, self.confidence, self.counter
-        return (self.refined_depth, self.refined_normal,
-                self.confidence if self.refined_confidence is None else self.refined_confidence,
-                self.counter if self.refined_counter is None else self.refined_counter)
+        counter = self.counter if self.refined_counter is None else self.refined_counter
+        if self.refined_confidence is None or self.confidence is None:
+            return self.refined_depth, self.refined_normal, self.confidence, counter
+        threshold = RefinementOptions().keep_confident
+        depth, normal, confidence = keep_confident(self.depth, self.normal, self.confidence, self.refined_depth,
+                                                   self.refined_normal, self.refined_confidence, threshold)
+        if self.counter is not None and counter is not None:
+            counter = np.where(kept_estimates(self.depth, self.confidence, threshold), self.counter, counter)
+        return depth, normal, confidence, counter
 
 
 # Exact clouds are bounded by bytes as well as by count: a per-pixel cloud of 11 views at 768 px is

@@ -342,6 +342,7 @@ def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[P
 
     from engine.confidence.weights import load_weights
     from engine.io.atomic import atomic_write_text
+    from workbench.model_card import inputs_line
 
     model = load_weights(weights)
     meta = model.meta
@@ -359,7 +360,7 @@ def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[P
         f"- Training data ({len(train_runs)} scenes, whole scenes only): "
         + ", ".join(sorted(Path(r).name for r in train_runs)) + ". Engine runs: vanilla PatchMatch, "
         f"schedule {args.schedule}, {args.num_source_views} source views, labels per SPEC.md §4.3 (2 px).",
-        _inputs_line(meta.get("inputs")),
+        inputs_line(meta.get("inputs")),
         "- Options: " + ", ".join(f"{k}={v}" for k, v in meta.get("options", {}).items()), "",
         "## Validation ROC-AUC ×100 (pooled over labelled pixels) at the selected epoch", "",
         "| set | views | ROC-AUC | inliers |", "|---|---|---|---|",
@@ -372,13 +373,3 @@ def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[P
         aucs = " | ".join(f"{v['auc']:.2f}" for v in h["validation"]["sets"].values())
         lines.append(f"| {h['epoch']} | {h['loss']:.4f} | {aucs} |")
     atomic_write_text(path, "\n".join(lines) + "\n")
-
-
-def _inputs_line(inputs: dict | None) -> str:
-    if not inputs or inputs.get("maps") != "refined":
-        return "- Network inputs: vanilla PatchMatch maps (network 1: `confidence.weights` of --pipeline fast/full)."
-    return ("- Network inputs: **refined maps** (network 2: `confidence.refined_weights` of --pipeline full). Each "
-            "run was refined as the full pipeline does (SPEC.md §6.6b): confidence of network 1 "
-            f"`{inputs['refine_weights']}` (sha256 {inputs['refine_weights_sha256'][:12]}), piece-wise planar "
-            f"refinement ({inputs['refinement']['solver']} solver, {inputs['refinement']['scales']} scales), "
-            "counter maps recomputed on the refined maps; labels compare the refined depth with GT depth.")

@@ -45,6 +45,9 @@ class RefinementOptions(Options):
     refined_conf_tau: float = option(0.05, "full pipeline: keep refined pixels whose confidence (second network) "
                                      "is at least this", metavar="TAU")
     sky_filter: bool = option(True, "full pipeline: drop sky and far-plane pixels of refined maps (SPEC §8)")
+    keep_confident: float | None = option(0.1, "full pipeline: fuse the PatchMatch estimate where network 1's "
+                                          "confidence is at least this, the refined one elsewhere (ours, "
+                                          "docs/decisions.md; unset = the paper: refined everywhere)", metavar="C")
     backfacing_rule: bool = option(False, "weight the data term by the confidence after confidence.zero_backfacing "
                                    "(off: before it; zeroing those pixels left whole grazing planes without data and "
                                    "the regulariser carried the neighbouring planes onto them: fountain_p11 view 0 "
@@ -73,6 +76,8 @@ class RefinementOptions(Options):
         check(1 <= self.degree <= self.window * self.window - 1, "degree", self.degree,
               "must be in 1..window*window-1")
         check(0.0 <= self.refined_conf_tau <= 1.0, "refined_conf_tau", self.refined_conf_tau, "must be in [0, 1]")
+        if self.keep_confident is not None:
+            check(0.0 <= self.keep_confident <= 1.0, "keep_confident", self.keep_confident, "must be in [0, 1]")
         if self.confidence_threshold is not None:
             check(0.0 <= self.confidence_threshold <= 1.0, "confidence_threshold", self.confidence_threshold,
                   "must be in [0, 1]")
