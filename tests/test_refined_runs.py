@@ -68,10 +68,11 @@ def test_refine_run_writes_whole_refined_maps_with_their_own_counter_maps(vanill
         depth, vanilla = read_map(run, "refined_depth", v.name), read_map(vanilla_run, "depth", v.name)
         normal = read_map(run, "refined_normal", v.name)
         assert depth.shape == vanilla.shape == (120, 160) and normal.shape == (120, 160, 3)
-        # dense (the vanilla holes are filled) and moved away from the vanilla depth
+        # dense (the vanilla holes are filled) and moved away from the vanilla depth (the confidence-weighted
+        # data term holds the confident half or so of the pixels in place with this short schedule)
         assert (depth > 0).mean() > 0.95 > (vanilla > 0).mean()
         both = (depth > 0) & (vanilla > 0)
-        assert np.mean(np.abs(depth[both] - vanilla[both]) > 1e-4 * vanilla[both]) > 0.5
+        assert np.mean(np.abs(depth[both] - vanilla[both]) > 1e-4 * vanilla[both]) > 0.3
         refined.append(ViewMaps(depth, normal, np.zeros_like(depth), np.zeros(depth.shape, np.uint32)))
         assert not (run / "refined" / "confidence_maps").exists()  # no second network ran
     # the counter maps are those of the refined maps, not the vanilla ones
@@ -151,7 +152,7 @@ def test_train_refined_refines_each_run_and_learns_on_the_refined_maps(vanilla_r
     meta = torch.load(out, weights_only=True)["meta"]
     assert meta["inputs"]["maps"] == "refined" and meta["inputs"]["refine_weights"] == str(DEFAULT_WEIGHTS)
     text = card.read_text()
-    assert "**refined maps**" in text and str(DEFAULT_WEIGHTS) in text
+    assert "Network inputs: refined maps" in text and f"`{DEFAULT_WEIGHTS.name}`" in text
 
     from workbench.cli import build_parser
     from workbench.train_command import cmd_train
@@ -178,7 +179,7 @@ def test_the_refinement_weights_its_data_by_the_confidence_before_the_back_facin
         maps.append(ViewMaps(depth, normal, np.zeros_like(depth), np.zeros(depth.shape, np.uint32)))
         counter.append(read_map(vanilla_run, "counter", v.name))
     raw: list[np.ndarray] = []
-    ruled = confidence_stage(scene, maps, counter, ConfidenceOptions(), network1, raw=raw)
+    ruled = confidence_stage(scene, maps, counter, ConfidenceOptions(zero_backfacing=True), network1, raw=raw)
     away_total = 0
     for v, m, k, c, r in zip(scene.views, maps, counter, ruled, raw, strict=True):
         away = facing_away(network_inputs(scene.image(v.index), m.normal, k, len(v.source_views))) & (m.depth > 0)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from engine.errors import DeepCError
+from engine.refinement.options import RefinementOptions
 from workbench.session import ViewerSession, ViewParams
 from workbench.viewer import safe_file_name
 
@@ -34,7 +35,8 @@ def test_confidence_threshold_and_mask_k_remove_points(session):
     assert scores_fast["completeness"] < scores_vanilla["completeness"]
 
 
-def test_full_pipeline_filters_refined_maps_by_their_own_confidence(fake_run, tmp_path):
+def test_full_pipeline_keeps_trusted_estimates_and_filters_refined_ones_by_their_own_confidence(fake_run,
+                                                                                                 tmp_path):
     import shutil
 
     from engine.io.outputs import read_map, write_map
@@ -50,10 +52,13 @@ def test_full_pipeline_filters_refined_maps_by_their_own_confidence(fake_run, tm
     for (d_fast, _), (d_full, _), d in zip(session.filtered_maps(ViewParams(pipeline="fast", **params)),
                                            session.filtered_maps(ViewParams(pipeline="full", **params)),
                                            session.data, strict=True):
-        assert np.array_equal(d_full > 0, (d.depth > 0) & (d.refined_confidence >= 0.5))
+        # network 1 trusts the top rows little: there the refined estimate stands, judged by network 2
+        trusted = d.confidence >= RefinementOptions().keep_confident
+        expected = (d.depth > 0) & (np.where(trusted, d.confidence, d.refined_confidence) >= 0.5)
+        assert np.array_equal(d_full > 0, expected) and (d_full[~trusted] > 0).any()
         assert not np.array_equal(d_full > 0, d_fast > 0)
     full = session.cloud(ViewParams(pipeline="full", **params))
-    assert np.nanmin(full.mean_confidence) >= 0.5  # the cloud carries the refined maps' confidence
+    assert np.nanmin(full.mean_confidence) >= 0.5  # the cloud carries the confidence of what it fused
 
 
 def test_a_fusion_change_reuses_the_filtered_maps(session):
