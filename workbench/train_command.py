@@ -6,7 +6,8 @@ run cached under ``--cache/runs/<scene>``) or finished run folders (``deepc run`
 are). ``--synthetic SEEDS`` adds randomised synthetic scenes (engine/synthetic/dataset.py), rendered
 into ``--cache/scenes`` when missing. ``--refined`` trains the second network of ``--pipeline full``: every
 run is refined first (engine/refinement/runs.py, cached in RUN/refined/) and the network learns on the
-refined maps.
+refined maps. ``--recipe FILE`` takes all of that from a training recipe (engine/confidence/recipe.py) and
+writes the weights with a model card (workbench/model_card.py): how the shipped weights are made.
 """
 
 from __future__ import annotations
