@@ -20,6 +20,7 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -162,10 +163,6 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
     sky_d, sky_n, _ = sky_filter_views(scene, [k[0] for k in kept], [k[1] for k in kept], [d.depth for d in data],
                                        conf1)
 
-    class _Maps:  # what _depth_block reads
-        def __init__(self, depth):
-            self.depth = depth
-
     out = {"refine_seconds": done.seconds, "reused": done.reused,
            "refined": fused_row(session, [d for d, _ in refined], [n for _, n in refined], preset),
            f"refined + conf {tau2}": fused_row(session, [k[0] for k in unguarded], [k[1] for k in unguarded],
@@ -173,9 +170,9 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
            "full": fused_row(session, sky_d, sky_n, preset),
            "auc_refined": auc_report(samples, conf2)["auc"] if any((s.labels >= 0).any() for s in samples) else None}
     if scene.has_gt_depth:
-        out["depth_vanilla"] = _depth_block(scene, [_Maps(d.depth) for d in data])[0]
-        out["depth_refined"] = _depth_block(scene, [_Maps(d) for d, _ in refined])[0]
-        out["depth_full"] = _depth_block(scene, [_Maps(g[0]) for g in guarded])[0]
+        out["depth_vanilla"] = _depth_block(scene, [SimpleNamespace(depth=d.depth) for d in data])[0]
+        out["depth_refined"] = _depth_block(scene, [SimpleNamespace(depth=d) for d, _ in refined])[0]
+        out["depth_full"] = _depth_block(scene, [SimpleNamespace(depth=g[0]) for g in guarded])[0]
     out["seconds"] = time.perf_counter() - t
     return out
 

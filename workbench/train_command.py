@@ -25,15 +25,13 @@ from engine.io.outputs import write_json
 
 
 def parse_seeds(text: str) -> list[int]:
-    """'0-59' or '1,2,5-9' -> list of ints."""
-    seeds: list[int] = []
+    """'0-59' or '1,2,5-9' -> list of ints (an argparse type)."""
+    from engine.confidence.recipe import parse_seeds as seeds_of
+
     try:
-        for part in filter(None, text.split(",")):
-            lo, dash, hi = part.partition("-")
-            seeds.extend(range(int(lo), int(hi) + 1) if dash else [int(lo)])
+        return seeds_of(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"seeds must look like 0-59 or 1,2,5-9, got {text!r}") from None
-    return seeds
 
 
 def add_train_arguments(train: argparse.ArgumentParser) -> None:
