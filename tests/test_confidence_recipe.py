@@ -130,3 +130,31 @@ def test_train_command_with_a_recipe_trains_resumes_and_writes_a_card(tmp_path):
     assert "widths [4, 8, 16, 32]" in card and "```toml" in card
     history = json.loads(out.with_name("unit.history.json").read_text())
     assert set(history["best"]["validation"]["sets"]) == {"fountain_p11"}
+
+
+def test_a_recipe_extends_another_and_overrides_it_key_by_key(tmp_path):
+    base = write_recipe(tmp_path, train='["tiny", "synthetic:3"]', test='["middlebury_temple"]')
+    child = tmp_path / "child.toml"
+    child.write_text('[recipe]\nname = "child"\nextends = "recipe.toml"\n[training]\nepochs = 5\n'
+                     '[refined]\nweights = "w.pt"\n')
+    recipe, parent = load_recipe(child), load_recipe(base)
+    assert recipe.name == "child" and recipe.options.epochs == 5 and recipe.refined == {"weights": "w.pt"}
+    assert recipe.options.base_width == parent.options.base_width == 4  # the rest of [training] is the base's
+    assert recipe.splits == parent.splits and "(extended)" in recipe.text
+    grandchild = tmp_path / "grandchild.toml"
+    grandchild.write_text('[recipe]\nextends = "child.toml"\n')
+    with pytest.raises(DeepCError, match="one level only"):
+        load_recipe(grandchild)
+    (tmp_path / "orphan.toml").write_text('[recipe]\nextends = "missing.toml"\n')
+    with pytest.raises(DeepCError, match="missing.toml: training recipe not found"):
+        load_recipe(tmp_path / "orphan.toml")
+
+
+@pytest.mark.shared_data
+def test_the_two_shipped_networks_share_one_split():
+    data = REPO.parent / "shared" / "data"
+    if not data.is_dir():
+        pytest.skip("../shared/data is not here: the shipped recipes' scenes cannot be resolved")
+    first = load_recipe(SHIPPED, data)
+    second = load_recipe(SHIPPED.with_name("deepc_refined.toml"), data)
+    assert second.splits == first.splits and second.refined is not None and first.refined is None

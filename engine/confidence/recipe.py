@@ -32,6 +32,9 @@ Example::
     weights = "engine/confidence/weights/deepc_middle.pt"   # them with this network 1 and these options)
     set = ["refinement.lambda_reg=7.5"]
 
+``[recipe] extends = "OTHER.toml"`` (relative to the recipe) takes the other recipe's sections and overrides
+them key by key: the second network's recipe reuses the first's scenes and split that way.
+
 Every problem (missing scene, a training or validation scene without GT depth, a scene in two splits, a
 variant group split apart, an unknown key) is one :class:`DeepCError` naming the recipe file.
 """
@@ -101,13 +104,15 @@ def parse_seeds(text: str) -> list[int]:
 def load_recipe(path: str | Path, data_root: str | Path | None = None) -> Recipe:
     """Read and check the recipe at ``path``; ``data_root`` overrides its ``[data] root``."""
     path = Path(path)
-    if not path.is_file():
-        raise DeepCError("training recipe not found", path)
-    text = path.read_text()
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DeepCError(f"not a valid TOML recipe ({exc})", path) from None
+    raw, text = _read_toml(path)
+    base = raw.get("recipe", {}).get("extends")
+    if base is not None:  # another recipe's sections, overridden key by key by this one's
+        base_path = path.parent / str(base)
+        base_raw, base_text = _read_toml(base_path)
+        if "extends" in base_raw.get("recipe", {}):
+            raise DeepCError(f"[recipe] extends {base!r}, which extends another recipe (one level only)", path)
+        raw = {section: {**base_raw.get(section, {}), **raw.get(section, {})} for section in {*base_raw, *raw}}
+        text += f"\n# {base} (extended):\n{base_text}"
     unknown = set(raw) - {"recipe", "data", "engine", "split", "training", "refined"}
     if unknown:
         raise DeepCError(f"unknown recipe section(s) {', '.join(sorted(unknown))}", path)
@@ -139,6 +144,16 @@ def load_recipe(path: str | Path, data_root: str | Path | None = None) -> Recipe
         if unknown or not isinstance(refined.get("weights", ""), str) or not isinstance(refined.get("set", []), list):
             raise DeepCError("[refined] takes weights = \"FILE.pt\" and set = [\"STAGE.NAME=VALUE\", ...]", path)
     return Recipe(path, name, root, engine, splits, real_share, options, text, refined)
+
+
+def _read_toml(path: Path) -> tuple[dict[str, Any], str]:
+    if not path.is_file():
+        raise DeepCError("training recipe not found", path)
+    text = path.read_text()
+    try:
+        return tomllib.loads(text), text
+    except tomllib.TOMLDecodeError as exc:
+        raise DeepCError(f"not a valid TOML recipe ({exc})", path) from None
 
 
 def _as_list(value: Any) -> list:
