@@ -216,23 +216,18 @@ def cmd_train_recipe(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs/train") / recipe.name / f"{recipe.name}.pt"
     checkpoint = Path(args.checkpoint) if args.checkpoint else out.with_name(out.stem + ".checkpoint.pt")
     t = time.perf_counter()
-    train_samples, probabilities, real_views = [], [], 0
-    runs = {}
+    train_samples, real = [], []  # real: one flag per training view
     for entry in recipe.scenes("train"):
-        runs[entry.name] = recipe_run(entry, cache)
-        views = _load([runs[entry.name]], refiner)
+        views = _load([recipe_run(entry, cache)], refiner)
         train_samples += views
-        probabilities += [0.0 if entry.synthetic else 1.0] * len(views)
-        real_views += 0 if entry.synthetic else len(views)
-    weights = np.asarray(probabilities)
-    synthetic_views = len(weights) - real_views
+        real += [not entry.synthetic] * len(views)
+    real = np.asarray(real)
+    real_views, synthetic_views = int(real.sum()), int((~real).sum())
     share = recipe.real_share if real_views and synthetic_views else float(real_views > 0)
-    weights = np.where(weights > 0, share / max(1, real_views), (1 - share) / max(1, synthetic_views))
-    validation = []
-    for entry in recipe.scenes("validation"):
-        runs[entry.name] = recipe_run(entry, cache)
-        validation.append(ValidationSet(entry.name, _subset(_load([runs[entry.name]], refiner),
-                                                            args.validation_max_views)))
+    weights = np.where(real, share / max(1, real_views), (1 - share) / max(1, synthetic_views))
+    validation = [ValidationSet(entry.name, _subset(_load([recipe_run(entry, cache)], refiner),
+                                                    args.validation_max_views))
+                  for entry in recipe.scenes("validation")]
     labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
     maps = "refined" if refiner else "vanilla"
     _log(f"recipe {recipe.name} ({maps} maps): {len(recipe.scenes('train'))} training scenes ({real_views} real views, "

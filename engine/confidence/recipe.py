@@ -32,7 +32,8 @@ Example::
     weights = "engine/confidence/weights/deepc_middle.pt"   # them with this network 1 and these options)
     set = ["refinement.lambda_reg=7.5"]
 
-``[recipe] extends = "OTHER.toml"`` (relative to the recipe) takes the other recipe's sections and overrides
+``[refined] weights`` is relative to the current directory, like ``[data] root`` (run from the repository
+root). ``[recipe] extends = "OTHER.toml"`` (relative to the recipe) takes the other recipe's sections and overrides
 them key by key: the second network's recipe reuses the first's scenes and split that way.
 
 Every problem (missing scene, a training or validation scene without GT depth, a scene in two splits, a
