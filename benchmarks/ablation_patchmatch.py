@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/ablation_patchmatch.py [--scene DIR --max-image-size 384]
         [--schedule acmm|paper] [--num-source-views 5] [--json benchmarks/results/ablation_patchmatch.json]
 
-Without ``--scene`` the analytic synthetic scene of ``tests/pm_synthetic.py`` (4 views, 160x120) is
+Without ``--scene`` the analytic synthetic scene of ``support/pm_synthetic.py`` (4 views, 160x120) is
 used. With a scene that has GT depth maps (e.g. /work/shared/data/fountain_p11) the scene is loaded
 with ``engine.scene.load_scene``. Depth metrics (``engine.metrics.depth_metrics``) are averaged over
 views: abs_rel, within_1pct, within_5pct, valid_fraction (percentages 0-100), before any filtering.
@@ -35,7 +35,7 @@ VARIANTS = {
 
 def load(args) -> tuple[list[PatchMatchView], list[np.ndarray]]:
     if args.scene is None:
-        from pm_synthetic import make_scene
+        from support.pm_synthetic import make_scene
 
         return make_scene(160, 120)
     from engine.scene import SceneOptions, load_scene
@@ -88,7 +88,7 @@ def main() -> None:
     for name, r in rows.items():
         print(f"{name:34s} {r['abs_rel']:8.4f} {r['within_1pct']:7.2f} {r['within_5pct']:7.2f} "
               f"{r['valid_fraction']:7.2f} {r['within_1pct_debiased']:7.2f} {r['seconds']:7.1f}")
-    out = {"scene": args.scene or "synthetic(tests/pm_synthetic.py, 160x120)", "schedule": args.schedule,
+    out = {"scene": args.scene or "synthetic(support/pm_synthetic.py, 160x120)", "schedule": args.schedule,
            "max_image_size": args.max_image_size, "variants": rows}
     write_json(args.json, out)
     print(f"wrote {args.json}")

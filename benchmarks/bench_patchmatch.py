@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_patchmatch.py [--sizes 320x240,768x512] [--sources 4,5,10]
         [--json benchmarks/results/bench_patchmatch.json] [--quick]
 
-Scenes are the analytic textured planes of ``tests/pm_synthetic.py`` rendered at each size.
+Scenes are the analytic textured planes of ``support/pm_synthetic.py`` rendered at each size.
 Reported:
 - weighted NCC samples/s: ``init_cost_kernel`` evaluates every pixel against every source view
   (N · Σ_pixels S weighted samples; S = 36 with the standard window, 25 where a pixel takes the fine
@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from pm_synthetic import make_scene  # noqa: E402
+from support.pm_synthetic import make_scene  # noqa: E402
 
 from engine.io.outputs import write_json  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, run_patchmatch  # noqa: E402
@@ -47,7 +47,7 @@ from engine.patchmatch.engine import _params, _State, init_cost  # noqa: E402
 
 TINY_RUN = (
     "import sys; sys.path.insert(0, {root!r}); sys.path.insert(0, {tests!r});"
-    "from pm_synthetic import make_scene; from engine.patchmatch import PatchMatchOptions, run_patchmatch;"
+    "from support.pm_synthetic import make_scene; from engine.patchmatch import PatchMatchOptions, run_patchmatch;"
     "from engine.consistency import compute_counter_maps;"
     "v, _ = make_scene(48, 40, n_views=3); m = run_patchmatch(v, PatchMatchOptions(iterations=1, levels=1));"
     "compute_counter_maps(v, m)"

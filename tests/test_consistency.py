@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from pm_synthetic import make_scene
+from support.pm_synthetic import make_scene
 
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.errors import OptionsError

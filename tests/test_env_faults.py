@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 from conftest import SAMPLES
-from interruption import FAST, check_no_partial, kill_when, saved_states, start_run
+from support.interruption import FAST, check_no_partial, kill_when, saved_states, start_run
 
 from engine.checkpoint import CHECKPOINT_DIR
 

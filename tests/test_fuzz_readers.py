@@ -11,7 +11,7 @@ import sys
 
 import pytest
 from conftest import REPO, SAMPLES
-from fuzzing import TARGETS, FuzzCounts, check_input, damaged_inputs
+from support.fuzzing import TARGETS, FuzzCounts, check_input, damaged_inputs
 from hypothesis import HealthCheck, given, settings
 
 # examples per target in CI: the COLMAP targets load a scene per example (~0.1 s)
@@ -82,7 +82,7 @@ def _damaged_weights(tmp_path) -> list:
 def test_damaged_suite_and_weights_are_refused_at_the_command_line(tmp_path):
     """`deepc regress --suite F` and `deepc run --weights F`: exit 2, one line naming the file, and nothing
     started (no report, no output folder: bad weights are refused before PatchMatch)."""
-    from fuzzing import VALID_SUITE
+    from support.fuzzing import VALID_SUITE
 
     for scene in ("tiny", "small"):
         (tmp_path / scene).symlink_to(SAMPLES / scene, target_is_directory=True)

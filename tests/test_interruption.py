@@ -7,7 +7,7 @@ import signal
 
 import pytest
 from conftest import SAMPLES
-from interruption import check_no_partial, differences, kill_when, saved_states, start_run
+from support.interruption import check_no_partial, differences, kill_when, saved_states, start_run
 
 from engine.checkpoint import CHECKPOINT_DIR
 

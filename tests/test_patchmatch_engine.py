@@ -9,7 +9,7 @@ import warnings
 import numba
 import numpy as np
 import pytest
-from pm_synthetic import make_scene
+from support.pm_synthetic import make_scene
 
 from engine.camera import Camera
 from engine.errors import DeepCError, OptionsError
