@@ -38,12 +38,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from support.pm_synthetic import make_scene  # noqa: E402
-
 from engine.io.outputs import write_json  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, run_patchmatch  # noqa: E402
 from engine.patchmatch.context import build_context  # noqa: E402
 from engine.patchmatch.engine import _params, _State, init_cost  # noqa: E402
+from support.pm_synthetic import make_scene  # noqa: E402
 
 TINY_RUN = (
     "import sys; sys.path.insert(0, {root!r}); sys.path.insert(0, {tests!r});"

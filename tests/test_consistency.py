@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 import pytest
-from support.pm_synthetic import make_scene
 
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.errors import OptionsError
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from engine.patchmatch import reference as ref
+from support.pm_synthetic import make_scene
 
 
 @pytest.fixture(scope="module")

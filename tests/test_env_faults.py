@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 from conftest import SAMPLES
-from support.interruption import FAST, check_no_partial, kill_when, saved_states, start_run
 
 from engine.checkpoint import CHECKPOINT_DIR
+from support.interruption import FAST, check_no_partial, kill_when, saved_states, start_run
 
 REPO = Path(__file__).resolve().parent.parent
 needs_root = pytest.mark.skipif(os.geteuid() != 0, reason="mounting a tmpfs and switching user need root")

@@ -11,8 +11,9 @@ import sys
 
 import pytest
 from conftest import REPO, SAMPLES
-from support.fuzzing import TARGETS, FuzzCounts, check_input, damaged_inputs
 from hypothesis import HealthCheck, given, settings
+
+from support.fuzzing import TARGETS, FuzzCounts, check_input, damaged_inputs
 
 # examples per target in CI: the COLMAP targets load a scene per example (~0.1 s)
 EXAMPLES = {"dense_bin": 150, "ply": 150, "colmap_text": 60, "colmap_binary": 60, "eth3d_mlp": 100, "images": 100,

@@ -7,9 +7,9 @@ import signal
 
 import pytest
 from conftest import SAMPLES
-from support.interruption import check_no_partial, differences, kill_when, saved_states, start_run
 
 from engine.checkpoint import CHECKPOINT_DIR
+from support.interruption import check_no_partial, differences, kill_when, saved_states, start_run
 
 pytestmark = pytest.mark.slow
 

@@ -9,7 +9,6 @@ import warnings
 import numba
 import numpy as np
 import pytest
-from support.pm_synthetic import make_scene
 
 from engine.camera import Camera
 from engine.errors import DeepCError, OptionsError
@@ -18,6 +17,7 @@ from engine.observer import IterationEvent, NullObserver, ObserverList
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, effective_levels, run_patchmatch
 from engine.patchmatch import kernels as K
 from engine.patchmatch.engine import _params
+from support.pm_synthetic import make_scene
 
 FAST = dict(iterations=1, levels=2, geom_passes=1)
 

@@ -14,6 +14,7 @@ import pytest
 import viser
 import websockets
 from conftest import REPO, SAMPLES, run_async, running_viewer, wait_for
+
 from support.interruption import FAST
 
 sys.path.insert(0, str(REPO / "benchmarks"))
