@@ -4,7 +4,7 @@
         [--work DIR] [--json benchmarks/results/bench_evaluation.json]
 
 1. Timing: ``evaluate_points`` on N reconstructed vs N GT points (synthetic surfaces of
-   ``engine.evaluation.SYNTHETIC_BOXES``; GT 1 mm noise, reconstruction 4 mm noise + 3 % outliers).
+   ``support.synthetic_scan.SYNTHETIC_BOXES``; GT 1 mm noise, reconstruction 4 mm noise + 3 % outliers).
 2. With ``--eth3d-binary`` (build it with ``benchmarks/build_eth3d_evaluator.sh SRC BUILD``): synthetic
    ETH3D-format GT (two scans in scanner frames, 1.1 mrad rays = 2-3 mm apart), several
    reconstructions, F1/accuracy/completeness per tolerance from the official program and from
@@ -32,11 +32,10 @@ from engine.evaluation import (  # noqa: E402
     evaluate_eth3d,
     evaluate_points,
     load_eth3d_mlp,
-    make_synthetic_eth3d,
-    sample_synthetic_reconstruction,
 )
 from engine.io.outputs import write_json
 from engine.io.ply import read_points, write_ply  # noqa: E402
+from support.synthetic_scan import make_synthetic_eth3d, sample_synthetic_reconstruction  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 TOL = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)

@@ -1,7 +1,7 @@
 """Fusion benchmark: ours (numba, sequential) vs COLMAP's own fusion (pycolmap, 1 thread) on the same maps.
 
 Maps: the GT depth of fountain_p11 at the working resolution (default 768x512), normals derived from
-the depth (``engine.fusion.depth_normals``; pixels without a normal are dropped from both). COLMAP
+the depth (``support.gt_normals.depth_normals``; pixels without a normal are dropped from both). COLMAP
 gets a workspace whose cameras carry our index-space intrinsics, so both un-project identically.
 
     .venv/bin/python benchmarks/bench_fusion.py [--scene DIR] [--max-image-size 768] [--preset deepc]
@@ -32,16 +32,11 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from engine.fusion import (  # noqa: E402
-    FUSION_PRESETS,
-    depth_normals,
-    fuse,
-    run_colmap_fusion,
-    views_from_scene,
-    write_colmap_workspace,
-)
+from engine.fusion import FUSION_PRESETS, fuse, views_from_scene  # noqa: E402
 from engine.io.outputs import write_json
 from engine.scene import SceneOptions, load_scene  # noqa: E402
+from support.colmap_fusion import run_colmap_fusion, write_colmap_workspace  # noqa: E402
+from support.gt_normals import depth_normals  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 from patchmatch_error_regions import within_by_region
 
-from engine.fusion import depth_normals
 from engine.io.images import to_gray
 from engine.io.outputs import read_map, write_json
 from engine.patchmatch.reference import homography_ref, ncc_cost_ref
+from support.gt_normals import depth_normals
 from workbench.session import ViewerSession
 
 SCALES = (-0.03, -0.02, -0.01, -0.005, 0.0, 0.005, 0.01, 0.02)

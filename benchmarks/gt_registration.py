@@ -28,9 +28,10 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from engine.evaluation import EvaluationOptions, evaluate_points
-from engine.fusion import depth_normals, read_fused_ply
+from engine.fusion import read_fused_ply
 from engine.io.outputs import read_map, read_metrics, write_json
 from engine.scene import SceneOptions, load_scene
+from support.gt_normals import depth_normals
 
 
 def view_bias(scene, points: np.ndarray, depth_of_view) -> list[dict]:

@@ -45,7 +45,7 @@ from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS
 from engine.consistency import compute_counter_maps
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
-from engine.fusion import FUSION_PRESETS, depth_normals, fuse, views_from_scene
+from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
 from engine.io.images import to_gray
 from engine.io.outputs import read_map, write_json, write_map
 from engine.metrics import depth_metrics
@@ -54,6 +54,7 @@ from engine.pipeline import confidence_stage, evaluate_cloud, patchmatch_views
 from engine.refinement import NoDataError, RefinementOptions, refine_depth
 from engine.refinement.runs import file_sha256, refine_run
 from engine.refinement.views import sky_filter_views
+from support.gt_normals import depth_normals
 from workbench.session import ViewerSession
 
 REPO = Path(__file__).resolve().parent.parent

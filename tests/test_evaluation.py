@@ -14,19 +14,17 @@ from engine.evaluation import (
     EvaluationOptions,
     PointIndex,
     classify_beam,
-    classify_beam_reference,
     evaluate_eth3d,
     evaluate_file,
     evaluate_points,
     free_space_margin,
-    free_space_margin_reference,
     load_eth3d_mlp,
-    make_synthetic_eth3d,
     parse_tolerances,
-    sample_synthetic_reconstruction,
 )
 from engine.io.ply import write_ply
 from engine.scene import load_scene
+from support.evaluation_reference import classify_beam_reference, free_space_margin_reference
+from support.synthetic_scan import make_synthetic_eth3d, sample_synthetic_reconstruction
 from tests.conftest import SAMPLES
 from workbench.eval_command import cmd_eval
 

@@ -15,19 +15,18 @@ from engine.fusion import (
     FusedCloud,
     FusionOptions,
     FusionView,
-    _median,
-    _rgb_uint8,
-    _to_uint8,
-    colmap_reference_fusion,
-    depth_normals,
     fuse,
-    fuse_reference,
     read_fused_ply,
     views_from_scene,
     write_fused_ply,
 )
+from engine.fusion.kernel import median_inplace
+from engine.fusion.packing import rgb_uint8, to_uint8
 from engine.io.ply import read_ply
 from engine.scene import load_scene
+from support.colmap_fusion import colmap_reference_fusion
+from support.fusion_reference import fuse_reference
+from support.gt_normals import depth_normals
 from tests.conftest import SAMPLES
 
 
@@ -169,9 +168,9 @@ def test_median_kernel_matches_numpy():
     scratch = np.empty(200)
     for n in (1, 2, 3, 4, 7, 8, 31, 32, 33, 48, 49, 50, 200):
         buf = rng.normal(size=200)
-        assert _median(buf, n, scratch) == pytest.approx(float(np.median(buf[:n])), abs=0)
+        assert median_inplace(buf, n, scratch) == pytest.approx(float(np.median(buf[:n])), abs=0)
         ties = rng.integers(0, 4, size=200).astype(np.float64)  # colours: many equal values (rank path)
-        assert _median(ties, n, scratch) == float(np.median(ties[:n]))
+        assert median_inplace(ties, n, scratch) == float(np.median(ties[:n]))
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -181,9 +180,9 @@ def test_colour_kernel_matches_numpy(dtype):
     rgb = np.concatenate([rng.uniform(-0.1, 1.1, 3000), (np.arange(256) + 0.5) / 255, np.arange(256) / 255,
                           [np.nan, np.inf, -np.inf]]).astype(dtype)
     out = np.empty(rgb.size, np.uint8)
-    _to_uint8(rgb, out)
+    to_uint8(rgb, out)
     with np.errstate(invalid="ignore"):
-        np.testing.assert_array_equal(out, _rgb_uint8(rgb))
+        np.testing.assert_array_equal(out, rgb_uint8(rgb))
 
 
 def test_depth_normals_of_plane():

@@ -215,7 +215,7 @@ def _angle_deg(a, b):
 
 def test_refinement_recovers_planes():
     from engine.camera import Camera
-    from engine.fusion import depth_normals
+    from support.gt_normals import depth_normals
 
     sc = planar_scene()
     res = refine_depth(sc["gray"], sc["depth"], sc["conf"], sc["K"], sc["range"], None, RefinementOptions())

@@ -1,0 +1,14 @@
+"""COLMAP-style fusion of depth maps into one point cloud (Schönberger et al., ECCV 2016).
+
+``options`` holds the thresholds and presets, ``cloud`` the input and output records, ``packing`` and
+``kernel`` the numba implementation, ``ply`` the cloud's file format and ``views`` the scene adapter.
+"""
+
+from engine.fusion.cloud import FusedCloud, FusionView
+from engine.fusion.kernel import fuse
+from engine.fusion.options import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
+from engine.fusion.ply import read_fused_ply, write_fused_ply
+from engine.fusion.views import views_from_scene
+
+__all__ = ["DEFAULT_PRESET", "FUSION_PRESETS", "FusedCloud", "FusionOptions", "FusionView", "fuse",
+           "read_fused_ply", "views_from_scene", "write_fused_ply"]
