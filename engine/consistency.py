@@ -1,4 +1,4 @@
-"""Counter maps (SPEC.md §3): per pixel, the number of source views that confirm the final estimate.
+"""Counter maps (the paper's Sec. 3.2): per pixel, the number of source views that confirm the final estimate.
 
 A source view j of reference r is *consistent* at pixel p (with depth z and normal n) iff
   1. geometric: the forward-backward reprojection error through j's final depth map is
@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from engine.interrupt import check_interrupt
-from engine.options import Options, check, option
+from engine.options import Options, option
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.engine import PatchMatchView, ViewMaps
 from engine.patchmatch.geometry import plane_vector, ray, reprojection
@@ -30,23 +30,17 @@ from engine.patchmatch.options import PatchMatchOptions
 
 @dataclasses.dataclass
 class CounterOptions(Options):
-    """Consistency checks of the counter map (SPEC.md §3, §12 ``counter``)."""
+    """Consistency checks of the counter map: COLMAP's filter of its depth maps."""
 
-    reproj_px: float = option(1.0, "max forward-backward reprojection error (px)")
-    ncc_min: float = option(0.1, "min NCC (cost <= 1 - ncc_min)")
-    tri_angle_min_deg: float = option(3.0, "min triangulation angle between the two viewing rays (degrees)")
-    check_facing: bool = option(True, "require the normal to face the source camera")
-    rel_depth: float | None = option(None, "optional max relative depth difference after reprojection (e.g. 0.01)")
-    cap: int = option(10, "counts are clipped to this value (the confidence network divides by it)")
-
-    def validate(self) -> CounterOptions:
-        super().validate()
-        check(self.reproj_px > 0, "reproj_px", self.reproj_px, "must be > 0")
-        check(-1.0 <= self.ncc_min <= 1.0, "ncc_min", self.ncc_min, "must be in [-1, 1]")
-        check(0 <= self.tri_angle_min_deg < 90, "tri_angle_min_deg", self.tri_angle_min_deg, "must be in [0, 90)")
-        check(self.rel_depth is None or self.rel_depth > 0, "rel_depth", self.rel_depth, "must be None or > 0")
-        check(1 <= self.cap <= 255, "cap", self.cap, "must be in 1..255")
-        return self
+    reproj_px: float = option(1.0, "max forward-backward reprojection error", unit="px", source="COLMAP", above=0)
+    ncc_min: float = option(0.1, "min NCC (cost <= 1 - ncc_min)", source="COLMAP", low=-1, high=1)
+    tri_angle_min_deg: float = option(3.0, "min triangulation angle between the two viewing rays", unit="degrees",
+                                      source="COLMAP", low=0, below=90)
+    check_facing: bool = option(True, "require the normal to face the source camera", source="COLMAP")
+    rel_depth: float | None = option(None, "max relative depth difference after reprojection (ACMM: 0.01); unset = "
+                                     "no such check", source="COLMAP", above=0)
+    cap: int = option(10, "counts are clipped to this value (the confidence network divides by it)", source="ours",
+                      low=1, high=255)
 
 
 @njit(cache=True, parallel=True)
@@ -106,7 +100,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
     Args:
         views: the PatchMatch inputs (images, cameras, source lists) at the maps' resolution.
         maps: final maps of every view (same order).
-        options: the checks (defaults: SPEC §12 ``counter``).
+        options: the checks (defaults: COLMAP's filter).
         ncc_options: window and weighting of the photometric check (defaults: PatchMatchOptions()).
     Views without source views or with empty maps get an all-zero map.
     """

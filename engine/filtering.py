@@ -1,8 +1,8 @@
-"""Depth-map filters applied before fusion (SPEC.md §5).
+"""Depth-map filters applied before fusion (the paper's Sec. 4.1 and Table 2).
 
 - Confidence filtering (DeepC-MVS_fast): keep pixel p iff c(p) >= tau.
 - Mask-k filtering (COLMAP/ACMM-style baselines "mask1", "mask2"): keep p iff K(p) >= k, with K the
-  counter map of consistent source views (SPEC.md §3).
+  counter map of consistent source views (``engine/consistency.py``).
 
 Rejected pixels get depth 0 and normal (0, 0, 0). The functions are pure: they return new arrays
 and never modify their inputs.
@@ -15,25 +15,18 @@ import dataclasses
 import numpy as np
 
 from engine.confidence.options import ConfidenceOptions
-from engine.options import Options, check, option
+from engine.options import Options, option
 
 
 @dataclasses.dataclass
 class FilterOptions(Options):
-    """Which pixels survive into fusion (SPEC.md §12 ``filter``)."""
+    """Which pixels survive into fusion."""
 
-    conf_tau: float = option(ConfidenceOptions().tau, "keep pixels whose predicted confidence is at least this "
-                             "(0 keeps all; default: confidence.tau)", metavar="TAU")
-    mask_k: int | None = option(None, "keep pixels with at least this many consistent source views "
-                                      "(counter map); unset = no counter filter", metavar="K")
-
-    def validate(self) -> FilterOptions:
-        super().validate()
-        check(0.0 <= self.conf_tau <= 1.0, "conf_tau", self.conf_tau, "must be in [0, 1]")
-        if self.mask_k is not None:
-            check(isinstance(self.mask_k, int) and self.mask_k >= 0, "mask_k", self.mask_k,
-                  "must be a non-negative integer")
-        return self
+    tau: float = option(ConfidenceOptions().tau, "keep pixels whose confidence is at least this (0 keeps all; "
+                        "default: confidence.tau)", source="ours", low=0, high=1, aliases=("conf_tau",),
+                        metavar="TAU")
+    mask_k: int | None = option(None, "keep pixels with at least this many consistent source views; unset = no "
+                                "counter filter", source="paper", low=0, metavar="K")
 
 
 def _apply(depth: np.ndarray, normal: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +53,7 @@ def filter_by_confidence(depth: np.ndarray, normal: np.ndarray, confidence: np.n
     Returns:
         New (depth, normal) arrays.
     """
-    check(0.0 <= tau <= 1.0, "conf_tau", tau, "must be in [0, 1]")
+    FilterOptions(tau=tau).validate()  # the declared range
     confidence = np.asarray(confidence)
     with np.errstate(invalid="ignore"):
         keep = confidence >= tau
@@ -79,7 +72,7 @@ def filter_by_counter(depth: np.ndarray, normal: np.ndarray, counter: np.ndarray
     Returns:
         New (depth, normal) arrays.
     """
-    check(k >= 0, "mask_k", k, "must be a non-negative integer")
+    FilterOptions(mask_k=k).validate()
     # Counter maps read back from .bin files are float32 holding integers; compare with a margin.
     keep = np.asarray(counter, np.float64) >= k - 1e-3
     return _apply(depth, normal, keep)
@@ -90,8 +83,8 @@ def apply_filters(depth: np.ndarray, normal: np.ndarray, options: FilterOptions,
                   counter: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Apply the filters ``options`` asks for that have their input map; returns new (depth, normal)."""
     options.validate()
-    if confidence is not None and options.conf_tau > 0:
-        depth, normal = filter_by_confidence(depth, normal, confidence, options.conf_tau)
+    if confidence is not None and options.tau > 0:
+        depth, normal = filter_by_confidence(depth, normal, confidence, options.tau)
     if counter is not None and options.mask_k is not None:
         depth, normal = filter_by_counter(depth, normal, counter, options.mask_k)
     return np.asarray(depth, np.float32).copy(), np.asarray(normal, np.float32).copy()

@@ -48,8 +48,8 @@ STAGES = ("patchmatch", "confidence", "refinement", "fusion")
 class PipelineOptions(Options):
     """Which pipeline to run and the options of each stage."""
 
-    pipeline: str = option("vanilla", "vanilla: PatchMatch + fusion; fast: + confidence filtering; "
-                           "full: + refinement", choices=PIPELINES)
+    pipeline: str = option("vanilla", "vanilla: PatchMatch + fusion; fast: + confidence filtering; full: + "
+                           "refinement", source="ours", choices=PIPELINES)
     patchmatch: PatchMatchOptions = option(PatchMatchOptions(), "PatchMatch options", cli=False)
     counter: CounterOptions = option(CounterOptions(), "counter-map options", cli=False)
     confidence: ConfidenceOptions = option(ConfidenceOptions(), "confidence network and filtering (fast, full)",
@@ -57,13 +57,6 @@ class PipelineOptions(Options):
     refinement: RefinementOptions = option(RefinementOptions(), "confidence-guided refinement (full)", cli=False)
     fusion: FusionOptions = option(FUSION_PRESETS[DEFAULT_PRESET], "fusion options", cli=False)
     evaluation: EvaluationOptions = option(EvaluationOptions(), "evaluation options", cli=False)
-
-    def validate(self) -> PipelineOptions:
-        super().validate()
-        for stage in (self.patchmatch, self.counter, self.confidence, self.refinement, self.fusion,
-                      self.evaluation):
-            stage.validate()
-        return self
 
 
 @dataclasses.dataclass

@@ -2,7 +2,7 @@
 
 ``load_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap, checks the images and the
 optional ground truth, rescales every camera to the working resolution (``max_image_size``) with
-exact intrinsics, and computes per view (SPEC.md §1):
+exact intrinsics, and computes per view:
 
 - the depth range from the sparse points the view observes: the 1st / 99th percentile of their
   depths, stretched by (0.75, 1.25) as COLMAP does, then relaxed by (0.6, 1.2) as ACMM does;
@@ -28,7 +28,7 @@ from engine.errors import DeepCError
 from engine.io.colmap_model import PINHOLE_MODELS, SparseModel, find_model_dir, read_sparse_model, undistort_workspace
 from engine.io.dense import read_dense_map_header, read_depth_map
 from engine.io.images import image_size, read_image, resize_area, to_gray
-from engine.options import Options, check, option
+from engine.options import Options, option
 from engine.resample import resample_depth
 
 # Fewer observed points than this and a view's depth range falls back to all points it sees.
@@ -37,39 +37,26 @@ _MIN_POINTS_FOR_RANGE = 5
 
 @dataclasses.dataclass
 class SceneOptions(Options):
-    """How a COLMAP workspace becomes views (SPEC.md §1, §12 ``io`` and ``depth_range``)."""
+    """How a COLMAP workspace becomes views: working size, depth ranges, source views."""
 
-    max_image_size: int = option(0, "longest image side in pixels for all processing; 0 keeps the original size",
-                                 metavar="PX")
-    num_source_views: int = option(10, "source views per reference view (at most 32)", metavar="N")
-    min_triangulation_angle: float = option(
-        1.0, "a source view needs this 75th-percentile triangulation angle with the reference",
-        metavar="DEGREES")
+    max_image_size: int = option(0, "longest image side for all processing; 0 keeps the original size", unit="px",
+                                 source="ours", low=0, metavar="PX")
+    num_source_views: int = option(10, "source views per reference view (COLMAP, ACMM: 20)", source="ours", low=1,
+                                   high=32, metavar="N")
+    min_triangulation_angle: float = option(1.0, "a source view needs this 75th-percentile triangulation angle",
+                                            unit="degrees", source="COLMAP", low=0, below=90, metavar="DEGREES")
     depth_percentiles: tuple[float, float] = option((0.01, 0.99), "percentiles of sparse-point depths",
-                                                    cli=False)
-    depth_stretch: tuple[float, float] = option((0.75, 1.25), "factors applied to the percentile depths (COLMAP)",
-                                                cli=False)
-    depth_relax: tuple[float, float] = option((0.6, 1.2), "further factors on the range (ACMM)", cli=False)
-    depth_range: tuple[float, float] | None = option(
-        None, "use this depth range (model units) for every view instead of the sparse points", metavar="MIN,MAX")
-    undistort: bool = option(True, "undistort non-pinhole cameras with pycolmap into a cache (else refuse them)")
-    cache_dir: str = option("", "folder for undistorted copies (default: ~/.cache/deepc)", cli=False)
-
-    def validate(self) -> SceneOptions:
-        super().validate()
-        check(self.max_image_size >= 0, "max_image_size", self.max_image_size, "must be >= 0 (0 = original size)")
-        check(1 <= self.num_source_views <= 32, "num_source_views", self.num_source_views, "must be in 1..32")
-        check(0 <= self.min_triangulation_angle < 90, "min_triangulation_angle", self.min_triangulation_angle,
-              "must be in [0, 90) degrees")
-        lo, hi = self.depth_percentiles
-        check(0 <= lo < hi <= 1, "depth_percentiles", self.depth_percentiles, "need 0 <= low < high <= 1")
-        check(all(v > 0 for v in self.depth_stretch + self.depth_relax), "depth_stretch/depth_relax",
-              (self.depth_stretch, self.depth_relax), "factors must be positive")
-        if self.depth_range is not None:
-            dmin, dmax = self.depth_range
-            check(math.isfinite(dmin) and math.isfinite(dmax) and 0 < dmin < dmax, "depth_range",
-                  self.depth_range, "need 0 < MIN < MAX")
-        return self
+                                                    source="COLMAP", low=0, high=1, ordered="<", cli=False)
+    depth_stretch: tuple[float, float] = option((0.75, 1.25), "factors applied to the percentile depths",
+                                                source="COLMAP", above=0, cli=False)
+    depth_relax: tuple[float, float] = option((0.6, 1.2), "further factors on the range", source="ACMM", above=0,
+                                              cli=False)
+    depth_range: tuple[float, float] | None = option(None, "this depth range for every view instead of the sparse "
+                                                     "points'", unit="model units", source="ours", above=0,
+                                                     ordered="<", metavar="MIN,MAX")
+    undistort: bool = option(True, "undistort non-pinhole cameras with pycolmap into a cache (else refuse them)",
+                             source="ours")
+    cache_dir: str = option("", "folder for undistorted copies (default: ~/.cache/deepc)", source="ours", cli=False)
 
 
 @dataclasses.dataclass(eq=False)
@@ -155,7 +142,7 @@ class Scene:
 
     def gt_views(self) -> list[tuple[Camera, np.ndarray]]:
         """(camera, GT depth) at the working resolution for every view with GT depth (for the
-        unobserved-space rule of the evaluation, SPEC.md §9.1)."""
+        unobserved-space rule of the ETH3D evaluation)."""
         return [(v.camera, self.gt_depth(v.index)) for v in self.views if self.gt_depth_paths[v.index] is not None]
 
     def overlapping_views(self, i: int, max_views: int = 50) -> list[int]:

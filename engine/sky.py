@@ -1,15 +1,15 @@
-"""Sky filtering of refined depth maps (SPEC.md §8, the substitute for PCF-MVS's method).
+"""Sky filtering of refined depth maps (the paper's Sec. 5.5; a substitute for PCF-MVS's method).
 
 Refinement fills every pixel, so textureless sky receives plausible-looking depths that the
 geometric checks of fusion do not remove. Without a semantic-segmentation model (no weights can be
-downloaded here) the sky is found by a heuristic, SPEC.md §8 (b):
+downloaded here) the sky is found by a heuristic:
 
     a pixel is sky iff it was unreliable in the *vanilla* PatchMatch output (no depth, or confidence
     below ``conf_tau``), has low texture (grey std in a ``texture_window`` box below ``max_texture_std``),
     is bright (grey > ``min_brightness``) or blue-dominant (B > R and B > G), and its 4-connected
     component of such pixels touches the top image border;
 
-and, SPEC.md §8 (c), refined depths at or beyond ``far_factor`` · z_99 (z_99 = 99th percentile of the
+and refined depths at or beyond ``far_factor`` · z_99 (z_99 = 99th percentile of the
 view's sparse-point depths) are dropped: the refinement clamps to the far end of the depth range,
 which with the default range (1.25 · 1.2 · z_99) is exactly 1.5 · z_99.
 """
@@ -21,29 +21,24 @@ import dataclasses
 import numpy as np
 from scipy import ndimage
 
-from engine.options import Options, check, option
+from engine.options import Options, option
 
 
 @dataclasses.dataclass
 class SkyOptions(Options):
-    """Heuristic sky mask (SPEC.md §8 (b), (c))."""
+    """Heuristic sky mask and far-plane cut (ours: PCF-MVS's sky filter, which the paper uses, is not public)."""
 
-    enabled: bool = option(True, "drop sky pixels from refined maps before fusion")
-    conf_tau: float = option(0.05, "vanilla confidence below this counts as unreliable", metavar="TAU")
-    texture_window: int = option(7, "box size of the grey-level standard deviation", metavar="PX")
-    max_texture_std: float = option(0.02, "largest grey std (on [0, 1]) of a sky pixel", metavar="STD")
-    min_brightness: float = option(0.5, "grey level above which a low-texture pixel may be sky", metavar="G")
-    far_factor: float = option(1.5, "drop refined depths at or beyond this multiple of z_99", metavar="F")
-
-    def validate(self) -> SkyOptions:
-        super().validate()
-        check(0.0 <= self.conf_tau <= 1.0, "conf_tau", self.conf_tau, "must be in [0, 1]")
-        check(self.texture_window >= 3 and self.texture_window % 2 == 1, "texture_window", self.texture_window,
-              "must be odd and >= 3")
-        check(self.max_texture_std >= 0, "max_texture_std", self.max_texture_std, "must be >= 0")
-        check(0.0 <= self.min_brightness <= 1.0, "min_brightness", self.min_brightness, "must be in [0, 1]")
-        check(self.far_factor > 0, "far_factor", self.far_factor, "must be > 0")
-        return self
+    enabled: bool = option(True, "drop sky pixels from refined maps before fusion", source="paper")
+    conf_tau: float = option(0.05, "vanilla confidence below this counts as unreliable", source="ours", low=0,
+                             high=1, metavar="TAU")
+    texture_window: int = option(7, "box side of the grey-level standard deviation (odd)", unit="px", source="ours",
+                                 odd=True, low=3, metavar="PX")
+    max_texture_std: float = option(0.02, "largest grey std of a sky pixel", unit="grey on [0, 1]", source="ours",
+                                    low=0, metavar="STD")
+    min_brightness: float = option(0.5, "grey level above which a low-texture pixel may be sky",
+                                   unit="grey on [0, 1]", source="ours", low=0, high=1, metavar="G")
+    far_factor: float = option(1.5, "drop refined depths at or beyond this multiple of z_99", source="ours", above=0,
+                               metavar="F")
 
 
 def local_std(gray: np.ndarray, window: int) -> np.ndarray:
@@ -56,7 +51,7 @@ def local_std(gray: np.ndarray, window: int) -> np.ndarray:
 
 def sky_mask(rgb: np.ndarray, vanilla_depth: np.ndarray, vanilla_confidence: np.ndarray | None = None,
              options: SkyOptions | None = None) -> np.ndarray:
-    """(H, W) bool: pixels the heuristic of SPEC.md §8 (b) calls sky.
+    """(H, W) bool: pixels the heuristic of the module doc calls sky.
 
     Args:
         rgb: (H, W, 3) float image in [0, 1].

@@ -3,13 +3,28 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 
+from engine.confidence.options import ConfidenceOptions
+from engine.consistency import CounterOptions
 from engine.errors import OptionsError
+from engine.evaluation import EvaluationOptions
+from engine.filtering import FilterOptions
+from engine.fusion import FusionOptions
+from engine.options import SOURCES, Options, describe, option
+from engine.patchmatch import PatchMatchOptions
+from engine.pipeline import PipelineOptions
+from engine.refinement.options import RefinementOptions
 from engine.scene import SceneOptions
-from workbench.flags import add_options_flags, options_from_args
+from engine.synthetic.layout import RandomSceneKnobs
+from workbench.flags import add_options_flags, options_from_args, section_overrides
+from workbench.stream import StreamOptions
+
+BASELINES = Path(__file__).resolve().parent / "baselines"
 
 
 def test_defaults_validate_and_round_trip_through_json():
@@ -48,3 +63,143 @@ def test_flags_map_onto_fields_and_keep_defaults_when_absent():
     assert options.num_source_views == SceneOptions().num_source_views
     with pytest.raises(SystemExit):
         parser.parse_args(["--depth-range", "1"])
+
+
+# ---- declared constraints, one-line help, sources -------------------------------------------------------------
+
+def _all_options_classes() -> list[type]:
+    """Every Options subclass of engine/ and workbench/ (importing the modules that declare them)."""
+    import importlib
+
+    for module in ("engine.pipeline", "engine.filtering", "engine.sky", "engine.synthetic.layout", "workbench.stream"):
+        importlib.import_module(module)
+    found, todo = [], list(Options.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        found.append(cls)
+        todo.extend(cls.__subclasses__())
+    return sorted({c for c in found if c.__module__.startswith(("engine.", "workbench."))}, key=lambda c: c.__name__)
+
+
+ALL_CLASSES = _all_options_classes()
+
+
+def test_every_stage_is_found():
+    names = {c.__name__ for c in ALL_CLASSES}
+    assert {"PatchMatchOptions", "CounterOptions", "ConfidenceOptions", "TrainOptions", "RefinementOptions",
+            "FilterOptions", "SkyOptions", "SceneOptions", "PipelineOptions", "FusionOptions", "EvaluationOptions",
+            "RandomSceneKnobs", "RenderSettings", "SparseSettings", "StreamOptions"} <= names
+
+
+@pytest.mark.parametrize("cls", ALL_CLASSES, ids=lambda c: c.__name__)
+def test_every_field_has_one_line_of_help_and_a_source(cls):
+    for f in dataclasses.fields(cls):
+        line = describe(f)
+        assert f.metadata.get("help") and "\n" not in line and len(line) <= 120, (f.name, line)
+        assert "SPEC" not in line, (f.name, line)
+        nested = f.default_factory is not dataclasses.MISSING and isinstance(f.default_factory(), Options)
+        if not nested:  # a nested stage's own fields carry the sources
+            assert f.metadata.get("source") in SOURCES, f.name
+
+
+@pytest.mark.parametrize("cls", ALL_CLASSES, ids=lambda c: c.__name__)
+def test_defaults_meet_their_declared_constraints(cls):
+    cls().validate()
+
+
+@pytest.mark.parametrize("cls,change,message", [
+    (PatchMatchOptions, {"window": 4}, "option window=4: must be odd and >= 3"),
+    (PatchMatchOptions, {"fine_window": 4}, "option fine_window=4: must be 0 (off) or odd and >= 3"),
+    (PatchMatchOptions, {"levels": 9}, "option levels=9: must be an integer in 1..8"),
+    (PatchMatchOptions, {"iterations": 2.5}, "option iterations=2.5: must be an integer >= 1"),
+    (PatchMatchOptions, {"schedule": "fast"}, "option schedule='fast': must be one of paper, acmm"),
+    (PatchMatchOptions, {"fine_crease_angle": 90.0}, "option fine_crease_angle=90.0: must be in [0, 90)"),
+    (PatchMatchOptions, {"eps_min": 0.0}, "option eps_min=0.0: must be in (0, 1]"),
+    (PatchMatchOptions, {"alpha": float("nan")}, "option alpha=nan: must be a finite number"),
+    (ConfidenceOptions, {"tau": 1.5}, "option tau=1.5: must be in [0, 1]"),
+    (ConfidenceOptions, {"tile": 200}, "option tile=200: must be a multiple of 16 and >= 64"),
+    (RefinementOptions, {"lr": (1e-2, 0.0, 1e-3, 1e-4)}, "option lr=(0.01, 0.0, 0.001, 0.0001): every entry must "
+                                                         "be > 0"),
+    (RefinementOptions, {"keep_confident": -0.1}, "option keep_confident=-0.1: must be in [0, 1]"),
+    (SceneOptions, {"depth_range": (5.0, 1.0)}, "option depth_range=(5.0, 1.0): every entry must be > 0; entries "
+                                                "increasing"),
+    (SceneOptions, {"depth_range": (1.0,)}, "option depth_range=(1.0,): needs 2 values"),
+    (RandomSceneKnobs, {"n_views": (5, 3)}, "option n_views=(5, 3): every entry must be >= 2; entries in "
+                                            "non-decreasing order"),
+    (RandomSceneKnobs, {"texture_kinds": ()}, "option texture_kinds=(): every entry must be one of"),
+    (RandomSceneKnobs, {"texture_kinds": ("marble",)}, "option texture_kinds=('marble',): every entry must be one"),
+    (EvaluationOptions, {"tolerances": (0.01, float("inf"))}, "must be a finite number"),
+    (StreamOptions, {"view": -1}, "option view=-1: must be an integer >= 0"),
+])
+def test_a_violated_declaration_names_the_option_and_the_rule(cls, change, message):
+    with pytest.raises(OptionsError) as info:
+        cls(**change).validate()
+    assert message in str(info.value)
+
+
+@pytest.mark.parametrize("cls,change", [
+    (PatchMatchOptions, {"fine_window": 0}),  # the 'off' value passes whatever the other constraints say
+    (PatchMatchOptions, {"iterations": None}),  # unset optional fields are not checked
+    (CounterOptions, {"rel_depth": None}),
+    (RefinementOptions, {"keep_confident": None, "confidence_threshold": 0.5}),
+    (SceneOptions, {"depth_range": (0.5, 9.0)}),
+    (RandomSceneKnobs, {"n_views": (4, 4), "texture_kinds": ("noise",)}),
+])
+def test_values_within_the_declarations_pass(cls, change):
+    cls(**change).validate()
+
+
+@pytest.mark.parametrize("cls,change,name", [
+    (PatchMatchOptions, {"window": 5, "window_step": 3}, "window_step"),
+    (PatchMatchOptions, {"k_viewsel": 8, "k_update": 4}, "k_update"),
+    (PatchMatchOptions, {"prior_in": 0.1, "prior_out": 0.9}, "prior_in/prior_out"),
+    (ConfidenceOptions, {"tile": 64, "overlap": 32}, "overlap"),
+    (RefinementOptions, {"scales": 3}, "iters"),
+    (RefinementOptions, {"window": 3, "degree": 9}, "degree"),
+    (FusionOptions, {"min_num_pixels": 5, "max_num_pixels": 4}, "max_num_pixels"),
+])
+def test_rules_across_fields_are_still_checked(cls, change, name):
+    with pytest.raises(OptionsError, match=f"option {name}="):
+        cls(**change).validate()
+
+
+def test_declarations_are_checked_when_a_class_is_defined():
+    with pytest.raises(ValueError, match="source"):
+        option(1, "a count")
+    with pytest.raises(ValueError, match="source"):
+        option(1, "a count", source="folklore")
+    with pytest.raises(ValueError, match="one line"):
+        option(1, "a count\nwith a story", source="ours")
+
+
+def test_help_is_generated_with_unit_and_source():
+    window = {f.name: f for f in dataclasses.fields(PatchMatchOptions)}["window"]
+    assert describe(window) == "matching window side (odd) [px] (default from: ACMM)"
+    parser = argparse.ArgumentParser()
+    add_options_flags(parser, PatchMatchOptions)
+    text = " ".join(parser.format_help().split())
+    assert "matching window side (odd) [px] (default: 11, from: ACMM)" in text
+    for cls in ALL_CLASSES:  # every generated help formats (argparse chokes on a stray %)
+        parser = argparse.ArgumentParser()
+        add_options_flags(parser, cls)
+        parser.format_help()
+
+
+def test_renamed_options_still_load_under_their_former_names():
+    assert FilterOptions.from_dict({"conf_tau": 0.3}).tau == 0.3
+    assert FilterOptions.field_name("conf_tau") == "tau" and FilterOptions.field_name("nonsense") is None
+    assert section_overrides(["filter.conf_tau=0.2"], "filter", FilterOptions) == {"tau": 0.2}
+    with pytest.raises(OptionsError, match="given twice"):
+        FilterOptions.from_dict({"conf_tau": 0.3, "tau": 0.2})
+
+
+def test_the_documented_confidence_flag_still_works():
+    assert section_overrides(["confidence.tau=0.3"], "confidence", ConfidenceOptions) == {"tau": 0.3}
+
+
+@pytest.mark.parametrize("path", sorted(BASELINES.glob("*/*.json")), ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_saved_regression_baselines_load_without_loss(path):
+    saved = json.loads(path.read_text())["metrics"]["options"]
+    scene = SceneOptions.from_dict(saved["scene"])
+    options = PipelineOptions.from_dict({k: v for k, v in saved.items() if k != "scene"})
+    assert {"scene": scene.to_dict(), **options.to_dict()} == saved

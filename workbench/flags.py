@@ -14,7 +14,7 @@ import typing
 from typing import Any
 
 from engine.errors import OptionsError
-from engine.options import Options
+from engine.options import Options, describe
 
 
 def flag_name(field_name: str) -> str:
@@ -52,14 +52,16 @@ def add_options_flags(parser: argparse.ArgumentParser | argparse._ArgumentGroup,
             continue
         hint = _base_type(hints[f.name])
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-        help_text = f.metadata.get("help", "")
-        if default is not None and hint is not bool:
-            shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
-            help_text += f" (default: {shown})"
+        if hint is bool:
+            shown = "on" if default else "off"
+        elif default is not None:
+            shown = ",".join(map(str, default)) if isinstance(default, tuple) else str(default)
+        else:
+            shown = None
+        help_text = describe(f, shown).replace("%", "%%")  # argparse formats help with %
         kwargs: dict[str, Any] = {"dest": f"{cls.__name__}.{f.name}", "default": None, "help": help_text}
         if hint is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
-            kwargs["help"] += f" (default: {'on' if default else 'off'})"
         elif typing.get_origin(hint) is tuple:
             kinds = typing.get_args(hint)
             kwargs["type"] = _tuple_parser(flag_name(f.name), kinds)
@@ -105,6 +107,7 @@ def section_overrides(assignments: list[str], section: str, cls: type[Options]) 
             raise OptionsError(f"--set {item!r}: expected STAGE.NAME=VALUE")
         if stage != section:
             continue
+        name = cls.field_name(name) or name  # a former name (alias) still works
         if name not in names:
             raise OptionsError(f"--set {item!r}: {cls.__name__} has no option {name!r}")
         hint = _base_type(hints[name])

@@ -27,24 +27,21 @@ import rerun as rr
 
 from engine.camera import Camera
 from engine.observer import IterationEvent, NullObserver
-from engine.options import Options, check, option
+from engine.options import Options, option
 
 
 @dataclasses.dataclass
 class StreamOptions(Options):
     """What the rerun stream logs (thinning keeps recordings small)."""
 
-    every: int = option(1, "log every k-th red-black iteration (the last one of each pass is always logged)")
-    view: int | None = option(None, "log the per-iteration maps of this view index only (default: all views)")
-    max_size: int = option(0, "downscale logged maps so the longer side is at most this (0 = full size)")
-    selected_views_mask: bool = option(True, "log the raw selected-views bitmask (uint32) as well as the count")
-
-    def validate(self) -> StreamOptions:
-        super().validate()
-        check(self.every >= 1, "every", self.every, "must be >= 1")
-        check(self.view is None or self.view >= 0, "view", self.view, "must be a view index >= 0")
-        check(self.max_size >= 0, "max_size", self.max_size, "must be >= 0")
-        return self
+    every: int = option(1, "log every k-th red-black iteration (the last one of each pass always)", source="ours",
+                        low=1)
+    view: int | None = option(None, "log the per-iteration maps of this view index only; unset = all views",
+                              source="ours", low=0)
+    max_size: int = option(0, "downscale logged maps to this longer side (0 = full size)", unit="px", source="ours",
+                           low=0)
+    selected_views_mask: bool = option(True, "log the raw selected-views bitmask (uint32) as well as the count",
+                                       source="ours")
 
 
 def entity_name(index: int, name: str) -> str:

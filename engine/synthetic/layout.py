@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from engine.camera import Camera
-from engine.options import Options, check, option
+from engine.options import Options, option
 from engine.synthetic.raycast import Box, Cylinder, Quad, Sphere
 from engine.synthetic.scene import RenderSettings, SceneRecipe, SparseSettings
 from engine.synthetic.texture import KINDS, Texture
@@ -160,54 +160,45 @@ Range = tuple[float, float]  # (lo, hi), drawn uniformly
 
 @dataclasses.dataclass
 class RandomSceneKnobs(Options):
-    """Knobs of :func:`random_scene`. A (lo, hi) pair is drawn uniformly (integers inclusive);
+    """Knobs of :func:`random_scene` (all ours). A (lo, hi) pair is drawn uniformly (integers inclusive);
     give lo == hi to fix a value."""
 
-    n_views: Range = option((6, 10), "number of views")
-    width: int = option(320, "image width (pixels)")
-    height: int = option(240, "image height (pixels)")
-    focal: Range = option((0.75, 1.3), "fx as a multiple of the image width")
-    arc_step_deg: Range = option((4.0, 12.0), "angle between neighbouring cameras (degrees)")
-    radius: Range = option((4.5, 7.0), "camera distance from the scene centre (metres)")
-    cam_height: Range = option((1.2, 3.0), "camera height above the ground (metres)")
-    jitter: Range = option((0.0, 1.0), "hand-held pose jitter (0 = perfect arc)")
-    n_boxes: Range = option((1, 4), "number of boxes")
-    n_spheres: Range = option((0, 3), "number of spheres")
-    sphere_radius: Range = option((0.2, 0.6), "sphere radius (metres)")
-    n_poles: Range = option((0, 4), "number of thin vertical poles")
-    n_slanted: Range = option((0, 2), "number of slanted rectangles")
-    wall_prob: float = option(0.8, "probability of a back wall")
-    wall_height: Range = option((1.0, 3.5), "back wall height (metres); lower walls show more sky")
-    texture_kinds: tuple = option(KINDS, "texture kinds to draw from")
-    weak_prob: float = option(0.15, "probability that a surface gets the weak texture")
-    texture_scale: Range = option((0.06, 0.5), "texture feature size (metres)")
-    contrast: Range = option((0.8, 2.8), "texture contrast")
-    sun: Range = option((0.3, 1.0), "directional light intensity")
-    ambient: Range = option((0.15, 0.5), "ambient light")
-    sun_elevation_deg: Range = option((25.0, 80.0), "elevation of the light (degrees)")
-    shadows_prob: float = option(0.7, "probability of cast shadows")
-    exposure: Range = option((0.8, 1.3), "linear exposure gain")
-    noise_sigma: Range = option((0.5, 4.0), "sensor noise (8-bit grey levels)")
-    blur_sigma: Range = option((0.0, 1.0), "optical blur (pixels)")
-    jpeg_prob: float = option(0.4, "probability of a JPEG round trip")
-    jpeg_quality: Range = option((60, 95), "JPEG quality when it happens")
-    supersample: int = option(3, "anti-aliasing samples per pixel side")
-
-    def validate(self) -> RandomSceneKnobs:
-        super().validate()
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if f.type == "Range":
-                check(isinstance(value, tuple) and len(value) == 2 and value[0] <= value[1], f.name, value,
-                      "must be a (lo, hi) pair with lo <= hi")
-        for name in ("wall_prob", "weak_prob", "shadows_prob", "jpeg_prob"):
-            p = getattr(self, name)
-            check(0.0 <= p <= 1.0, name, p, "must be a probability in [0, 1]")
-        check(self.width >= 8 and self.height >= 8, "width/height", (self.width, self.height), "must be >= 8")
-        check(self.n_views[0] >= 2, "n_views", self.n_views, "needs at least 2 views")
-        check(all(k in KINDS for k in self.texture_kinds) and len(self.texture_kinds) > 0, "texture_kinds",
-              self.texture_kinds, f"must be a non-empty subset of {KINDS}")
-        return self
+    # --- cameras
+    n_views: Range = option((6, 10), "number of views", source="ours", low=2, ordered="<=")
+    width: int = option(320, "image width", unit="px", source="ours", low=8)
+    height: int = option(240, "image height", unit="px", source="ours", low=8)
+    focal: Range = option((0.75, 1.3), "fx as a multiple of the image width", source="ours", ordered="<=")
+    arc_step_deg: Range = option((4.0, 12.0), "angle between neighbouring cameras", unit="degrees", source="ours",
+                                 ordered="<=")
+    radius: Range = option((4.5, 7.0), "camera distance from the scene centre", unit="m", source="ours", ordered="<=")
+    cam_height: Range = option((1.2, 3.0), "camera height above the ground", unit="m", source="ours", ordered="<=")
+    jitter: Range = option((0.0, 1.0), "hand-held pose jitter (0 = perfect arc)", source="ours", ordered="<=")
+    # --- geometry
+    n_boxes: Range = option((1, 4), "number of boxes", source="ours", ordered="<=")
+    n_spheres: Range = option((0, 3), "number of spheres", source="ours", ordered="<=")
+    sphere_radius: Range = option((0.2, 0.6), "sphere radius", unit="m", source="ours", ordered="<=")
+    n_poles: Range = option((0, 4), "number of thin vertical poles", source="ours", ordered="<=")
+    n_slanted: Range = option((0, 2), "number of slanted rectangles", source="ours", ordered="<=")
+    wall_prob: float = option(0.8, "probability of a back wall", source="ours", low=0, high=1)
+    wall_height: Range = option((1.0, 3.5), "back wall height; lower walls show more sky", unit="m", source="ours",
+                                ordered="<=")
+    # --- appearance
+    texture_kinds: tuple = option(KINDS, "texture kinds to draw from", source="ours", choices=KINDS, nonempty=True)
+    weak_prob: float = option(0.15, "probability that a surface gets the weak texture", source="ours", low=0, high=1)
+    texture_scale: Range = option((0.06, 0.5), "texture feature size", unit="m", source="ours", ordered="<=")
+    contrast: Range = option((0.8, 2.8), "texture contrast", source="ours", ordered="<=")
+    sun: Range = option((0.3, 1.0), "directional light intensity", source="ours", ordered="<=")
+    ambient: Range = option((0.15, 0.5), "ambient light", source="ours", ordered="<=")
+    sun_elevation_deg: Range = option((25.0, 80.0), "elevation of the light", unit="degrees", source="ours",
+                                      ordered="<=")
+    shadows_prob: float = option(0.7, "probability of cast shadows", source="ours", low=0, high=1)
+    # --- camera model and image degradations
+    exposure: Range = option((0.8, 1.3), "linear exposure gain", source="ours", ordered="<=")
+    noise_sigma: Range = option((0.5, 4.0), "sensor noise", unit="8-bit grey levels", source="ours", ordered="<=")
+    blur_sigma: Range = option((0.0, 1.0), "optical blur", unit="px", source="ours", ordered="<=")
+    jpeg_prob: float = option(0.4, "probability of a JPEG round trip", source="ours", low=0, high=1)
+    jpeg_quality: Range = option((60, 95), "JPEG quality when it happens", source="ours", ordered="<=")
+    supersample: int = option(3, "anti-aliasing samples per pixel side", source="ours")
 
 
 def _draw(rng: np.random.Generator, pair: tuple) -> float | int:

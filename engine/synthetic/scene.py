@@ -12,56 +12,45 @@ import dataclasses
 import numpy as np
 
 from engine.camera import Camera
-from engine.options import Options, check, option
+from engine.options import Options, option
 from engine.synthetic.raycast import Primitive
 from engine.synthetic.texture import Texture
 
 
 @dataclasses.dataclass
 class RenderSettings(Options):
-    """How views are rendered (everything after the geometry)."""
+    """How views are rendered (everything after the geometry; all ours)."""
 
-    supersample: int = option(3, "anti-aliasing: s x s colour samples per pixel (depth uses the pixel centre)")
-    ambient: float = option(0.35, "ambient light (fraction of albedo)")
-    sun: float = option(0.75, "directional light intensity")
-    shadows: bool = option(True, "cast shadows of the directional light")
-    shadow_strength: float = option(0.7, "fraction of the directional light a shadow removes")
-    exposure: float = option(1.0, "linear gain before clipping and gamma")
-    gamma: float = option(2.2, "display gamma (encoded = linear ** (1 / gamma))")
-    noise_sigma: float = option(1.5, "Gaussian sensor noise, standard deviation in 8-bit grey levels")
-    blur_sigma: float = option(0.0, "Gaussian optical blur in pixels (0 = none)")
-    jpeg_quality: int = option(0, "JPEG round trip at this quality, 1-95 (0 = none)")
-
-    def validate(self) -> RenderSettings:
-        super().validate()
-        check(1 <= self.supersample <= 8, "supersample", self.supersample, "must be in 1..8")
-        check(self.gamma > 0, "gamma", self.gamma, "must be > 0")
-        check(self.noise_sigma >= 0 and self.blur_sigma >= 0, "noise_sigma/blur_sigma",
-              (self.noise_sigma, self.blur_sigma), "must be >= 0")
-        check(0 <= self.jpeg_quality <= 95, "jpeg_quality", self.jpeg_quality, "must be in 0..95")
-        check(0 <= self.shadow_strength <= 1, "shadow_strength", self.shadow_strength, "must be in [0, 1]")
-        return self
+    supersample: int = option(3, "anti-aliasing: s x s colour samples per pixel (depth uses the pixel centre)",
+                              source="ours", low=1, high=8)
+    ambient: float = option(0.35, "ambient light (fraction of albedo)", source="ours")
+    sun: float = option(0.75, "directional light intensity", source="ours")
+    shadows: bool = option(True, "cast shadows of the directional light", source="ours")
+    shadow_strength: float = option(0.7, "fraction of the directional light a shadow removes", source="ours", low=0,
+                                    high=1)
+    exposure: float = option(1.0, "linear gain before clipping and gamma", source="ours")
+    gamma: float = option(2.2, "display gamma (encoded = linear ** (1 / gamma))", source="ours", above=0)
+    noise_sigma: float = option(1.5, "Gaussian sensor noise, standard deviation", unit="8-bit grey levels",
+                                source="ours", low=0)
+    blur_sigma: float = option(0.0, "Gaussian optical blur (0 = none)", unit="px", source="ours", low=0)
+    jpeg_quality: int = option(0, "JPEG round trip at this quality, 1-95 (0 = none)", source="ours", low=0, high=95)
 
 
 @dataclasses.dataclass
 class SparseSettings(Options):
-    """How the SfM-like sparse model is drawn from the ground truth."""
+    """How the SfM-like sparse model is drawn from the ground truth (all ours)."""
 
-    cell_size: int = option(8, "one feature per cell of this many pixels (the best-textured pixel)")
-    border: int = option(3, "no features within this many pixels of the image border")
-    min_score: float = option(4.0, "minimum gradient magnitude (grey levels per pixel) of a feature")
-    depth_tolerance: float = option(0.005, "relative GT-depth agreement for a point to count as visible")
-    min_views: int = option(2, "keep points observed in at least this many views")
-    noise_px: float = option(0.3, "standard deviation of 2-D observation noise (pixels), clipped at 2 sigma")
-    noise_rel_3d: float = option(0.001, "standard deviation of 3-D position noise relative to depth, "
-                                         "clipped at 2 sigma")
-
-    def validate(self) -> SparseSettings:
-        super().validate()
-        check(self.cell_size >= 2, "cell_size", self.cell_size, "must be >= 2")
-        check(self.min_views >= 2, "min_views", self.min_views, "must be >= 2")
-        check(self.depth_tolerance > 0, "depth_tolerance", self.depth_tolerance, "must be > 0")
-        return self
+    cell_size: int = option(8, "one feature per cell of this side (the best-textured pixel)", unit="px",
+                            source="ours", low=2)
+    border: int = option(3, "no features this close to the image border", unit="px", source="ours")
+    min_score: float = option(4.0, "minimum gradient magnitude of a feature", unit="grey levels / px", source="ours")
+    depth_tolerance: float = option(0.005, "relative GT-depth agreement for a point to count as visible",
+                                    source="ours", above=0)
+    min_views: int = option(2, "keep points observed in at least this many views", source="ours", low=2)
+    noise_px: float = option(0.3, "standard deviation of 2-D observation noise, clipped at 2 sigma", unit="px",
+                             source="ours")
+    noise_rel_3d: float = option(0.001, "standard deviation of 3-D position noise relative to depth, clipped at 2 "
+                                 "sigma", source="ours")
 
 
 @dataclasses.dataclass
