@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from engine.metrics import depth_metrics  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch  # noqa: E402
 

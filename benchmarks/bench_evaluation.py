@@ -33,7 +33,7 @@ from engine.evaluation import (  # noqa: E402
     evaluate_points,
     load_eth3d_mlp,
 )
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 from engine.io.ply import read_points, write_ply  # noqa: E402
 from support.synthetic_scan import make_synthetic_eth3d, sample_synthetic_reconstruction  # noqa: E402
 

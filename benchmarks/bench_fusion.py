@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene  # noqa: E402
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 from engine.scene import SceneOptions, load_scene  # noqa: E402
 from support.colmap_fusion import run_colmap_fusion, write_colmap_workspace  # noqa: E402
 from support.gt_normals import depth_normals  # noqa: E402

@@ -24,7 +24,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tests"))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from support.interruption import check_no_partial, differences, kill_when, saved_states, start_run  # noqa: E402
 
 TOTAL_STATES = 20  # FAST schedule: 2 levels x 2 passes x 5 views

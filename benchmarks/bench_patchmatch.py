@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, run_patchmatch  # noqa: E402
 from engine.patchmatch.context import build_context  # noqa: E402
 from engine.patchmatch.engine import _params, _State, init_cost  # noqa: E402

@@ -28,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 
 CASES = {"random": (3, 0, False), "converged": (2, 3, False), "converged_geom": (2, 3, True)}
 

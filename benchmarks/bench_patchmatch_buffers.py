@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from engine.patchmatch import PatchMatchOptions  # noqa: E402
 from engine.patchmatch.buffers import BufferPool  # noqa: E402
 from engine.patchmatch.context import build_context, fine_window_region  # noqa: E402

@@ -1,4 +1,4 @@
-"""Cost of refining a finished run (engine.refinement.runs.refine_run), i.e. of making the training data of
+"""Cost of refining a finished run (engine.refine_run.refine_run), i.e. of making the training data of
 the second confidence network (``deepc train --refined``), and what the refinement does to the labels.
 
     nice -n 5 .venv/bin/python benchmarks/bench_refine_run.py RUN [--json benchmarks/results/bench_refine_run.json]
@@ -25,8 +25,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from engine.confidence.data import load_run  # noqa: E402
-from engine.io.outputs import write_json  # noqa: E402
-from engine.refinement.runs import refine_run  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
+from engine.refine_run import refine_run  # noqa: E402
 
 
 def main() -> None:

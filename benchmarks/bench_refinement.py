@@ -27,9 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from engine.io.atomic import write_json  # noqa: E402
 from engine.io.images import to_gray  # noqa: E402
-from engine.io.outputs import read_map, write_json  # noqa: E402
 from engine.refinement import RefinementOptions, refine_depth  # noqa: E402
+from engine.run_folder import read_map  # noqa: E402
 from workbench.session import ViewerSession  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent

@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.pipeline import patchmatch_views
 from engine.scene import load_scene

@@ -32,7 +32,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 from conftest import make_fake_run  # noqa: E402
 from viewer_clients import decode_frame  # noqa: E402
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from engine.scene import SceneOptions  # noqa: E402
 from workbench.session import ViewerSession  # noqa: E402
 from workbench.viewer import DISPLAY_MAX_POINTS, ViewerApp, preset_of  # noqa: E402

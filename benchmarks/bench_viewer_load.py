@@ -38,7 +38,7 @@ from conftest import make_fake_run  # noqa: E402
 from viewer_clients import client_process  # noqa: E402
 
 from engine.errors import DeepCError  # noqa: E402
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from engine.memory import current_rss  # noqa: E402
 from engine.scene import SceneOptions  # noqa: E402
 from workbench.session import ViewerSession  # noqa: E402

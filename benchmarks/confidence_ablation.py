@@ -18,7 +18,7 @@ from pathlib import Path
 
 from engine.confidence.data import load_run
 from engine.confidence.training import TrainOptions, ValidationSet, train
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 
 VARIANTS = (("deepc_squared", "middle"), ("bce", "middle"), ("wbce", "middle"), ("deepc_l2", "middle"),
             ("deepc_squared", "early"))

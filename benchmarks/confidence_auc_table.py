@@ -23,7 +23,7 @@ from engine.confidence.data import load_run
 from engine.confidence.inference import facing_away
 from engine.confidence.options import ConfidenceOptions
 from engine.confidence.weights import load_weights
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 
 REPO = Path(__file__).resolve().parent.parent
 

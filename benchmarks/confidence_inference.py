@@ -18,7 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 
 REPO = Path(__file__).resolve().parent.parent
 

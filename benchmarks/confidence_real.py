@@ -25,7 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from engine.confidence.apply import auc_report, predict_samples
-from engine.confidence.data import load_run, run_scene
+from engine.confidence.data import load_run
 from engine.confidence.inference import facing_away
 from engine.confidence.options import ConfidenceOptions
 from engine.confidence.recipe import SceneEntry, load_recipe, parse_seeds
@@ -33,8 +33,9 @@ from engine.confidence.weights import load_weights
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, fuse, views_from_scene
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 from engine.pipeline import evaluate_cloud
+from engine.run_folder import run_scene
 from engine.synthetic.dataset import training_scene_name
 from workbench.regress import environment
 from workbench.session import ViewerSession
@@ -140,11 +141,11 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
     filter; plus the depth of vanilla, refined and fused-by-full maps against GT. Row ``refined + conf``: the
     refined maps alone, filtered (the paper's Table 3 row)."""
     from engine.confidence.data import load_run as load_samples
-    from engine.io.outputs import read_map
     from engine.pipeline import PipelineOptions, _depth_block
+    from engine.refine_run import refine_run
     from engine.refinement.guard import keep_confident
-    from engine.refinement.runs import refine_run
     from engine.refinement.views import sky_filter_views
+    from engine.run_folder import read_map
 
     options = PipelineOptions(pipeline="full").validate()
     t = time.perf_counter()

@@ -23,9 +23,10 @@ from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
-from engine.io.outputs import read_map, read_metrics, write_json
+from engine.io.atomic import write_json
 from engine.pipeline import evaluate_cloud
 from engine.refinement.views import sky_filter_views
+from engine.run_folder import read_map, read_metrics
 from engine.scene import SceneOptions, load_scene
 
 TOLERANCES = (0.01, 0.02, 0.05)

@@ -26,7 +26,7 @@ from hypothesis import HealthCheck, given, seed, settings
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tests"))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from support.fuzzing import TARGETS, FuzzCounts, FuzzTarget, check_input, damaged_inputs, materialise  # noqa: E402
 
 # command line per target: argv after "deepc" for a materialised input folder

@@ -24,9 +24,10 @@ from pathlib import Path
 import numpy as np
 from patchmatch_error_regions import within_by_region
 
+from engine.io.atomic import write_json
 from engine.io.images import to_gray
-from engine.io.outputs import read_map, write_json
 from engine.patchmatch.reference import homography_ref, ncc_cost_ref
+from engine.run_folder import read_map
 from support.gt_normals import depth_normals
 from workbench.session import ViewerSession
 

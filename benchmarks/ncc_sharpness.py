@@ -32,7 +32,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from engine.io.outputs import read_metrics, write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
+from engine.run_folder import read_metrics  # noqa: E402
 
 CONFIGS: dict[str, dict[str, float]] = {
     "window11": {"fine_window": 0},  # SPEC: the 11 px window everywhere ("default" in results before session 11)

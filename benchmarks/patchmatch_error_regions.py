@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from engine.io.outputs import read_map, write_json
+from engine.io.atomic import write_json
+from engine.run_folder import read_map
 from workbench.session import ViewerSession
 
 

@@ -23,8 +23,9 @@ import numpy as np
 
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.fusion import FUSION_PRESETS, fuse, read_fused_ply, views_from_scene
-from engine.io.outputs import read_map, read_metrics, write_json
+from engine.io.atomic import write_json
 from engine.pipeline import evaluate_cloud
+from engine.run_folder import read_map, read_metrics
 from engine.scene import SceneOptions, load_scene
 
 PEER = {"f1": (55.9, 90.8), "accuracy": (76.4, 96.5), "completeness": (44.1, 85.7)}

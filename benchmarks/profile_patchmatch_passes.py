@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from engine.io.outputs import write_json  # noqa: E402
+from engine.io.atomic import write_json  # noqa: E402
 from engine.metrics import depth_metrics  # noqa: E402
 from engine.patchmatch import PatchMatchOptions, run_patchmatch  # noqa: E402
 from engine.pipeline import patchmatch_views  # noqa: E402

@@ -19,7 +19,8 @@ from fusion_presets import pipeline_maps
 from table3_refinement import fuse_and_score
 
 from engine.fusion import FUSION_PRESETS
-from engine.io.outputs import read_metrics, write_json
+from engine.io.atomic import write_json
+from engine.run_folder import read_metrics
 from engine.scene import SceneOptions, load_scene
 
 

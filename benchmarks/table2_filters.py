@@ -22,7 +22,7 @@ import numpy as np
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 from engine.pipeline import evaluate_cloud
 from workbench.session import ViewerSession
 

@@ -5,7 +5,7 @@
     .venv/bin/python benchmarks/table3_refinement.py VANILLA_RUN_DIR --weights NET1.pt [--refined-weights NET2.pt]
 
 The second form computes what ``--pipeline fast`` and ``full`` compute, from a finished vanilla run:
-network-1 confidence, the refinement through ``engine.refinement.runs.refine_run`` (cached in
+network-1 confidence, the refinement through ``engine.refine_run.refine_run`` (cached in
 RUN_DIR/refined/), the refined maps' counter maps and their confidence from the second network.
 
 RUN_DIR is the output folder of ``deepc run`` (CONTRACT.md §4). Every view is refined (SPEC.md §6) with
@@ -46,14 +46,15 @@ from engine.consistency import compute_counter_maps
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
+from engine.io.atomic import write_json
 from engine.io.images import to_gray
-from engine.io.outputs import read_map, write_json, write_map
 from engine.metrics import depth_metrics
 from engine.patchmatch import ViewMaps
 from engine.pipeline import confidence_stage, evaluate_cloud, patchmatch_views
+from engine.refine_run import refine_run
 from engine.refinement import NoDataError, RefinementOptions, refine_depth
-from engine.refinement.runs import file_sha256, refine_run
 from engine.refinement.views import sky_filter_views
+from engine.run_folder import file_sha256, read_map, write_map
 from support.gt_normals import depth_normals
 from workbench.session import ViewerSession
 

@@ -30,14 +30,21 @@ from engine.fusion import (
     write_fused_ply,
 )
 from engine.interrupt import check_interrupt
-from engine.io.outputs import write_map, write_metrics
 from engine.io.ply import read_points
 from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
-from engine.refinement.runs import file_sha256, maps_digest, refinement_key, write_refined_maps, write_stamp
+from engine.run_folder import (
+    file_sha256,
+    maps_digest,
+    refinement_key,
+    write_map,
+    write_metrics,
+    write_refined_maps,
+    write_stamp,
+)
 from engine.scene import Scene
 
 PIPELINES = ("vanilla", "fast", "full")

@@ -45,7 +45,7 @@ def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True, 
     0 to 5, so every move of a filter threshold visibly removes or restores points."""
     import numpy as np
 
-    from engine.io.outputs import write_map, write_metrics
+    from engine.run_folder import write_map, write_metrics
     from engine.scene import load_scene
     from support.gt_normals import depth_normals
 
@@ -72,7 +72,7 @@ def make_noisy_run(scene_dir: Path, out_dir: Path) -> Path:
     that only partly tells them apart, so that a confidence network has something to learn."""
     import numpy as np
 
-    from engine.io.outputs import write_map, write_metrics
+    from engine.run_folder import write_map, write_metrics
     from engine.scene import load_scene
     from support.gt_normals import depth_normals
 
