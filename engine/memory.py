@@ -31,7 +31,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from engine.camera import rescaled_size
+import numpy as np
+
+from engine.camera import Camera, rescaled_size
+from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
 from engine.patchmatch.engine import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
@@ -160,10 +163,7 @@ def largest_fitting_size(scene: Any, options: Any, estimate: MemoryEstimate) -> 
 
 def load_kernels() -> None:
     """Run PatchMatch once on two synthetic 24x24 views, so the kernels and the JIT runtime are resident."""
-    import numpy as np
 
-    from engine.camera import Camera
-    from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
 
     rng = np.random.default_rng(0)
     views = []

@@ -16,6 +16,9 @@ from typing import Any
 import numpy as np
 
 from engine import __version__
+from engine.confidence.data import view_labels
+from engine.confidence.inputs import network_inputs
+from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.evaluation import EvaluationOptions, evaluate_points
@@ -36,6 +39,7 @@ from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
+from engine.refinement.views import refine_views, sky_filter_views
 from engine.run_folder import (
     file_sha256,
     maps_digest,
@@ -108,7 +112,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline in ("fast", "full"):
         # Loaded (and checked) before PatchMatch and kept in memory: bad weights fail at once, and a weights
         # file moved or overwritten while PatchMatch runs cannot end a long run at its last stage.
-        from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS, load_weights
+        from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS, load_weights  # lazy: torch
         model = load_weights(options.confidence.weights or None)
         weights_sha256 = file_sha256(options.confidence.weights or DEFAULT_WEIGHTS)  # for the refined maps' stamp
         if options.pipeline == "full":
@@ -168,7 +172,6 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         filtered = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused_maps]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         if options.refinement.sky_filter:
-            from engine.refinement.views import sky_filter_views
             depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence)
         seconds["confidence"] += time.perf_counter() - t
         if notify:
@@ -228,9 +231,8 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4); ``model``: a loaded
     :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now). ``raw``, when
     given, also receives each view's confidence before the back-facing rule (``zero_backfacing``)."""
-    from engine.confidence.inference import facing_away, predict_confidence, torch_threads
-    from engine.confidence.inputs import network_inputs
-    from engine.confidence.weights import load_weights
+    from engine.confidence.inference import facing_away, predict_confidence, torch_threads  # lazy: torch
+    from engine.confidence.weights import load_weights  # lazy: torch
 
     if model is None:
         model = load_weights(options.weights or None)
@@ -262,7 +264,6 @@ def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.nda
     """Refined dense depth and normals per view (SPEC.md §6) as :class:`ViewMaps` (cost and selected views
     zero); a view without data to refine from stays empty (a warning names it). ``progress(i, n, result)``
     after each view (result None for an empty one)."""
-    from engine.refinement.views import refine_views
 
     refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
                            progress)
@@ -277,8 +278,6 @@ def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.nda
 
 def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.ndarray]) -> dict[str, Any]:
     """ROC-AUC ×100 of the confidence maps against the label maps of SPEC.md §4.3 (pooled and per view)."""
-    from engine.confidence.data import view_labels
-    from engine.confidence.metrics import roc_auc
 
     scores, labels, per_view = [], [], []
     for view, depth, c in zip(scene.views, depths, confidence, strict=True):

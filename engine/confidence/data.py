@@ -14,6 +14,8 @@ import numpy as np
 from engine.confidence.inputs import NORMAL, network_inputs
 from engine.confidence.labels import label_map
 from engine.errors import DeepCError
+from engine.io.images import resize_area
+from engine.resample import resample_depth
 from engine.run_folder import map_path, read_map, run_scene
 from engine.scene import Scene
 
@@ -72,7 +74,6 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
             depth.shape[1], depth.shape[0])
         rgb = scene.image(v.index)
         if rgb.shape[:2] != depth.shape:
-            from engine.io.images import resize_area
             rgb = resize_area(rgb, cam.size)
         labels = view_labels(scene, v.index, depth, label_px)
         if labels is None:
@@ -84,7 +85,6 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
 
 def view_labels(scene: Scene, index: int, depth: np.ndarray, label_px: float = 2.0) -> np.ndarray | None:
     """Label map (Kuhn et al. 2020, §3.2) of ``depth`` estimated for view ``index``; None without GT depth."""
-    from engine.resample import resample_depth
 
     v = scene.views[index]
     gt = scene.gt_depth(index)

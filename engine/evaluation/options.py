@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from engine.errors import OptionsError
 from engine.options import Options, check, option
 
 
@@ -41,7 +42,6 @@ class EvaluationOptions(Options):
 
 def parse_tolerances(text: str) -> tuple[float, ...]:
     """'0.01,0.02' -> (0.01, 0.02); a clear error for anything else."""
-    from engine.errors import OptionsError
 
     parts = [p.strip() for p in str(text).split(",") if p.strip()]
     try:

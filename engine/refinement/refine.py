@@ -196,7 +196,7 @@ def refine_depth(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_
             u = normal_to_u(resize_nearest(normal_prev, shape), z, K)
         n_it = int(iters[s])
         if options.solver == "adam":
-            from engine.refinement.adam import solve_adam  # torch: only for the reference solver
+            from engine.refinement.adam import solve_adam  # lazy: torch, only for the reference solver
 
             d_f, u_f, done = solve_adam(problem, d.ravel(), u.reshape(-1, 2), n_it, options.lr[s], options.lr_slots[s])
         else:

@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from engine.io.images import resize_area, to_gray
 from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import NoDataError, RefinedMap, refine_depth
 from engine.sky import SkyOptions, far_mask, filter_sky, sky_mask
@@ -31,7 +32,6 @@ def refine_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarr
                  progress: Callable[[int, int, RefinedMap | None], None] | None = None) -> list[RefinedMap | None]:
     """Refine the depth map of every view of ``scene`` (an ``engine.scene.Scene``) with its grey image,
     camera and depth range; None for views without data (a warning names them)."""
-    from engine.io.images import resize_area, to_gray
 
     options = (options or RefinementOptions()).validate()
     out: list[RefinedMap | None] = []
@@ -66,7 +66,6 @@ def sky_filter_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.n
                      vanilla_depths: list[np.ndarray], vanilla_confidences: list[np.ndarray | None],
                      options: SkyOptions | None = None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """SPEC.md §8 on refined maps: returns (depths, normals, dropped masks)."""
-    from engine.io.images import resize_area
 
     options = (options or SkyOptions()).validate()
     depths, normals, masks = [], [], []
