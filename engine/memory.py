@@ -5,7 +5,7 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
 
 - inputs: RGB float32 cache of every view (12 B/px, at most 64 views cached), the grey images
   PatchMatch takes (4 B/px), and decoding the largest original image (uint8 RGB + two float32 copies);
-- PatchMatch (SPEC.md §2.11): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
+- PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (2·S window weights, moments, padded source images and
   source depths: 4·(2·S + 2 + 2·sources) B/px) and its checkpoint buffers (3 × 24 B/px), and between the

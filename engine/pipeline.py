@@ -1,7 +1,7 @@
 """The whole chain for one scene: PatchMatch -> counter maps -> ... -> outputs and metrics.
 
 Every stage is also callable on its own; this module only sequences them, times them, writes the
-outputs of CONTRACT.md §4 and assembles ``metrics.json`` (§5). Stages that a pipeline does not run
+run folder (:mod:`engine.run_folder`) and assembles its ``metrics.json``. Stages that a pipeline does not run
 report 0 seconds.
 """
 
@@ -155,7 +155,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
                                    options.refinement)
         seconds["refinement"] = time.perf_counter() - t
         t = time.perf_counter()
-        # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering; all are
+        # Kuhn et al. 2020, §4.2: the refined maps get their own counter maps and confidence before filtering; all are
         # written, with a stamp, so the run also serves as training data of that second network
         refined_counter = compute_counter_maps(views, refined, options.counter)
         refined_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
@@ -228,7 +228,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarray],
                      options: ConfidenceOptions, model: Any = None,
                      raw: list[np.ndarray] | None = None) -> list[np.ndarray]:
-    """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4); ``model``: a loaded
+    """(H, W) float32 confidence in [0, 1] per view from the network (Kuhn et al. 2020, §3.2); ``model``: a loaded
     :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now). ``raw``, when
     given, also receives each view's confidence before the back-facing rule (``zero_backfacing``)."""
     from engine.confidence.inference import facing_away, predict_confidence, torch_threads  # lazy: torch
@@ -261,7 +261,7 @@ def refinement_confidence(confidence: list[np.ndarray], raw: list[np.ndarray],
 def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],
                      options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None
                      ) -> list[ViewMaps]:
-    """Refined dense depth and normals per view (SPEC.md §6) as :class:`ViewMaps` (cost and selected views
+    """Refined dense depth and normals per view (Rossi et al. 2020) as :class:`ViewMaps` (cost and selected views
     zero); a view without data to refine from stays empty (a warning names it). ``progress(i, n, result)``
     after each view (result None for an empty one)."""
 
@@ -277,7 +277,7 @@ def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.nda
 
 
 def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.ndarray]) -> dict[str, Any]:
-    """ROC-AUC ×100 of the confidence maps against the label maps of SPEC.md §4.3 (pooled and per view)."""
+    """ROC-AUC ×100 of the confidence maps against the label maps of Kuhn et al. 2020, §3.2 (pooled and per view)."""
 
     scores, labels, per_view = [], [], []
     for view, depth, c in zip(scene.views, depths, confidence, strict=True):
@@ -295,7 +295,7 @@ def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.n
 
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     """ETH3D-style scores of a fused cloud against the scene's GT points; GT depth maps, when present,
-    enable the unobserved-space rule (SPEC.md §9.1)."""
+    enable the unobserved-space rule (Schöps et al. 2017)."""
     return evaluate_points(np.asarray(cloud.xyz, np.float64), read_points(scene.gt_points_path), options,
                            scene.gt_views() or None)
 

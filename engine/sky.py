@@ -1,15 +1,18 @@
-"""Sky filtering of refined depth maps (SPEC.md §8, the substitute for PCF-MVS's method).
+"""Sky filtering of refined depth maps (Kuhn et al. 2020, §5.5).
+
+The paper removes sky with PCF-MVS's method (Kuhn et al., GCPR 2019), which is not published as code; this is
+our substitute.
 
 Refinement fills every pixel, so textureless sky receives plausible-looking depths that the
 geometric checks of fusion do not remove. Without a semantic-segmentation model (no weights can be
-downloaded here) the sky is found by a heuristic, SPEC.md §8 (b):
+downloaded here) the sky is found by a heuristic:
 
     a pixel is sky iff it was unreliable in the *vanilla* PatchMatch output (no depth, or confidence
     below ``conf_tau``), has low texture (grey std in a ``texture_window`` box below ``max_texture_std``),
     is bright (grey > ``min_brightness``) or blue-dominant (B > R and B > G), and its 4-connected
     component of such pixels touches the top image border;
 
-and, SPEC.md §8 (c), refined depths at or beyond ``far_factor`` · z_99 (z_99 = 99th percentile of the
+and refined depths at or beyond ``far_factor`` · z_99 (z_99 = 99th percentile of the
 view's sparse-point depths) are dropped: the refinement clamps to the far end of the depth range,
 which with the default range (1.25 · 1.2 · z_99) is exactly 1.5 · z_99.
 """
@@ -26,7 +29,7 @@ from engine.options import Options, check, option
 
 @dataclasses.dataclass
 class SkyOptions(Options):
-    """Heuristic sky mask (SPEC.md §8 (b), (c))."""
+    """Heuristic sky mask and far-plane cut (module doc)."""
 
     enabled: bool = option(True, "drop sky pixels from refined maps before fusion")
     conf_tau: float = option(0.05, "vanilla confidence below this counts as unreliable", metavar="TAU")
@@ -56,7 +59,7 @@ def local_std(gray: np.ndarray, window: int) -> np.ndarray:
 
 def sky_mask(rgb: np.ndarray, vanilla_depth: np.ndarray, vanilla_confidence: np.ndarray | None = None,
              options: SkyOptions | None = None) -> np.ndarray:
-    """(H, W) bool: pixels the heuristic of SPEC.md §8 (b) calls sky.
+    """(H, W) bool: pixels the heuristic (module doc) calls sky.
 
     Args:
         rgb: (H, W, 3) float image in [0, 1].

@@ -1,4 +1,4 @@
-"""Refinement (SPEC.md §6): energy, graph, plane conversions, numba kernels against plain references,
+"""Refinement (Rossi et al. 2020): energy, graph, plane conversions, numba kernels against plain references,
 recovery of a piece-wise planar scene, and the behaviour on bad input."""
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from engine.refinement.primal_dual import (
 
 
 def _graph_by_loops(gray, window, patch, sigma_int, sigma_spa, degree):
-    """Per pixel {j: w_ij} straight from the definition of SPEC.md §6.3."""
+    """Per pixel {j: w_ij} straight from the definition of Rossi et al. 2020."""
     h, w = gray.shape
     rw, rp = window // 2, patch // 2
 

@@ -1,4 +1,4 @@
-"""The refinement energy of one pyramid scale (SPEC.md §6.2).
+"""The refinement energy of one pyramid scale (Rossi et al. 2020).
 
     E(d, u) = (λ_d/|Ω|) Σ_i c̃_i |d_i - d̄_i|
             + (λ/|Ω|) [ Σ_i ( Σ_{j∈N(i)} w_ij² (d_i - d_j - u_i·(x_i - x_j))² )^½ + γ Σ_i Σ_{j∈N(i)} w_ij |u_i - u_j| ]
@@ -99,5 +99,5 @@ def energy_terms_reference(problem: ScaleProblem, d: np.ndarray, u: np.ndarray) 
 
 
 def energy(problem: ScaleProblem, d: np.ndarray, u: np.ndarray) -> float:
-    """E(d, u) of SPEC.md §6.2 in float64; d (N,) inverse depth, u (N, 2)."""
+    """E(d, u) of Rossi et al. 2020 in float64; d (N,) inverse depth, u (N, 2)."""
     return energy_terms(problem, d, u)["total"]

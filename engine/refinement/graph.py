@@ -1,4 +1,4 @@
-"""The similarity graph N(i), w_ij of the piece-wise planar regulariser (SPEC.md §6.3).
+"""The similarity graph N(i), w_ij of the piece-wise planar regulariser (Rossi et al. 2020).
 
 For every pixel i, the candidates j are the other pixels of a ``window`` x ``window`` search window.
 Their patch dissimilarity on the grey image (``patch`` x ``patch``, replicate padding) and their
@@ -112,7 +112,7 @@ def _graph_kernel(gray, offsets, patch_radius, inv_2si2, inv_2sx2, neighbors, we
 
 def similarity_graph(gray: np.ndarray, window: int = 9, patch: int = 3, sigma_int: float = 0.07,
                      sigma_spa: float = 3.0, degree: int = 20) -> SimilarityGraph:
-    """Build the graph of SPEC.md §6.3 from an (H, W) grey image in [0, 1] (numba kernel)."""
+    """Build the graph of Rossi et al. 2020 from an (H, W) grey image in [0, 1] (numba kernel)."""
     gray = np.ascontiguousarray(gray, np.float64)
     h, w = gray.shape
     offs = window_offsets(window).astype(np.int64)

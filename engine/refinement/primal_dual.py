@@ -1,5 +1,5 @@
 """Fast solver: diagonally preconditioned primal-dual (Chambolle & Pock 2011) on the energy of
-SPEC.md §6.2, in numba.
+Rossi et al. 2020, in numba.
 
 E is convex in x = (d, u): divided by λ/|Ω| it reads
 
