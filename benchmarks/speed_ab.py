@@ -85,20 +85,22 @@ def main(argv: list[str] | None = None) -> int:
             for name, tree in trees.items():
                 res = one_round(tree, args.scene.resolve(), Path(tmp) / f"{name}_{r}", args.fusions)
                 results[name].append(res)
-                print(f"round {r + 1} {name:>8}: PatchMatch {res['patchmatch_s']:.2f} s, fusion {res['fusion_s']:.3f} s",
-                      flush=True)
+                print(f"round {r + 1} {name:>8}: PatchMatch {res['patchmatch_s']:.2f} s, "
+                      f"fusion {res['fusion_s']:.3f} s", flush=True)
     best = {name: {k: min(x[k] for x in rs) for k in ("patchmatch_s", "fusion_s")} for name, rs in results.items()}
     identical = all(a["md5"] == b["md5"] for a, b in zip(results["baseline"], results["this"], strict=True))
     print(f"\n{'':>12} {'baseline':>10} {'this':>10} {'ratio':>7}")
     for k in ("patchmatch_s", "fusion_s"):
-        print(f"{k:>12} {best['baseline'][k]:>10.3f} {best['this'][k]:>10.3f} {best['this'][k] / best['baseline'][k]:>7.3f}")
+        b, n = best["baseline"][k], best["this"][k]
+        print(f"{k:>12} {b:>10.3f} {n:>10.3f} {n / b:>7.3f}")
     print(f"maps and fused.ply bit-identical: {identical}")
     git = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     base_git = subprocess.run(["git", "rev-parse", "HEAD"], cwd=trees["baseline"], capture_output=True,
                               text=True).stdout.strip()
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({
-        "script": "benchmarks/speed_ab.py", "argv": [a if not a.startswith("/") else Path(a).name for a in sys.argv[1:]],
+        "script": "benchmarks/speed_ab.py",
+        "argv": [a if not a.startswith("/") else Path(a).name for a in sys.argv[1:]],
         "git_revision": git, "baseline_revision": base_git, "scene": args.scene.name, "rounds": args.rounds,
         "best": best, "ratio": {k: best["this"][k] / best["baseline"][k] for k in best["this"]},
         "bit_identical": identical,
