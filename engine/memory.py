@@ -21,7 +21,7 @@ baseline rather than a guess.
 ``deepc run`` refuses a run whose estimate exceeds the memory available (``/proc/meminfo``
 MemAvailable plus what the process already holds) and names a ``--max-image-size`` that fits; it does not
 downsize on its own, because that would silently change the results. ``--ignore-memory-check``
-overrides. ``benchmarks/bench_memory.py`` compares estimates with measured peaks.
+overrides. ``benchmarks/performance/bench_memory.py`` compares estimates with measured peaks.
 """
 
 from __future__ import annotations

@@ -53,7 +53,7 @@ FUSION_PRESETS: dict[str, FusionOptions] = {
     "refined_paper": FusionOptions(max_reproj_error=1.0, max_depth_error=0.01, max_normal_error=5.0,
                                    min_num_pixels=3),
     # Refined maps as --pipeline full fuses them: chosen on the four held-out synthetic scenes
-    # (benchmarks/refined_fusion_sweep.py): a second pixel suffices, since the second network and the
+    # (benchmarks/experiments/refined_fusion_sweep.py): a second pixel suffices, since the second network and the
     # depth/reprojection checks already test consistency (3 -> 2 px: F1 at 2 cm +3.7 to +7.9 points), and
     # 10 deg beats 5 deg on all four (+0.4 to +1.5): our refined normals at these resolutions are noisier
     # than the paper's (planar-normal error 5.5 deg mean on fountain_p11 768), so 5 deg splits true surfaces.
@@ -63,7 +63,7 @@ FUSION_PRESETS: dict[str, FusionOptions] = {
     # and a 1 px radius around the seed's projection merges 2-3 neighbouring pixels of every view into one
     # median point: points are 2-3x sparser than the maps and blur across them. Half a pixel takes one
     # pixel per view, so the cloud keeps the maps' density, and a second agreeing view then suffices.
-    # Chosen on the five held-out synthetic scenes (benchmarks/fusion_presets.py): F1 at 2 cm +2.8 to
+    # Chosen on the five held-out synthetic scenes (benchmarks/experiments/fusion_presets.py): F1 at 2 cm +2.8 to
     # +11.8 points over `deepc` on vanilla and fast maps, +1.6 to +8.5 over `refined` on refined maps,
     # never worse at 5 cm; the same on tiny, small and fountain_p11 (768, peer rule: 52.0 -> 54.9).
     "dense": FusionOptions(max_reproj_error=0.5, max_depth_error=0.01, max_normal_error=20.0, min_num_pixels=2),
@@ -71,7 +71,7 @@ FUSION_PRESETS: dict[str, FusionOptions] = {
     # second pixel enough, each pixel its own point. A cluster's median averages views whose cameras and
     # depths disagree slightly and leaves one point where the views sampled the surface n times; keeping the
     # verified pixels keeps every view's samples (3-4x the points of `dense`). Chosen on the five held-out
-    # synthetic scenes (benchmarks/fusion_presets.py): F1 above `dense` on all five, on vanilla, fast and full
+    # synthetic scenes (benchmarks/experiments/fusion_presets.py): F1 above `dense` on all five, on vanilla, fast and full
     # maps, at every tolerance (1 cm +3.9 to +12.1, 2 cm +1.4 to +5.1, 5 cm +0.6 to +2.1; accuracy at 2 cm
     # -2.3 to +0.5); with per-pixel points 1 px beats 0.5 px on all five. Also on tiny, small and
     # fountain_p11 (768, peer rule, vanilla: 54.9 -> 57.1 at 2 cm).
