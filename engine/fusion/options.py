@@ -71,8 +71,8 @@ FUSION_PRESETS: dict[str, FusionOptions] = {
     # second pixel enough, each pixel its own point. A cluster's median averages views whose cameras and
     # depths disagree slightly and leaves one point where the views sampled the surface n times; keeping the
     # verified pixels keeps every view's samples (3-4x the points of `dense`). Chosen on the five held-out
-    # synthetic scenes (benchmarks/experiments/fusion_presets.py): F1 above `dense` on all five, on vanilla, fast and full
-    # maps, at every tolerance (1 cm +3.9 to +12.1, 2 cm +1.4 to +5.1, 5 cm +0.6 to +2.1; accuracy at 2 cm
+    # synthetic scenes (benchmarks/experiments/fusion_presets.py): F1 above `dense` on all five, on vanilla,
+    # fast and full maps, at every tolerance (1 cm +3.9 to +12.1, 2 cm +1.4 to +5.1, 5 cm +0.6 to +2.1; accuracy at 2 cm
     # -2.3 to +0.5); with per-pixel points 1 px beats 0.5 px on all five. Also on tiny, small and
     # fountain_p11 (768, peer rule, vanilla: 54.9 -> 57.1 at 2 cm).
     "pixels": FusionOptions(max_reproj_error=1.0, max_depth_error=0.01, max_normal_error=20.0, min_num_pixels=2,
