@@ -1,4 +1,4 @@
-"""Pinhole cameras in one pixel-centre convention (SPEC.md §1.2).
+"""Pinhole cameras in one pixel-centre convention (Schönberger et al. 2016).
 
 ``Camera.K`` is COLMAP's *continuous* calibration: the centre of pixel (col, row) lies at image
 coordinate (col + 0.5, row + 0.5). All per-pixel geometry of the engine uses the *index-space*

@@ -1,6 +1,6 @@
 """PatchMatch checkpoints: an interrupted ``deepc run`` resumes where it stopped, with identical results.
 
-After each view finishes a pass (SPEC.md §2.11: per level a photometric pass, then geometric passes),
+After each view finishes a pass (per level a photometric pass, then geometric passes; Xu & Tao 2019),
 its maps (depth, normal, cost, selected views at that level's size) are written atomically to
 ``OUT/.deepc-resume/L{level}_P{pass}/{view}.npz`` and recorded, with their SHA-256, in
 ``OUT/.deepc-resume/manifest.json``, which also holds a hash of the PatchMatch options and a

@@ -1,4 +1,4 @@
-"""Counter maps (the paper's Sec. 3.2): per pixel, the number of source views that confirm the final estimate.
+"""Counter maps (Kuhn et al. 2020, §3.2): per pixel, the number of source views that confirm the final estimate.
 
 A source view j of reference r is *consistent* at pixel p (with depth z and normal n) iff
   1. geometric: the forward-backward reprojection error through j's final depth map is
@@ -100,7 +100,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
     Args:
         views: the PatchMatch inputs (images, cameras, source lists) at the maps' resolution.
         maps: final maps of every view (same order).
-        options: the checks (defaults: COLMAP's filter).
+        options: the checks (defaults: the paper's).
         ncc_options: window and weighting of the photometric check (defaults: PatchMatchOptions()).
     Views without source views or with empty maps get an all-zero map.
     """

@@ -1,8 +1,8 @@
-"""Depth-map filters applied before fusion (the paper's Sec. 4.1 and Table 2).
+"""Depth-map filters applied before fusion (Kuhn et al. 2020, §4.1).
 
 - Confidence filtering (DeepC-MVS_fast): keep pixel p iff c(p) >= tau.
 - Mask-k filtering (COLMAP/ACMM-style baselines "mask1", "mask2"): keep p iff K(p) >= k, with K the
-  counter map of consistent source views (``engine/consistency.py``).
+  counter map of consistent source views (Kuhn et al. 2020, §3.2).
 
 Rejected pixels get depth 0 and normal (0, 0, 0). The functions are pure: they return new arrays
 and never modify their inputs.

@@ -5,7 +5,7 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
 
 - inputs: RGB float32 cache of every view (12 B/px, at most 64 views cached), the grey images
   PatchMatch takes (4 B/px), and decoding the largest original image (uint8 RGB + two float32 copies);
-- PatchMatch (SPEC.md §2.11): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
+- PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (2·S window weights, moments, padded source images and
   source depths: 4·(2·S + 2 + 2·sources) B/px) and its checkpoint buffers (3 × 24 B/px), and between the
@@ -21,7 +21,7 @@ baseline rather than a guess.
 ``deepc run`` refuses a run whose estimate exceeds the memory available (``/proc/meminfo``
 MemAvailable plus what the process already holds) and names a ``--max-image-size`` that fits; it does not
 downsize on its own, because that would silently change the results. ``--ignore-memory-check``
-overrides. ``benchmarks/bench_memory.py`` compares estimates with measured peaks.
+overrides. ``benchmarks/performance/bench_memory.py`` compares estimates with measured peaks.
 """
 
 from __future__ import annotations
@@ -31,7 +31,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from engine.camera import rescaled_size
+import numpy as np
+
+from engine.camera import Camera, rescaled_size
+from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
 from engine.patchmatch.engine import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
@@ -160,10 +163,7 @@ def largest_fitting_size(scene: Any, options: Any, estimate: MemoryEstimate) -> 
 
 def load_kernels() -> None:
     """Run PatchMatch once on two synthetic 24x24 views, so the kernels and the JIT runtime are resident."""
-    import numpy as np
 
-    from engine.camera import Camera
-    from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
 
     rng = np.random.default_rng(0)
     views = []

@@ -1,4 +1,4 @@
-"""Depth-map metrics against ground truth (SPEC.md §9.3, CONTRACT.md §5 ``depth``)."""
+"""Depth-map metrics against ground truth: the ``depth`` block of metrics.json."""
 
 from __future__ import annotations
 

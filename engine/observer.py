@@ -36,7 +36,7 @@ class IterationEvent:
         selected_views: (H, W) uint32 bitmask over positions in the view's source list. Read-only.
         seconds: wall-clock seconds spent on this iteration.
         ncc_windows: photometric costs (bilateral NCC windows) evaluated in this iteration; the engine's
-            caches make this far fewer than SPEC §2.12's (K_up + 1 + 5) · N per pixel.
+            caches make this far fewer than the (K_up + 1 + 5) · N per pixel of an uncached half-step.
     """
 
     view: int

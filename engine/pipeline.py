@@ -1,7 +1,7 @@
 """The whole chain for one scene: PatchMatch -> counter maps -> ... -> outputs and metrics.
 
 Every stage is also callable on its own; this module only sequences them, times them, writes the
-outputs of CONTRACT.md §4 and assembles ``metrics.json`` (§5). Stages that a pipeline does not run
+run folder (:mod:`engine.run_folder`) and assembles its ``metrics.json``. Stages that a pipeline does not run
 report 0 seconds.
 """
 
@@ -16,6 +16,9 @@ from typing import Any
 import numpy as np
 
 from engine import __version__
+from engine.confidence.data import view_labels
+from engine.confidence.inputs import network_inputs
+from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.evaluation import EvaluationOptions, evaluate_points
@@ -30,14 +33,22 @@ from engine.fusion import (
     write_fused_ply,
 )
 from engine.interrupt import check_interrupt
-from engine.io.outputs import write_map, write_metrics
 from engine.io.ply import read_points
 from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
-from engine.refinement.runs import file_sha256, maps_digest, refinement_key, write_refined_maps, write_stamp
+from engine.refinement.views import refine_views, sky_filter_views
+from engine.run_folder import (
+    file_sha256,
+    maps_digest,
+    refinement_key,
+    write_map,
+    write_metrics,
+    write_refined_maps,
+    write_stamp,
+)
 from engine.scene import Scene
 
 PIPELINES = ("vanilla", "fast", "full")
@@ -94,7 +105,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline in ("fast", "full"):
         # Loaded (and checked) before PatchMatch and kept in memory: bad weights fail at once, and a weights
         # file moved or overwritten while PatchMatch runs cannot end a long run at its last stage.
-        from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS, load_weights
+        from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS, load_weights  # lazy: torch
         model = load_weights(options.confidence.weights or None)
         weights_sha256 = file_sha256(options.confidence.weights or DEFAULT_WEIGHTS)  # for the refined maps' stamp
         if options.pipeline == "full":
@@ -137,7 +148,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
                                    options.refinement)
         seconds["refinement"] = time.perf_counter() - t
         t = time.perf_counter()
-        # SPEC §6.6b: the refined maps get their own counter maps and confidence before filtering; all are
+        # Kuhn et al. 2020, §4.2: the refined maps get their own counter maps and confidence before filtering; all are
         # written, with a stamp, so the run also serves as training data of that second network
         refined_counter = compute_counter_maps(views, refined, options.counter)
         refined_confidence = confidence_stage(scene, refined, refined_counter, options.confidence, refined_model)
@@ -154,7 +165,6 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         filtered = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused_maps]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         if options.refinement.sky_filter:
-            from engine.refinement.views import sky_filter_views
             depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence)
         seconds["confidence"] += time.perf_counter() - t
         if notify:
@@ -211,12 +221,11 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarray],
                      options: ConfidenceOptions, model: Any = None,
                      raw: list[np.ndarray] | None = None) -> list[np.ndarray]:
-    """(H, W) float32 confidence in [0, 1] per view from the network (SPEC.md §4); ``model``: a loaded
+    """(H, W) float32 confidence in [0, 1] per view from the network (Kuhn et al. 2020, §3.2); ``model``: a loaded
     :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now). ``raw``, when
     given, also receives each view's confidence before the back-facing rule (``zero_backfacing``)."""
-    from engine.confidence.inference import facing_away, predict_confidence, torch_threads
-    from engine.confidence.inputs import network_inputs
-    from engine.confidence.weights import load_weights
+    from engine.confidence.inference import facing_away, predict_confidence, torch_threads  # lazy: torch
+    from engine.confidence.weights import load_weights  # lazy: torch
 
     if model is None:
         model = load_weights(options.weights or None)
@@ -245,10 +254,9 @@ def refinement_confidence(confidence: list[np.ndarray], raw: list[np.ndarray],
 def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],
                      options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None
                      ) -> list[ViewMaps]:
-    """Refined dense depth and normals per view (SPEC.md §6) as :class:`ViewMaps` (cost and selected views
+    """Refined dense depth and normals per view (Rossi et al. 2020) as :class:`ViewMaps` (cost and selected views
     zero); a view without data to refine from stays empty (a warning names it). ``progress(i, n, result)``
     after each view (result None for an empty one)."""
-    from engine.refinement.views import refine_views
 
     refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
                            progress)
@@ -262,9 +270,7 @@ def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.nda
 
 
 def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.ndarray]) -> dict[str, Any]:
-    """ROC-AUC ×100 of the confidence maps against the label maps of SPEC.md §4.3 (pooled and per view)."""
-    from engine.confidence.data import view_labels
-    from engine.confidence.metrics import roc_auc
+    """ROC-AUC ×100 of the confidence maps against the label maps of Kuhn et al. 2020, §3.2 (pooled and per view)."""
 
     scores, labels, per_view = [], [], []
     for view, depth, c in zip(scene.views, depths, confidence, strict=True):
@@ -282,7 +288,7 @@ def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.n
 
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     """ETH3D-style scores of a fused cloud against the scene's GT points; GT depth maps, when present,
-    enable the unobserved-space rule (SPEC.md §9.1)."""
+    enable the unobserved-space rule (Schöps et al. 2017)."""
     return evaluate_points(np.asarray(cloud.xyz, np.float64), read_points(scene.gt_points_path), options,
                            scene.gt_views() or None)
 

@@ -2,7 +2,7 @@
 
 ``load_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap, checks the images and the
 optional ground truth, rescales every camera to the working resolution (``max_image_size``) with
-exact intrinsics, and computes per view:
+exact intrinsics, and computes per view (Schönberger et al. 2016):
 
 - the depth range from the sparse points the view observes: the 1st / 99th percentile of their
   depths, stretched by (0.75, 1.25) as COLMAP does, then relaxed by (0.6, 1.2) as ACMM does;
@@ -142,7 +142,7 @@ class Scene:
 
     def gt_views(self) -> list[tuple[Camera, np.ndarray]]:
         """(camera, GT depth) at the working resolution for every view with GT depth (for the
-        unobserved-space rule of the ETH3D evaluation)."""
+        unobserved-space rule of the evaluation, Schöps et al. 2017)."""
         return [(v.camera, self.gt_depth(v.index)) for v in self.views if self.gt_depth_paths[v.index] is not None]
 
     def overlapping_views(self, i: int, max_views: int = 50) -> list[int]:
@@ -167,7 +167,10 @@ class Scene:
 
 
 def load_scene(path: str | Path, options: SceneOptions | None = None) -> Scene:
-    """Load a COLMAP workspace (CONTRACT.md §2). Raises :class:`DeepCError` naming the bad file."""
+    """Load a COLMAP workspace (``images/``, ``sparse/``, optional ``ground_truth/``).
+
+    Raises :class:`DeepCError` naming the bad file.
+    """
     options = (options or SceneOptions()).validate()
     root = Path(path)
     if not root.is_dir():

@@ -1,4 +1,7 @@
-"""Sky filtering of refined depth maps (the paper's Sec. 5.5; a substitute for PCF-MVS's method).
+"""Sky filtering of refined depth maps (Kuhn et al. 2020, §5.5).
+
+The paper removes sky with PCF-MVS's method (Kuhn et al., GCPR 2019), which is not published as code; this is
+our substitute.
 
 Refinement fills every pixel, so textureless sky receives plausible-looking depths that the
 geometric checks of fusion do not remove. Without a semantic-segmentation model (no weights can be
@@ -26,7 +29,7 @@ from engine.options import Options, option
 
 @dataclasses.dataclass
 class SkyOptions(Options):
-    """Heuristic sky mask and far-plane cut (ours: PCF-MVS's sky filter, which the paper uses, is not public)."""
+    """Heuristic sky mask and far-plane cut (module doc)."""
 
     enabled: bool = option(True, "drop sky pixels from refined maps before fusion", source="paper")
     conf_tau: float = option(0.05, "vanilla confidence below this counts as unreliable", source="ours", low=0,
@@ -51,7 +54,7 @@ def local_std(gray: np.ndarray, window: int) -> np.ndarray:
 
 def sky_mask(rgb: np.ndarray, vanilla_depth: np.ndarray, vanilla_confidence: np.ndarray | None = None,
              options: SkyOptions | None = None) -> np.ndarray:
-    """(H, W) bool: pixels the heuristic of the module doc calls sky.
+    """(H, W) bool: pixels the heuristic (module doc) calls sky.
 
     Args:
         rgb: (H, W, 3) float image in [0, 1].

@@ -3,8 +3,8 @@
     python sample_scenes/generate.py [--only tiny|small] [--out-root DIR]
 
 ``tiny`` (5 views, 160x120, text COLMAP model) is for unit tests; ``small`` (8 views, 320x240,
-binary model) for the demo and regression runs. Both are written in the scene layout of
-CONTRACT.md §2, replacing any earlier copy atomically.
+binary model) for the demo and regression runs. Both are written in the scene layout that
+``engine.scene.load_scene`` reads, replacing any earlier copy atomically.
 """
 
 from __future__ import annotations

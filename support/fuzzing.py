@@ -12,7 +12,7 @@ binary counts at aligned offsets, and, for text, a numeric token replaced by NaN
 huge or non-numeric value, or a dropped or duplicated line.
 
 Used by ``tests/test_fuzz_readers.py`` (a bounded number of examples per target, derandomised) and
-``benchmarks/fuzz_readers.py`` (many more, counts written to ``benchmarks/results/fuzz_readers.json``).
+``benchmarks/reliability/fuzz_readers.py`` (many more, counts written to ``benchmarks/results/fuzz_readers.json``).
 
 Adding a reader is one small function that builds a target, registered in ``TARGETS``::
 

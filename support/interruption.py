@@ -1,4 +1,6 @@
-"""Kill `deepc run` at chosen moments and check what it leaves behind (tests and benchmarks/bench_interrupt.py).
+"""Kill `deepc run` at chosen moments and check what it leaves behind.
+
+Used by the tests and by benchmarks/reliability/bench_interrupt.py.
 
 A run is started in its own session with SIGINT at its default disposition (a background child may
 inherit it ignored); :func:`kill_when` sends SIGINT or SIGTERM once a condition on the output folder

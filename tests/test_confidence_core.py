@@ -39,7 +39,7 @@ def _random_cameras(rng: np.random.Generator, n: int, w: int = 24, h: int = 18) 
 
 
 def _label_reference(depth, gt, cam, sources, max_depth, thr=2.0):
-    """Plain per-pixel loop of SPEC.md §4.3."""
+    """Plain per-pixel loop of Kuhn et al. 2020, §3.2."""
     out = np.full(depth.shape, -1, np.int8)
     Ki = np.linalg.inv(cam.K_idx)
     for r, c in itertools.product(range(depth.shape[0]), range(depth.shape[1])):
@@ -119,7 +119,7 @@ def test_polar_normal_encoding_and_flip():
 
 def test_network_shapes_and_parameter_counts():
     middle, early = ConfidenceNet("middle"), ConfidenceNet("early")
-    assert 7.9e6 < parameter_count(middle) < 8.2e6  # "≈8 M" of SPEC.md §4.2
+    assert 7.9e6 < parameter_count(middle) < 8.2e6  # "≈8 M" of Kuhn et al. 2020, §3.2
     assert parameter_count(early) < parameter_count(middle) / 2
     torch.manual_seed(0)
     x = torch.rand(2, 6, 48, 64)

@@ -99,7 +99,7 @@ def test_run_fast_writes_confidence_maps_and_auc(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["pipeline"] == "fast" and 0 <= metrics["confidence_auc"] <= 100
     assert metrics["seconds"]["confidence"] > 0 and metrics["options"]["confidence"]["tau"] == 0.5
-    from engine.io.outputs import read_map
+    from engine.run_folder import read_map
     from engine.scene import load_scene
     kept = valid = 0
     for v in load_scene(TINY).views:
@@ -133,8 +133,8 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
     # what full fuses: PatchMatch's confident estimates, refined ones elsewhere (refinement.keep_confident)
     assert metrics["full_depth"]["valid_fraction"] >= metrics["depth"]["valid_fraction"]
     assert metrics["full_depth"]["within_1pct"] != metrics["refined_depth"]["within_1pct"]
-    from engine.io.outputs import read_map
     from engine.io.ply import read_points
+    from engine.run_folder import read_map
     from engine.scene import load_scene
     for v in load_scene(TINY).views:
         depth, normal = read_map(out, "refined_depth", v.name), read_map(out, "refined_normal", v.name)
@@ -152,7 +152,8 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
     # refine_run on the same run and options takes the full run's refined maps as they are, and refining its
     # vanilla maps again gives exactly those maps
     from engine.pipeline import PipelineOptions
-    from engine.refinement.runs import REFINED_KINDS, refine_run
+    from engine.refine_run import refine_run
+    from engine.run_folder import REFINED_KINDS
     options = PipelineOptions.from_dict({k: v for k, v in metrics["options"].items() if k != "scene"})
     assert refine_run(out, options=options).reused
     with pytest.raises(DeepCError, match="would overwrite outputs of the run"):

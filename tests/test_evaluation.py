@@ -1,4 +1,4 @@
-"""ETH3D-style evaluation (SPEC.md §9.1): scores, voxel averaging, unobserved space, ETH3D format, bad input."""
+"""ETH3D-style evaluation (Schöps et al. 2017): scores, voxel averaging, unobserved space, ETH3D format, bad input."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Confidence and counter (mask-k) filters (SPEC.md §5)."""
+"""Confidence and counter (mask-k) filters (Kuhn et al. 2020, §4.1)."""
 
 from __future__ import annotations
 

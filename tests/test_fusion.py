@@ -1,4 +1,4 @@
-"""COLMAP-style fusion (SPEC.md §7): kernel vs reference, geometry, attributes, PLY, pycolmap referee."""
+"""COLMAP-style fusion (Schönberger et al. 2016): kernel vs reference, geometry, attributes, PLY, pycolmap referee."""
 
 from __future__ import annotations
 

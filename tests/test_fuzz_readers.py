@@ -1,6 +1,6 @@
 """Fuzzing every reader with damaged files: a result or one clear error naming the file, nothing else.
 
-Bounded and derandomised here (same inputs every run); ``benchmarks/fuzz_readers.py`` runs many more.
+Bounded and derandomised here (same inputs every run); ``benchmarks/reliability/fuzz_readers.py`` runs many more.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ detail_restorer_reference='random', eps_schedule='global', min_improvement 0.003
 with the 11x11 window alone (SPEC) about 80 %: that window straddles both surfaces along occlusion edges
 and creases on 160x120 images. What is left: background pixels beside the objects that one or two of the
 four source views see and the strips of the outer views that no source view sees (2.6 %, never right); see
-the engineering notes and benchmarks/results/fine_crease_angle.json. The margin over the target is small
+the engineering notes and benchmarks/results/ncc_sharpness_fine_crease_angle.json. The margin over the target is small
 (0.08 points): a change that costs tiny precision shows here first.
 """
 
@@ -60,7 +60,7 @@ def test_fine_window_sharpens_occlusion_edges_and_creases(tiny_maps) -> None:
     and the fine window wherever its texture test passes (fine_edge_radius=0, measured 90.2 %) against the
     11 px window alone (fine_window=0, measured 80.8 %). The large window's foreground fattening along tiny's
     occlusion edges is what the fine window removes; the band keeps the 11 px window's precision inside
-    surfaces away from edges (benchmarks/results/fine_window_edges.json). Without the crease band
+    surfaces away from edges (benchmarks/results/ncc_sharpness_fine_window_edges.json). Without the crease band
     (fine_crease_angle=0) it is 89.8 %: the 11 px window straddles the planes where walls meet the floor."""
     scene = tiny_maps[0]
     views = patchmatch_views(scene)

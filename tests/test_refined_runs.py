@@ -1,4 +1,4 @@
-"""Refined maps of finished runs (engine/refinement/runs.py): refine_run, its stamp-checked cache,
+"""Refined maps of finished runs (engine/refine_run.py): refine_run, its stamp-checked cache,
 load_run(refined=True) and `deepc train --refined` on the tiny scene."""
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ from engine.confidence.data import load_run, view_labels
 from engine.confidence.weights import DEFAULT_WEIGHTS
 from engine.consistency import compute_counter_maps
 from engine.errors import DeepCError
-from engine.io.outputs import map_path, read_map
 from engine.patchmatch import ViewMaps
 from engine.pipeline import PipelineOptions, patchmatch_views
+from engine.refine_run import refine_run
 from engine.refinement.options import RefinementOptions
-from engine.refinement.runs import STAMP, file_sha256, read_stamp, refine_run
+from engine.run_folder import STAMP, file_sha256, map_path, read_map, read_stamp
 from engine.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
@@ -103,7 +103,7 @@ def test_refined_maps_are_reused_only_while_the_stamp_matches(refined_run, netwo
     assert read_stamp(run)["key"]["refinement"]["lambda_reg"] == 3.0
 
     # a rewrite that dies half-way leaves no stamp, so the mixed maps are never taken for either refinement
-    import engine.refinement.runs as runs
+    import engine.run_folder as runs
     writes = []
 
     def failing_write(out, kind, name, array):

@@ -1,4 +1,4 @@
-"""Refinement (SPEC.md §6): energy, graph, plane conversions, numba kernels against plain references,
+"""Refinement (Rossi et al. 2020): energy, graph, plane conversions, numba kernels against plain references,
 recovery of a piece-wise planar scene, and the behaviour on bad input."""
 
 from __future__ import annotations
@@ -21,19 +21,21 @@ from engine.refinement import (
     u_to_normal,
 )
 from engine.refinement.adam import TorchEnergy
-from engine.refinement.energy import energy_terms_reference
-from engine.refinement.graph import similarity_graph_reference
 from engine.refinement.primal_dual import (
-    _dual_step,
-    _primal_step,
-    dual_step_reference,
+    dual_step,
     preconditioners,
+    primal_step,
+)
+from support.refinement_reference import (
+    dual_step_reference,
+    energy_terms_reference,
     primal_step_reference,
+    similarity_graph_reference,
 )
 
 
 def _graph_by_loops(gray, window, patch, sigma_int, sigma_spa, degree):
-    """Per pixel {j: w_ij} straight from the definition of SPEC.md §6.3."""
+    """Per pixel {j: w_ij} straight from the definition of Rossi et al. 2020."""
     h, w = gray.shape
     rw, rp = window // 2, patch // 2
 
@@ -154,7 +156,7 @@ def test_dual_kernel_matches_numpy():
     g = problem.graph
     a = {k: v.copy() for k, v in st.items()}
     b = {k: v.astype(np.float64) for k, v in st.items()}
-    _dual_step(a["d_bar"], a["u_bar"], g.neighbors, g.weights, pre["offsets"], pre["sigma_p"], np.float32(0.7),
+    dual_step(a["d_bar"], a["u_bar"], g.neighbors, g.weights, pre["offsets"], pre["sigma_p"], np.float32(0.7),
                np.float32(5.5), a["p"], a["q"])
     dual_step_reference(b["d_bar"], b["u_bar"], g.neighbors, g.weights.astype(np.float64), pre["offsets"],
                         pre["sigma_p"].astype(np.float64), 0.7, 5.5, b["p"], b["q"])
@@ -169,7 +171,7 @@ def test_primal_kernel_matches_numpy():
     a = {k: v.copy() for k, v in st.items()}
     b = {k: v.astype(np.float64) for k, v in st.items()}
     args = (np.float32(problem.d_min), np.float32(problem.d_max), np.float32(5.5))
-    _primal_step(a["d"], a["u"], a["d_bar"], a["u_bar"], a["p"], a["q"], g.weights, pre["offsets"], pre["in_ptr"],
+    primal_step(a["d"], a["u"], a["d_bar"], a["u_bar"], a["p"], a["q"], g.weights, pre["offsets"], pre["in_ptr"],
                  pre["in_src"], pre["in_slot"], pre["tau_d"], pre["tau_u"], problem.data, shrink, *args)
     primal_step_reference(b["d"], b["u"], b["d_bar"], b["u_bar"], b["p"], b["q"], g.neighbors,
                           g.weights.astype(np.float64), pre["offsets"], pre["tau_d"].astype(np.float64),

@@ -359,7 +359,7 @@ def test_the_report_shows_its_plots_in_chromium(regress_runs, browser_context, t
 def test_report_of_a_run_with_confidence_and_refined_maps(tmp_path):
     """A fast/full-style output folder: the ROC of a confidence that ranks outliers low, error histograms of
     PatchMatch and refined depth, and thumbnails of every map."""
-    from engine.io.outputs import read_map, write_map
+    from engine.run_folder import read_map, write_map
     from engine.scene import load_scene
     from workbench.report import analyse_run, relative_depth_labels, write_report
 

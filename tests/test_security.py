@@ -16,13 +16,9 @@ import websockets
 from conftest import REPO, SAMPLES, run_async, running_viewer, wait_for
 
 from support.interruption import FAST
-
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from viewer_clients import CAMERA as _CAMERA  # noqa: E402
-
-from workbench.cli import build_parser  # noqa: E402
-from workbench.viewer import safe_file_name  # noqa: E402
+from support.viewer_clients import CAMERA as _CAMERA
+from workbench.cli import build_parser
+from workbench.viewer import safe_file_name
 
 TRAVERSALS = ["../../../escaped", "/tmp/escaped_abs", "..\\..\\escaped", "a/../../escaped", "....//....//escaped",
               "%2e%2e%2fescaped", "exports/../../escaped", "~/escaped", "\x00escaped", "..", ".", "", "x" * 500,

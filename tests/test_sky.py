@@ -1,4 +1,4 @@
-"""Sky filter (SPEC.md §8): precision/recall on the synthetic sample scene, connectivity, far plane."""
+"""Sky filter (Kuhn et al. 2020, §5.5): precision/recall on the synthetic sample scene, connectivity, far plane."""
 
 from __future__ import annotations
 

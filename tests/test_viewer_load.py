@@ -1,18 +1,14 @@
-"""The viewer under load (short version of benchmarks/bench_viewer_load.py): 5 websocket clients sending
+"""The viewer under load (short version of benchmarks/performance/bench_viewer_load.py): 5 websocket clients sending
 50 GUI events per second for 5 s, one dropping and reconnecting: no error, every client ends with the
 exact result of the last event, reconnecting and late clients get the current state, memory bounded. Also
 that the viser internals the viewer relies on to keep one cloud in flight per client still exist."""
 
 from __future__ import annotations
 
-import sys
-
 import pytest
-from conftest import REPO, running_viewer
+from conftest import running_viewer
 
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from bench_viewer_load import load, summarise  # noqa: E402
+from support.viewer_load import load, summarise
 
 pytestmark = pytest.mark.slow
 

@@ -39,7 +39,7 @@ def test_full_pipeline_keeps_trusted_estimates_and_filters_refined_ones_by_their
                                                                                                  tmp_path):
     import shutil
 
-    from engine.io.outputs import read_map, write_map
+    from engine.run_folder import read_map, write_map
     run = shutil.copytree(fake_run, tmp_path / "run")
     session = ViewerSession.open(run)
     for v in session.scene.views:  # refined = vanilla maps, but the second network trusts the other half

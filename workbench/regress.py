@@ -60,7 +60,8 @@ from typing import Any
 
 from engine import __version__
 from engine.errors import DeepCError
-from engine.io.outputs import write_json, write_metrics
+from engine.io.atomic import write_json
+from engine.run_folder import write_metrics
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SUITE = REPO_ROOT / "sample_scenes" / "suite.toml"

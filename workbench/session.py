@@ -23,10 +23,10 @@ from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
-from engine.io.outputs import read_map, read_metrics
 from engine.io.ply import read_points
 from engine.refinement.guard import keep_confident, kept_estimates
 from engine.refinement.options import RefinementOptions
+from engine.run_folder import read_map, read_metrics
 from engine.scene import Scene, SceneOptions, load_scene
 
 COLOR_MODES = ("rgb", "confidence", "views", "error")

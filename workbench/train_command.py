@@ -5,7 +5,7 @@ Positional arguments and ``--validation`` take scene folders (the engine is run 
 run cached under ``--cache/runs/<scene>``) or finished run folders (``deepc run`` outputs, used as they
 are). ``--synthetic SEEDS`` adds randomised synthetic scenes (engine/synthetic/dataset.py), rendered
 into ``--cache/scenes`` when missing. ``--refined`` trains the second network of ``--pipeline full``: every
-run is refined first (engine/refinement/runs.py, cached in RUN/refined/) and the network learns on the
+run is refined first (engine/refine_run.py, cached in RUN/refined/) and the network learns on the
 refined maps. ``--recipe FILE`` takes all of that from a training recipe (engine/confidence/recipe.py) and
 writes the weights with a model card (workbench/model_card.py): how the shipped weights are made.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.errors import DeepCError
-from engine.io.outputs import write_json
+from engine.io.atomic import write_json
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -111,8 +111,8 @@ def _log(text: str) -> None:
 
 
 def _resolve_runs(paths: list[str], seeds: list[int], cache: Path, scene_options, pipeline_options) -> list[Path]:
-    from engine.confidence.data import ensure_run
     from engine.synthetic.dataset import write_training_scenes
+    from engine.training_runs import ensure_run
 
     folders = [Path(p) for p in paths]
     if seeds:
@@ -133,7 +133,7 @@ class Refiner:
 
     def __init__(self, weights: str | None, options):
         from engine.confidence.weights import DEFAULT_WEIGHTS, load_weights
-        from engine.refinement.runs import file_sha256
+        from engine.run_folder import file_sha256
 
         self.weights = Path(weights).resolve() if weights else DEFAULT_WEIGHTS
         self.model = load_weights(self.weights)
@@ -141,7 +141,7 @@ class Refiner:
         self.sha256 = file_sha256(self.weights)
 
     def __call__(self, run: Path) -> None:
-        from engine.refinement.runs import refine_run
+        from engine.refine_run import refine_run
 
         result = refine_run(run, self.weights, self.options, model=self.model,
                             log=lambda line: _log("  refining " + line))
@@ -154,7 +154,7 @@ class Refiner:
 
     def description(self) -> dict:
         """What the training inputs are, for the checkpoint identity and the weights' meta."""
-        from engine.refinement.runs import INFERENCE, POST_REFINEMENT
+        from engine.run_folder import INFERENCE, POST_REFINEMENT
 
         confidence = self.options.confidence.to_dict()
         return {"maps": "refined", "refine_weights": str(self.weights), "refine_weights_sha256": self.sha256,
@@ -181,11 +181,11 @@ def _subset(samples: list, count: int) -> list:
 
 def recipe_run(entry, cache: Path) -> Path:
     """The cached engine run of one recipe scene (rendered first when synthetic)."""
-    from engine.confidence.data import ensure_run
     from engine.patchmatch import PatchMatchOptions
     from engine.pipeline import PipelineOptions
     from engine.scene import SceneOptions
     from engine.synthetic.dataset import write_training_scenes
+    from engine.training_runs import ensure_run
 
     folder = entry.path or write_training_scenes(cache / "scenes", [entry.seed])[0]
     scene_options = SceneOptions(num_source_views=entry.engine.get("num_source_views", 4),

@@ -1,4 +1,4 @@
-"""DeepC confidence network (SPEC.md §4): inputs, label maps, the middle-fusion U-Net, losses,
+"""DeepC confidence network (Kuhn et al. 2020, §3.2): inputs, label maps, the middle-fusion U-Net, losses,
 ROC-AUC, weights I/O, tiled inference and training (PyTorch on the CPU)."""
 
 from engine.confidence.inputs import encode_normals, network_inputs

@@ -1,16 +1,12 @@
 """Training / validation data: engine runs on scenes with GT depth, turned into network inputs and labels.
 
-A *run* is the output folder of ``deepc run`` (its metrics.json names the scene and the options). For
-training, :func:`ensure_run` runs the engine on a scene once and caches the output folder; a cached run
-is reused only when its metrics.json names the same scene folder and the same options and all its maps
-exist. :func:`load_run` reads a run's maps and computes the label maps of SPEC.md §4.3.
+A *run* is the output folder of ``deepc run`` (:mod:`engine.run_folder`); :func:`engine.training_runs.ensure_run`
+makes and caches them. :func:`load_run` reads a run's maps and computes the label maps (Kuhn et al. 2020, §3.2).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -18,8 +14,10 @@ import numpy as np
 from engine.confidence.inputs import NORMAL, network_inputs
 from engine.confidence.labels import label_map
 from engine.errors import DeepCError
-from engine.io.outputs import map_path, read_map, read_metrics
-from engine.scene import Scene, SceneOptions, load_scene
+from engine.io.images import resize_area
+from engine.resample import resample_depth
+from engine.run_folder import map_path, read_map, run_scene
+from engine.scene import Scene
 
 
 @dataclasses.dataclass(eq=False)
@@ -49,23 +47,12 @@ def flip_horizontal(inputs: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
     return x, labels[:, ::-1].copy()
 
 
-def run_scene(run_dir: str | Path) -> Scene:
-    """The scene of a run, loaded with the scene options the run used."""
-    run_dir = Path(run_dir)
-    metrics = read_metrics(run_dir)
-    scene_path = metrics.get("scene_path")
-    if not scene_path:
-        raise DeepCError("metrics.json does not name the scene (no scene_path)", run_dir / "metrics.json")
-    scene_opts = SceneOptions.from_dict(metrics.get("options", {}).get("scene", {}))
-    return load_scene(scene_path, scene_opts)
-
-
 def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 2.0,
              require_gt: bool = True, refined: bool = False) -> list[ViewSample]:
     """Inputs and labels of every view of a run (views without GT depth get all-unlabeled maps).
 
     ``refined``: the refined depth, normal and counter maps of ``RUN/refined/`` instead (the inputs of the
-    full pipeline's second confidence network; see :mod:`engine.refinement.runs`), labelled by comparing
+    full pipeline's second confidence network; see :mod:`engine.refine_run`), labelled by comparing
     the refined depth with GT depth."""
     run_dir = Path(run_dir)
     scene = scene or run_scene(run_dir)
@@ -78,7 +65,7 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
         maps = {kind: read_map(run_dir, prefix + kind, v.name) for kind in ("depth", "normal", "counter")}
         for kind, m in maps.items():
             if m is None:
-                hint = " (refine the run first: engine.refinement.runs.refine_run, deepc train --refined)" \
+                hint = " (refine the run first: engine.refine_run.refine_run, deepc train --refined)" \
                     if refined else ""
                 raise DeepCError(f"run has no {prefix.replace('_', ' ')}{kind} map for view {v.name}{hint}",
                                  map_path(run_dir, prefix + kind, v.name))
@@ -87,7 +74,6 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
             depth.shape[1], depth.shape[0])
         rgb = scene.image(v.index)
         if rgb.shape[:2] != depth.shape:
-            from engine.io.images import resize_area
             rgb = resize_area(rgb, cam.size)
         labels = view_labels(scene, v.index, depth, label_px)
         if labels is None:
@@ -98,8 +84,7 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
 
 
 def view_labels(scene: Scene, index: int, depth: np.ndarray, label_px: float = 2.0) -> np.ndarray | None:
-    """Label map (SPEC.md §4.3) of ``depth`` estimated for view ``index``; None without GT depth."""
-    from engine.resample import resample_depth
+    """Label map (Kuhn et al. 2020, §3.2) of ``depth`` estimated for view ``index``; None without GT depth."""
 
     v = scene.views[index]
     gt = scene.gt_depth(index)
@@ -111,53 +96,3 @@ def view_labels(scene: Scene, index: int, depth: np.ndarray, label_px: float = 2
         gt = resample_depth(gt, cam.size)
     sources = [scene.views[j].camera for j in v.source_views]
     return label_map(depth, gt, cam, sources, max_depth=v.depth_range[1], threshold_px=label_px)
-
-
-#: The option sections that determine the maps a training run uses (depth, normal, counter).
-MAP_SECTIONS = ("scene", "patchmatch", "counter")
-
-
-def run_is_complete(run_dir: Path, scene_root: Path, expected_options: dict) -> bool:
-    """Whether ``run_dir`` holds a finished run of ``scene_root`` whose options agree with
-    ``expected_options`` in every section that determines the maps (:data:`MAP_SECTIONS`)."""
-    try:
-        metrics = json.loads((run_dir / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return False
-    if metrics.get("scene_path") != str(scene_root.resolve()):
-        return False
-    saved = json.loads(json.dumps(metrics.get("options") or {}))
-    expected = json.loads(json.dumps(expected_options))
-    if any(saved.get(k) != expected.get(k) for k in MAP_SECTIONS):
-        return False
-    names = _model_image_names(metrics)
-    return names is not None and all(map_path(run_dir, kind, n).is_file()
-                                     for n in names for kind in ("depth", "normal", "counter"))
-
-
-def _model_image_names(metrics: dict) -> list[str] | None:
-    try:
-        scene = load_scene(metrics["scene_path"], SceneOptions.from_dict(metrics["options"]["scene"]))
-    except (DeepCError, KeyError, TypeError):
-        return None
-    return [v.name for v in scene.views]
-
-
-def ensure_run(scene_dir: str | Path, runs_root: str | Path, scene_options: SceneOptions, pipeline_options,
-               log: Callable[[str], None] = print, name: str | None = None,
-               require_gt: bool = True) -> Path:
-    """The cached vanilla run of ``scene_dir`` under ``runs_root/<name>`` (default: the scene's name); runs the
-    engine when the cache is missing, incomplete or made with other options."""
-    from engine.pipeline import run_pipeline
-
-    scene = load_scene(scene_dir, scene_options)
-    if require_gt and not scene.has_gt_depth:
-        raise DeepCError("scene has no ground-truth depth maps (ground_truth/depth_maps/): "
-                         "it cannot give training labels", scene.root)
-    run_dir = Path(runs_root) / (name or scene.name)
-    expected = {"scene": scene_options.to_dict(), **pipeline_options.to_dict()}
-    if run_is_complete(run_dir, scene.root, expected):
-        return run_dir
-    log(f"running the engine on {scene.root} -> {run_dir}")
-    run_pipeline(scene, run_dir, pipeline_options)
-    return run_dir

@@ -1,4 +1,4 @@
-"""Confidence maps from a trained network (SPEC.md §4): tiled, bounded memory, CPU.
+"""Confidence maps from a trained network (Kuhn et al. 2020, §3.2): tiled, bounded memory, CPU.
 
 Large maps are cut into tiles of at most ``tile``×``tile`` pixels with ``overlap`` pixels of context
 on each side; each tile's prediction is kept only in its centre (the overlap is discarded), so the

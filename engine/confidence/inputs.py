@@ -1,16 +1,16 @@
-"""Network inputs per reference view (SPEC.md §4.1): RGB, normals in polar coordinates, counter map.
+"""Network inputs per reference view (Kuhn et al. 2020, §3.2): RGB, normals in polar coordinates, counter map.
 
 Channel order of the 6-channel input: 0-2 RGB in [0, 1]; 3 θ/π with θ ∈ [0, π] the angle between the
 normal and the direction facing the camera; 4 (φ + π)/(2π) with φ = atan2(n_y, n_x);
 5 min(K, N)/N with N the number of source views of the reference. Invalid pixels (zero normal) encode as
 (0, 0). The depth itself is not an input.
 
-θ scaling: SPEC.md §4.1 recommends θ/(π/2) clipped to [0, 1], which maps every back-facing normal
+θ scaling: Kuhn et al. 2020, §3.2 recommends θ/(π/2) clipped to [0, 1], which maps every back-facing normal
 (θ > 90°) to the same value as a grazing one. On fountain_p11, 63 % of the outliers of our PatchMatch
 face away from the camera (in the synthetic training scenes 2-10 %, and almost no inliers do), so we
 keep the whole range: θ/π.
 
-Counter normalisation: SPEC.md §4.1 recommends min(K, 10)/10. We divide by the number of source views
+Counter normalisation: Kuhn et al. 2020, §3.2 recommends min(K, 10)/10. We divide by the number of source views
 instead, so that the channel means "fraction of consistent source views" whatever N a run used: with
 min(K, 10)/10, a network trained on runs with 4 source views never sees values above 0.4, yet runs with
 5 (fountain_p11 validation) or 10 views (the CLI default) are mostly above it, and the confidence of such

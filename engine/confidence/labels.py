@@ -1,4 +1,4 @@
-"""Ground-truth label maps (SPEC.md §4.3): is an estimated depth an inlier?
+"""Ground-truth label maps (Kuhn et al. 2020, §3.2): is an estimated depth an inlier?
 
 For reference pixel p with estimate z_p > 0 and GT z*_p > 0, project X(p, z_p) and X(p, z*_p) into
 every source view j of the reference; e_j is the pixel distance between the two projections in j

@@ -1,4 +1,4 @@
-"""Training losses over labelled pixels (SPEC.md §4.4). All take (B, 1, H, W) logits and int labels
+"""Training losses over labelled pixels (Kuhn et al. 2020, §3.2). All take (B, 1, H, W) logits and int labels
 (1 inlier, 0 outlier, -1 unlabeled, ignored) and pool over the whole mini-batch.
 
 - ``deepc_squared``: mean_P (c − 1)² + mean_N c² (class-balanced MSE, the default reading of eq. 1).

@@ -1,4 +1,4 @@
-"""Confidence metrics (SPEC.md §4.6): exact ROC-AUC and sparsification curves."""
+"""Confidence metrics (Kuhn et al. 2020, §3.2): exact ROC-AUC and sparsification curves."""
 
 from __future__ import annotations
 

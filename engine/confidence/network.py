@@ -1,4 +1,4 @@
-"""The DeepC confidence U-Net (SPEC.md §4.2).
+"""The DeepC confidence U-Net (Kuhn et al. 2020, §3.2).
 
 Middle fusion (the paper's design): three encoders with identical structure and separate weights,
 one per input stream (RGB 3, normal 2, counter 1 channels). Each of the 4 encoder blocks is two

@@ -176,7 +176,7 @@ def _engine_options(table: dict, path: Path, where: str) -> dict[str, Any]:
 
 def _entry(item: Any, root: Path, engine: dict, path: Path, split: str) -> list[SceneEntry]:
     """The scene(s) of one ``[split]`` item, checked to exist and (train, validation) to have GT depth."""
-    from engine.synthetic.dataset import training_scene_name
+    from engine.synthetic.dataset import training_scene_name  # lazy: pycolmap (synthetic scene export)
 
     if isinstance(item, str) and item.startswith(SYNTHETIC_PREFIX):
         try:

@@ -1,4 +1,4 @@
-"""Training the confidence network (SPEC.md §4.5): random labelled crops, Adam, ROC-AUC validation
+"""Training the confidence network (Kuhn et al. 2020, §3.2): random labelled crops, Adam, ROC-AUC validation
 every epoch, best-checkpoint selection, resumable and deterministic for a seed.
 
 Pure engine code: data comes in as :class:`ViewSample` lists, progress goes out through a callback

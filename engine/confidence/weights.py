@@ -22,7 +22,7 @@ from engine.io.atomic import atomic_write_bytes
 FORMAT = "deepc-confidence-weights"
 VERSION = 1
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "deepc_middle.pt"
-# the second network (SPEC.md §6.6b): confidence of refined maps in --pipeline full
+# the second network (Kuhn et al. 2020, §4.2): confidence of refined maps in --pipeline full
 DEFAULT_REFINED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "deepc_refined.pt"
 
 

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 
+from engine.errors import OptionsError
 from engine.options import Options, option
 
 
@@ -29,7 +30,6 @@ class EvaluationOptions(Options):
 
 def parse_tolerances(text: str) -> tuple[float, ...]:
     """'0.01,0.02' -> (0.01, 0.02); a clear error for anything else."""
-    from engine.errors import OptionsError
 
     parts = [p.strip() for p in str(text).split(",") if p.strip()]
     try:

@@ -30,7 +30,7 @@ class EvaluationResult:
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def to_dict(self) -> dict[str, list[float]]:
-        """The CONTRACT.md §5 ``eval`` block."""
+        """The ``eval`` block of metrics.json."""
         return {"tolerances": list(self.tolerances), "accuracy": list(self.accuracy),
                 "completeness": list(self.completeness), "f1": list(self.f1)}
 

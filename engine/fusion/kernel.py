@@ -337,7 +337,7 @@ def reprojection_limit_sq(options: FusionOptions) -> float:
 
 
 def fuse(views: list[FusionView], options: FusionOptions | None = None) -> FusedCloud:
-    """Fuse per-view depth/normal maps into one point cloud (SPEC.md §7). Deterministic.
+    """Fuse per-view depth/normal maps into one point cloud (Schönberger et al. 2016). Deterministic.
 
     Args:
         views: the views, each with its camera, maps and overlap list (indices into ``views``).

@@ -6,6 +6,7 @@ import numpy as np
 
 from engine.errors import DeepCError
 from engine.fusion.cloud import FusionView
+from engine.io.images import resize_area
 
 
 def views_from_scene(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarray],
@@ -16,7 +17,6 @@ def views_from_scene(scene, depth_maps: list[np.ndarray], normal_maps: list[np.n
     Cameras and colours are brought to each depth map's resolution; the overlap lists are the
     views sharing most sparse points (COLMAP's ``GetMaxOverlappingImages``).
     """
-    from engine.io.images import resize_area
 
     if len(depth_maps) != len(scene.views) or len(normal_maps) != len(scene.views):
         raise DeepCError(f"scene has {len(scene.views)} views but {len(depth_maps)} depth and "

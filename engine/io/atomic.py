@@ -8,12 +8,16 @@ fails, the temporary file is removed and any earlier version of the target is le
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
+
+import numpy as np
 
 from engine.errors import DeepCError
 
@@ -75,3 +79,22 @@ def remove_stale_temp_files(folder: str | Path) -> list[Path]:
             path.unlink(missing_ok=True)
             removed.append(path)
     return removed
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return None if not math.isfinite(float(value)) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as JSON atomically; numpy scalars become numbers and NaN/inf null (JSON has neither)."""
+    path = Path(path)
+    atomic_write_text(path, json.dumps(_json_safe(data), indent=2) + "\n")
+    return path

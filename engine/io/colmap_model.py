@@ -100,7 +100,7 @@ def _model_file(folder: Path, name: str) -> Path | None:
 
 def read_sparse_model(model_dir: str | Path) -> SparseModel:
     """Read a COLMAP model folder through pycolmap; errors name the folder and the problem."""
-    import pycolmap
+    import pycolmap  # lazy: pycolmap
 
     model_dir = Path(model_dir)
     for name in _BINARY_CHECKS:  # pycolmap would report an unreadable file as a malformed model
@@ -304,7 +304,7 @@ def undistort_workspace(scene_root: Path, model_dir: Path, cache_root: Path) -> 
     The result is cached under a key of the model's contents, so a second load is free. It is
     written to a temporary folder first and renamed, so an interrupted run leaves no partial cache.
     """
-    import pycolmap
+    import pycolmap  # lazy: pycolmap
 
     digest = hashlib.sha1()
     for name in sorted(os.listdir(model_dir)):

@@ -1,4 +1,7 @@
-"""Confidence-guided piece-wise planar depth refinement (Rossi et al. CVPR 2020; SPEC.md §6)."""
+"""Confidence-guided piece-wise planar depth refinement (Rossi et al., CVPR 2020).
+
+As DeepC-MVS uses it (Kuhn et al. 2020, §4.2): the confidence of the PatchMatch maps weighs the data term.
+"""
 
 from engine.refinement.energy import ScaleProblem, energy, energy_terms
 from engine.refinement.graph import SimilarityGraph, similarity_graph

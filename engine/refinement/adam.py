@@ -1,4 +1,4 @@
-"""Reference solver: the official formulation, Adam on (d, u) with PyTorch autograd (SPEC.md §6.4).
+"""Reference solver: the official formulation, Adam on (d, u) with PyTorch autograd (Rossi et al. 2020).
 
 Learning rate ``lr`` decays x0.1 every ceil(iters / lr_slots) steps (StepLR); d is clamped to
 [d_min, d_max] after every step; float32 as the official default.

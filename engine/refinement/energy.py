@@ -1,4 +1,4 @@
-"""The refinement energy of one pyramid scale (SPEC.md §6.2).
+"""The refinement energy of one pyramid scale (Rossi et al. 2020).
 
     E(d, u) = (λ_d/|Ω|) Σ_i c̃_i |d_i - d̄_i|
             + (λ/|Ω|) [ Σ_i ( Σ_{j∈N(i)} w_ij² (d_i - d_j - u_i·(x_i - x_j))² )^½ + γ Σ_i Σ_{j∈N(i)} w_ij |u_i - u_j| ]
@@ -81,23 +81,6 @@ def energy_terms(problem: ScaleProblem, d: np.ndarray, u: np.ndarray) -> dict[st
     return {"data": data, "plane": plane, "orientation": tv, "total": data + plane + tv}
 
 
-def energy_terms_reference(problem: ScaleProblem, d: np.ndarray, u: np.ndarray) -> dict[str, float]:
-    """Plain-numpy twin of :func:`energy_terms`."""
-    d = np.asarray(d, np.float64).ravel()
-    u = np.asarray(u, np.float64).reshape(-1, 2)
-    g = problem.graph
-    n = problem.size
-    w = g.weights.astype(np.float64)
-    nb = g.neighbors
-    delta = g.offsets.astype(np.float64)
-    data = problem.lambda_data / n * float(np.sum(problem.fidelity * np.abs(d - problem.data)))
-    res = w * (d[:, None] - d[nb] - np.einsum("ic,ikc->ik", u, delta))
-    plane = problem.lambda_reg / n * float(np.sum(np.sqrt(np.sum(res * res, axis=1))))
-    tv = problem.lambda_reg * problem.gamma / n * float(
-        np.sum(w * np.linalg.norm(u[:, None, :] - u[nb], axis=-1)))
-    return {"data": data, "plane": plane, "orientation": tv, "total": data + plane + tv}
-
-
 def energy(problem: ScaleProblem, d: np.ndarray, u: np.ndarray) -> float:
-    """E(d, u) of SPEC.md §6.2 in float64; d (N,) inverse depth, u (N, 2)."""
+    """E(d, u) of Rossi et al. 2020 in float64; d (N,) inverse depth, u (N, 2)."""
     return energy_terms(problem, d, u)["total"]

@@ -1,4 +1,4 @@
-"""The similarity graph N(i), w_ij of the piece-wise planar regulariser (SPEC.md §6.3).
+"""The similarity graph N(i), w_ij of the piece-wise planar regulariser (Rossi et al. 2020).
 
 For every pixel i, the candidates j are the other pixels of a ``window`` x ``window`` search window.
 Their patch dissimilarity on the grey image (``patch`` x ``patch``, replicate padding) and their
@@ -57,13 +57,6 @@ def window_offsets(window: int) -> np.ndarray:
     return np.array([(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1) if (dy, dx) != (0, 0)])
 
 
-def _box_sum(a: np.ndarray, size: int) -> np.ndarray:
-    """Sum over size x size boxes of the last two axes ('valid' mode) via an integral image."""
-    s = np.cumsum(np.cumsum(a, axis=-2, dtype=np.float64), axis=-1)
-    s = np.pad(s, [(0, 0)] * (a.ndim - 2) + [(1, 0), (1, 0)])
-    return s[..., size:, size:] - s[..., :-size, size:] - s[..., size:, :-size] + s[..., :-size, :-size]
-
-
 @numba.njit(parallel=True, cache=True)
 def _graph_kernel(gray, offsets, patch_radius, inv_2si2, inv_2sx2, neighbors, weights):
     h, w = gray.shape
@@ -112,7 +105,7 @@ def _graph_kernel(gray, offsets, patch_radius, inv_2si2, inv_2sx2, neighbors, we
 
 def similarity_graph(gray: np.ndarray, window: int = 9, patch: int = 3, sigma_int: float = 0.07,
                      sigma_spa: float = 3.0, degree: int = 20) -> SimilarityGraph:
-    """Build the graph of SPEC.md §6.3 from an (H, W) grey image in [0, 1] (numba kernel)."""
+    """Build the graph of Rossi et al. 2020 from an (H, W) grey image in [0, 1] (numba kernel)."""
     gray = np.ascontiguousarray(gray, np.float64)
     h, w = gray.shape
     offs = window_offsets(window).astype(np.int64)
@@ -123,41 +116,3 @@ def similarity_graph(gray: np.ndarray, window: int = 9, patch: int = 3, sigma_in
     return SimilarityGraph(h, w, neighbors, weights)
 
 
-def similarity_graph_reference(gray: np.ndarray, window: int = 9, patch: int = 3, sigma_int: float = 0.07,
-                               sigma_spa: float = 3.0, degree: int = 20) -> SimilarityGraph:
-    """Plain-numpy twin of :func:`similarity_graph` (shifted difference maps, box filter, top-k)."""
-    gray = np.asarray(gray, np.float64)
-    h, w = gray.shape
-    rw, rp = window // 2, patch // 2
-    offs = window_offsets(window)
-    pad = np.pad(gray, rw + rp, mode="edge")
-    centre = pad[rw:rw + h + 2 * rp, rw:rw + w + 2 * rp]
-    rows = np.arange(h)[:, None]
-    cols = np.arange(w)[None, :]
-    logw = np.empty((len(offs), h, w), np.float32)
-    for n, (dy, dx) in enumerate(offs):
-        shifted = pad[rw + dy:rw + dy + h + 2 * rp, rw + dx:rw + dx + w + 2 * rp]
-        pd = _box_sum((shifted - centre) ** 2, patch)
-        lw = -pd / (2 * sigma_int ** 2) - (dy * dy + dx * dx) / (2 * sigma_spa ** 2)
-        inside = (rows + dy >= 0) & (rows + dy < h) & (cols + dx >= 0) & (cols + dx < w)
-        logw[n] = np.where(inside, lw, -np.inf)
-    k = min(degree, len(offs))
-    # Top-k along the candidate axis; ties resolved by argpartition (weights are what matter).
-    top = np.argpartition(-logw, k - 1, axis=0)[:k] if k < len(offs) else np.arange(len(offs))[:, None, None] \
-        + np.zeros((1, h, w), np.int64)
-    top_logw = np.take_along_axis(logw, top, axis=0)
-    wh = np.exp(top_logw.astype(np.float64))  # exp(-inf) = 0 for outside candidates
-    total = wh.sum(axis=0)
-    weights = wh / np.maximum(total, 1e-12)
-    dy = offs[top, 0]
-    dx = offs[top, 1]
-    i_lin = (rows * w + cols)[None]
-    j_lin = i_lin + dy * w + dx
-    j_lin = np.where(wh > 0, j_lin, i_lin)
-    weights = np.where(wh > 0, weights, 0.0)
-    # Sort slots by weight (largest first) so the layout does not depend on argpartition internals.
-    order = np.argsort(-weights, axis=0, kind="stable")
-    weights = np.take_along_axis(weights, order, axis=0)
-    j_lin = np.take_along_axis(j_lin, order, axis=0)
-    return SimilarityGraph(h, w, np.ascontiguousarray(j_lin.reshape(k, -1).T, dtype=np.int32),
-                           np.ascontiguousarray(weights.reshape(k, -1).T, dtype=np.float32))

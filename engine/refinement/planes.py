@@ -1,8 +1,8 @@
-"""Local planes in inverse depth, the pyramid and the initial values (SPEC.md §6.5, §6.6).
+"""Local planes in inverse depth, the pyramid and the initial values (Rossi et al. 2020).
 
 A pixel's plane is (d, u): inverse depth d = 1/z and the image-plane gradient u = (u_x, u_y) of the
 inverse depth, so that d_j ≈ d_i + u_i · (x_j - x_i) with x = (col, row) in pixels. Intrinsics are
-index-space (pixel (col, row) has its centre at (col, row), SPEC.md §1.2).
+index-space (pixel (col, row) has its centre at (col, row), Schönberger et al. 2016).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Fast solver: diagonally preconditioned primal-dual (Chambolle & Pock 2011) on the energy of
-SPEC.md §6.2, in numba.
+Rossi et al. 2020, in numba.
 
 E is convex in x = (d, u): divided by λ/|Ω| it reads
 
@@ -24,7 +24,7 @@ from engine.refinement.energy import ScaleProblem
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def _dual_step(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, gamma, p, q):
+def dual_step(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, gamma, p, q):
     n, k_max = neighbors.shape
     for i in numba.prange(n):
         sq = 0.0
@@ -52,7 +52,7 @@ def _dual_step(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, gamm
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def _primal_step(d, u, d_bar, u_bar, p, q, weights, offsets, in_ptr, in_src, in_slot, tau_d, tau_u,
+def primal_step(d, u, d_bar, u_bar, p, q, weights, offsets, in_ptr, in_src, in_slot, tau_d, tau_u,
                  data, shrink, d_min, d_max, gamma):
     n, k_max = weights.shape
     for i in numba.prange(n):
@@ -103,43 +103,6 @@ def _fill_transpose(neighbors, weights, in_ptr, in_src, in_slot):
                 in_src[fill[j]] = i
                 in_slot[fill[j]] = k
                 fill[j] += 1
-
-
-def dual_step_reference(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, gamma, p, q) -> None:
-    """Plain-numpy twin of ``_dual_step`` (updates p, q in place)."""
-    j = neighbors
-    delta = offsets.astype(np.float64)
-    r = weights * (d_bar[:, None] - d_bar[j] - np.einsum("ic,ikc->ik", u_bar, delta))
-    p += sigma_p[:, None] * r
-    norm = np.linalg.norm(p, axis=1, keepdims=True)
-    p /= np.maximum(norm, 1.0)
-    if gamma > 0:
-        active = (weights > 0)[..., None]
-        qn = q + sigma_q * (u_bar[:, None, :] - u_bar[j])
-        qn /= np.maximum(np.linalg.norm(qn, axis=2, keepdims=True), 1.0)
-        q[...] = np.where(active, qn, q)
-
-
-def primal_step_reference(d, u, d_bar, u_bar, p, q, neighbors, weights, offsets, tau_d, tau_u, data, shrink,
-                          d_min, d_max, gamma) -> None:
-    """Plain-numpy twin of ``_primal_step`` (scatter with np.add.at instead of the CSR transpose)."""
-    j = neighbors
-    delta = offsets.astype(np.float64)
-    wp = weights * p
-    gd = wp.sum(1)
-    np.add.at(gd, j.ravel(), -wp.ravel())
-    gu = -np.einsum("ik,ikc->ic", wp, delta) + gamma * np.einsum("ik,ikc->ic", weights, q)
-    wq = gamma * weights[..., None] * q
-    np.add.at(gu, j.ravel(), -wq.reshape(-1, 2))
-    v = d - tau_d * gd
-    t = tau_d * shrink
-    v = np.where(v > data + t, v - t, np.where(v < data - t, v + t, data))
-    v = np.clip(v, d_min, d_max)
-    a = u - tau_u * gu
-    d_bar[:] = 2 * v - d
-    u_bar[:] = 2 * a - u
-    d[:] = v
-    u[:] = a
 
 
 def preconditioners(problem: ScaleProblem) -> dict[str, np.ndarray]:
@@ -201,8 +164,8 @@ def solve_primal_dual(problem: ScaleProblem, d0: np.ndarray, u0: np.ndarray,
     tau_u = (pre["tau_u"] * theta).astype(np.float32)
     for _ in range(iters):
         check_interrupt()  # between kernels (engine/interrupt.py)
-        _dual_step(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, np.float32(problem.gamma), p, q)
-        _primal_step(d, u, d_bar, u_bar, p, q, weights, offsets, pre["in_ptr"], pre["in_src"], pre["in_slot"],
+        dual_step(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, np.float32(problem.gamma), p, q)
+        primal_step(d, u, d_bar, u_bar, p, q, weights, offsets, pre["in_ptr"], pre["in_src"], pre["in_slot"],
                      tau_d, tau_u, data, shrink, np.float32(problem.d_min),
                      np.float32(problem.d_max), np.float32(problem.gamma))
     return d, u, iters

@@ -1,11 +1,11 @@
-"""Confidence-guided piece-wise planar depth refinement of one depth map (SPEC.md §6).
+"""Confidence-guided piece-wise planar depth refinement of one depth map (Rossi et al. 2020).
 
-``refine_depth`` builds a pyramid (SPEC.md §6.5), minimises the energy of §6.2 from the coarsest scale
+``refine_depth`` builds a pyramid (Rossi et al. 2020), minimises its energy from the coarsest scale
 to the finest with the chosen solver, warm-starting each scale from the previous one, and returns a
 dense depth map and the normals of its local planes.
 
 Input conventions: depth in model units with 0 (or non-finite) = none; confidence in [0, 1] (NaN = 0);
-index-space intrinsics (SPEC.md §1.2); normals in the camera frame facing the camera.
+index-space intrinsics (Schönberger et al. 2016); normals in the camera frame facing the camera.
 
 Bad input: maps whose sizes differ, non-square-3x3 intrinsics, an empty or inverted depth range and
 confidence outside [0, 1] raise :class:`DeepCError`. A map with nothing to refine from (no depth inside
@@ -131,7 +131,7 @@ def build_problem(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, d
 
 def _initial_planes(inp: _Inputs, depth: np.ndarray, normal: np.ndarray | None, K: np.ndarray,
                     options: RefinementOptions) -> tuple[np.ndarray, np.ndarray]:
-    """(d (H, W), u (H, W, 2)) at the coarsest scale (SPEC.md §6.5)."""
+    """(d (H, W), u (H, W, 2)) at the coarsest scale (Rossi et al. 2020)."""
     valid = _in_range(depth, inp.z_min, inp.z_max)
     d = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0)
     if options.hole_init == "nearest":
@@ -150,7 +150,7 @@ def _initial_planes(inp: _Inputs, depth: np.ndarray, normal: np.ndarray | None, 
 def refine_depth(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_idx: np.ndarray,
                  depth_range: tuple[float, float], normal: np.ndarray | None = None,
                  options: RefinementOptions | None = None) -> RefinedMap:
-    """Refine one depth map (SPEC.md §6).
+    """Refine one depth map (Rossi et al. 2020).
 
     Args:
         gray: (H, W) grey image in [0, 1] (builds the similarity graph).
@@ -159,7 +159,7 @@ def refine_depth(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_
         K_idx: (3, 3) index-space intrinsics at this resolution.
         depth_range: (z_min, z_max); the result is clipped to it and inputs outside it are ignored.
         normal: optional (H, W, 3) camera-frame normals, used to initialise the plane orientations.
-        options: energy and solver options (defaults: SPEC.md §12 ``refine``, fast solver).
+        options: energy and solver options (defaults: the paper's, fast solver).
     Returns:
         A :class:`RefinedMap`.
     Raises:
@@ -196,7 +196,7 @@ def refine_depth(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_
             u = normal_to_u(resize_nearest(normal_prev, shape), z, K)
         n_it = int(iters[s])
         if options.solver == "adam":
-            from engine.refinement.adam import solve_adam  # torch: only for the reference solver
+            from engine.refinement.adam import solve_adam  # lazy: torch, only for the reference solver
 
             d_f, u_f, done = solve_adam(problem, d.ravel(), u.reshape(-1, 2), n_it, options.lr[s], options.lr_slots[s])
         else:
@@ -216,7 +216,7 @@ def refine_depth(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_
 def map_energy(gray: np.ndarray, depth: np.ndarray, confidence: np.ndarray, K_idx: np.ndarray,
                depth_range: tuple[float, float], refined_depth: np.ndarray, refined_normal: np.ndarray,
                options: RefinementOptions | None = None) -> dict[str, float]:
-    """Energy terms (SPEC.md §6.2, finest scale) of a refined (depth, normal) pair for the given input;
+    """Energy terms (Rossi et al. 2020, finest scale) of a refined (depth, normal) pair for the given input;
     compares solvers on equal terms."""
     options = (options or RefinementOptions()).validate()
     inp = _check_inputs(gray, depth, confidence, K_idx, depth_range, None, options)

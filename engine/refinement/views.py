@@ -1,9 +1,9 @@
 """Refinement and sky filtering of every view of a scene (the ``full`` pipeline's middle stages).
 
-    refined = refine_views(scene, depths, normals, confidences, options)         # SPEC.md §6
-    (confidence of the refined maps, filter c >= 0.05)                          # SPEC.md §6.6b
+    refined = refine_views(scene, depths, normals, confidences, options)         # Rossi et al. 2020
+    (confidence of the refined maps, filter c >= 0.05)                          # Kuhn et al. 2020, §4.2
     depths, normals = sky_filter_views(scene, depths, normals, vanilla_depths, vanilla_confidences)  # §8
-    fuse(..., FUSION_PRESETS[DEFAULT_PRESET])                                    # SPEC.md §7 (see fusion.py)
+    fuse(..., FUSION_PRESETS[DEFAULT_PRESET])                                    # Schönberger et al. 2016
 
 A view with nothing to refine from (:class:`NoDataError`) is reported through ``warnings`` and comes
 back as None; callers write an all-zero map for it, so it contributes nothing to fusion.
@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from engine.io.images import resize_area, to_gray
 from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import NoDataError, RefinedMap, refine_depth
 from engine.sky import SkyOptions, far_mask, filter_sky, sky_mask
@@ -31,7 +32,6 @@ def refine_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarr
                  progress: Callable[[int, int, RefinedMap | None], None] | None = None) -> list[RefinedMap | None]:
     """Refine the depth map of every view of ``scene`` (an ``engine.scene.Scene``) with its grey image,
     camera and depth range; None for views without data (a warning names them)."""
-    from engine.io.images import resize_area, to_gray
 
     options = (options or RefinementOptions()).validate()
     out: list[RefinedMap | None] = []
@@ -54,7 +54,7 @@ def refine_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarr
 
 
 def z99(scene, i: int) -> float:
-    """99th-percentile sparse depth of view i, recovered from its depth range (SPEC.md §1.3)."""
+    """99th-percentile sparse depth of view i, recovered from its depth range (Schönberger et al. 2016)."""
     opts = scene.options
     z_hi = scene.views[i].depth_range[1]
     if opts.depth_range is not None:  # a fixed range: its far end stands for 1.5 z_99
@@ -65,8 +65,7 @@ def z99(scene, i: int) -> float:
 def sky_filter_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.ndarray],
                      vanilla_depths: list[np.ndarray], vanilla_confidences: list[np.ndarray | None],
                      options: SkyOptions | None = None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """SPEC.md §8 on refined maps: returns (depths, normals, dropped masks)."""
-    from engine.io.images import resize_area
+    """The sky filter (Kuhn et al. 2020, §5.5) on refined maps: returns (depths, normals, dropped masks)."""
 
     options = (options or SkyOptions()).validate()
     depths, normals, masks = [], [], []

@@ -1,4 +1,4 @@
-"""Write a rendered synthetic scene in the scene layout of CONTRACT.md §2.
+"""Write a rendered synthetic scene in the scene layout that ``engine.scene.load_scene`` reads.
 
 ```
 OUT/images/<name>                              PNG, 8-bit RGB
@@ -70,7 +70,7 @@ def readme_text(data: SceneData, binary_model: bool, command: str | None) -> str
         "",
         scene.description,
         "",
-        "Contents (COLMAP dense-workspace layout, see CONTRACT.md section 2):",
+        "Contents (COLMAP dense-workspace layout):",
         f"  images/                       {len(data.images)} PNG images, {cam.width}x{cam.height}, 8-bit RGB",
         f"  sparse/                       COLMAP model ({'binary' if binary_model else 'text'}), PINHOLE cameras,",
         f"                                exact poses, {data.sparse.num_points} SfM-like points "

@@ -15,9 +15,10 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+import engine.synthetic.raycast as raycast
 from engine.camera import Camera
-from engine.synthetic import raycast
 from engine.synthetic.scene import SceneData, SceneRecipe
+from engine.synthetic.sparse import make_sparse_model
 
 
 def view_rng(scene: SceneRecipe, view: int, stream: int) -> np.random.Generator:
@@ -124,8 +125,6 @@ def voxel_thin(points: np.ndarray, voxel: float) -> np.ndarray:
 
 def render_scene(scene: SceneRecipe) -> SceneData:
     """Render all views, draw the sparse model and collect GT points."""
-    from engine.synthetic.sparse import make_sparse_model  # sparse needs rendered views
-
     views = [render_view(scene, v) for v in range(len(scene.cameras))]
     points = np.concatenate([v["point"][v["prim"] >= 0] for v in views])
     data = SceneData(

@@ -1,0 +1,133 @@
+"""The benchmark harness (support/bench.py), every benchmark script and result JSON, and docs/results.md."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from support import bench
+
+SCRIPTS = bench.scripts()
+RESULTS = sorted(bench.RESULTS.glob("*.json"))
+ABSOLUTE = re.compile(r"(?<![\w.:/<>~-])/[\w.~+@-]+/")  # the start of an absolute path of 2+ components
+
+
+def _strings(value) -> list[str]:
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [s for k, v in value.items() for s in (k, *_strings(v))]
+    if isinstance(value, list):
+        return [s for v in value for s in _strings(v)]
+    return []
+
+
+def test_result_starts_with_script_arguments_revision_and_environment(tmp_path):
+    script = bench.BENCHMARKS / "performance" / "bench_fusion.py"
+    path = bench.write_result({"seconds": np.float64(1.5), "points": np.int64(7), "nan": float("nan")},
+                              tmp_path / "out.json", script=script, argv=["--repeats", "3"])
+    data = json.loads(path.read_text())
+    assert list(data)[:4] == list(bench.METADATA_KEYS)
+    assert data["script"] == "benchmarks/performance/bench_fusion.py"
+    assert data["argv"] == ["--repeats", "3"]
+    assert data["git"] is None or re.fullmatch(r"[0-9a-f]{40}(\+dirty)?", data["git"])
+    env = data["environment"]
+    assert {"python", "cpu_count", "cpu_model", "packages", "date"} <= set(env)
+    assert {"numpy", "numba", "torch"} <= set(env["packages"])
+    assert os.uname().nodename not in json.dumps(env)  # no host name
+    assert (data["seconds"], data["points"], data["nan"]) == (1.5, 7, None)
+
+
+def test_no_absolute_path_survives(tmp_path):
+    tmp = tmp_path / "out"  # pytest makes it in the temporary folder
+    data = {"run": str(bench.REPO_ROOT / "runs" / "fountain768"), "scene": str(bench.SHARED_DATA / "fountain_p11"),
+            "tmp": str(tmp), "home": str(Path.home() / "data" / "scene7"), "elsewhere": "/opt/x/y/weights.pt",
+            "note": f"deepc run {bench.SHARED_DATA / 'fountain_p11'} --out {tmp} (F1 1/2/5 cm, fast / full)",
+            str(bench.REPO_ROOT / "as_key"): [Path("/srv/a/b.ply")], "url": "https://example.org/a/b"}
+    path = bench.write_result(data, tmp_path / "out.json", script=SCRIPTS[0], argv=[str(tmp), "--x"])
+    written = json.loads(path.read_text())
+    assert not [s for s in _strings(written) if ABSOLUTE.search(s)]
+    assert written["run"] == "runs/fountain768"
+    assert written["scene"] == "../shared/data/fountain_p11"
+    assert written["tmp"] == "<tmp>/out" and written["argv"] == ["<tmp>/out", "--x"]
+    assert written["elsewhere"] == "weights.pt" and written["home"].endswith("scene7")
+    assert written["note"] == "deepc run ../shared/data/fountain_p11 --out <tmp>/out (F1 1/2/5 cm, fast / full)"
+    assert written["as_key"] == ["b.ply"] and written["url"] == "https://example.org/a/b"
+
+
+def test_write_is_atomic(tmp_path, monkeypatch):
+    path = tmp_path / "out.json"
+    bench.write_result({"v": 1}, path, script=SCRIPTS[0], argv=[])
+
+    def fail(*args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(Exception, match="disk full"):
+        bench.write_result({"v": 2}, path, script=SCRIPTS[0], argv=[])
+    assert json.loads(path.read_text())["v"] == 1  # the earlier result is intact
+    assert [p.name for p in tmp_path.iterdir()] == ["out.json"]  # and no temporary file is left
+
+
+def test_results_are_named_after_their_script(monkeypatch, tmp_path):
+    monkeypatch.setattr(bench, "RESULTS", tmp_path)
+    script = bench.BENCHMARKS / "paper" / "table2_filters.py"
+    assert bench.results_path(script, "dense") == tmp_path / "table2_filters_dense.json"
+    bench.write_result({"runs": []}, bench.results_path(script, "dense"), script=script, argv=[])
+    with pytest.raises(ValueError, match="must be named table2_filters"):
+        bench.write_result({"runs": []}, tmp_path / "table2.json", script=script, argv=[])
+    with pytest.raises(ValueError, match="harness's keys"):
+        bench.write_result({"script": "x"}, tmp_path / "table2_filters.json", script=script, argv=[])
+
+
+def test_tables_align_and_drop_empty_columns():
+    rows = [{"name": "a", "F1": 81.234, "ratio": 0.0123, "none": None, "n": 1234}, {"name": "bb", "F1": None}]
+    text = bench.format_table(rows).splitlines()
+    assert text[0].split() == ["name", "F1", "ratio", "n"] and len({len(line) for line in text}) == 1
+    assert text[2].split() == ["a", "81.23", "0.0123", "1,234"] and text[3].split() == ["bb", "–", "–", "–"]
+    md = bench.format_table(rows, markdown=True).splitlines()
+    assert md[0] == "| name | F1 | ratio | n |" and md[1] == "|---|---:|---:|---:|"
+
+
+def test_benchmark_layout():
+    assert {p.parent.name for p in SCRIPTS} == set(bench.FOLDERS)
+    assert len({p.stem for p in SCRIPTS}) == len(SCRIPTS)  # result names stay unambiguous
+    loose = sorted(p.name for p in bench.BENCHMARKS.glob("*.py"))
+    assert loose == ["results_md.py"]
+    for path in [*SCRIPTS, bench.BENCHMARKS / "results_md.py"]:
+        assert "sys.path" not in path.read_text(), path
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=[p.stem for p in SCRIPTS])
+def test_script_imports_and_answers_help(script, monkeypatch, capsys):
+    module = bench.load_script(script)
+    assert module.__doc__ and callable(module.summary)
+    text = script.read_text()
+    assert "bench.write_result(" in text and "write_json" not in text
+    assert f"benchmarks/{script.parent.name}/{script.name}" in module.__doc__  # the usage line names its place
+    monkeypatch.setattr("sys.argv", [str(script), "--help"])
+    with pytest.raises(SystemExit) as stop:
+        module.main()
+    assert stop.value.code == 0 and "usage:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("path", RESULTS, ids=[p.stem for p in RESULTS])
+def test_result_json_names_its_script_and_no_machine_path(path):
+    data = json.loads(path.read_text())
+    assert isinstance(data, dict) and list(data)[:3] == ["script", "argv", "git"]
+    script = bench.REPO_ROOT / data["script"]
+    assert script in SCRIPTS and path.stem.startswith(script.stem)
+    assert data["git"] or data.get("committed_in")  # the revision, or the commit that added an older result
+    assert not [s for s in _strings(data) if ABSOLUTE.search(s)]
+    assert bench.load_script(script).summary(data)  # the docs' table can be made from it
+
+
+def test_results_md_is_generated():
+    generator = bench.load_script(bench.BENCHMARKS / "results_md.py")
+    assert (bench.REPO_ROOT / "docs" / "results.md").read_text() == generator.render(), \
+        "docs/results.md is out of date: run benchmarks/results_md.py"
