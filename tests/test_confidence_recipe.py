@@ -69,7 +69,7 @@ def test_recipe_resolves_scenes_synthetic_seeds_and_per_scene_options(tmp_path):
     ('["tiny", "tiny"]', "[]", "[]", "", "named twice"),
     ('["synthetic:a-b"]', "[]", "[]", "", "seeds must look like"),
     ("[]", "[]", "[]", "", "no training scenes"),
-    ('["tiny"]', "[]", "[]", "lr = -1\n", "learning rates must be positive"),
+    ('["tiny"]', "[]", "[]", "lr = -1\n", "option lr=-1: must be > 0"),
     ('["tiny"]', "[]", "[]", "widths = 3\n", "widths"),
 ])
 def test_bad_recipes_are_one_line_errors_naming_the_file(tmp_path, train, validation, test, extra, message):

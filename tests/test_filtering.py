@@ -58,7 +58,7 @@ def test_bad_inputs():
     with pytest.raises(ValueError):
         filter_by_counter(depth, normal[..., :2], np.ones_like(depth), 1)
     with pytest.raises(OptionsError):
-        FilterOptions(conf_tau=-0.1).validate()
+        FilterOptions(tau=-0.1).validate()
     with pytest.raises(OptionsError):
         FilterOptions(mask_k=-2).validate()
 
@@ -68,8 +68,8 @@ def test_apply_filters_combines():
     conf = np.linspace(0, 1, depth.size, dtype=np.float32).reshape(depth.shape)
     counter = np.ones_like(depth) * 2
     counter[0, :] = 0
-    d, _ = apply_filters(depth, normal, FilterOptions(conf_tau=0.3, mask_k=1), conf, counter)
+    d, _ = apply_filters(depth, normal, FilterOptions(tau=0.3, mask_k=1), conf, counter)
     np.testing.assert_array_equal(d > 0, (conf >= 0.3) & (counter >= 1) & (depth > 0))
-    d, _ = apply_filters(depth, normal, FilterOptions(conf_tau=0.3), None, None)  # no maps: nothing to filter
+    d, _ = apply_filters(depth, normal, FilterOptions(tau=0.3), None, None)  # no maps: nothing to filter
     np.testing.assert_array_equal(d, depth)
-    assert FilterOptions().conf_tau == ConfidenceOptions().tau and FilterOptions().mask_k is None
+    assert FilterOptions().tau == ConfidenceOptions().tau and FilterOptions().mask_k is None
