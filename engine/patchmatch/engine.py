@@ -28,6 +28,7 @@ from engine.patchmatch.context import ViewContext, build_context, fine_window_re
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
+from engine.patchmatch.records import KernelParams, kernel_params
 from engine.patchmatch.rng import stream_key
 
 MAX_SOURCES = 32  # selected-view masks are uint32
@@ -179,43 +180,6 @@ def perturbation_scale(options: PatchMatchOptions, iteration: int, done_before: 
     return max(2.0 ** (-(done_before + iteration)), options.eps_min)
 
 
-def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int, geometric: bool,
-            detail: bool, n_regions: int, eps: float | None = None,
-            last: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Kernel parameter vectors; ``eps`` defaults to 2^-iteration; ``last``: the pass's last iteration, where any
-    lower cost replaces a hypothesis (``PatchMatchOptions.min_improvement``)."""
-    fp = np.zeros(K.N_FP, np.float64)
-    ip = np.zeros(K.N_IP, np.int64)
-    fp[K.F_ZMIN] = zmin
-    fp[K.F_ZMAX] = zmax
-    fp[K.F_EPS] = 2.0 ** (-iteration) if eps is None else eps
-    fp[K.F_TAU_G] = options.tau0 * (math.exp(-(iteration**2) / options.alpha) if options.alpha > 0 else 1.0)
-    fp[K.F_TAU_BAD] = options.tau_bad
-    fp[K.F_BETA] = options.beta
-    fp[K.F_BETA_FB] = options.beta_fallback
-    fp[K.F_PRIOR_IN] = options.prior_in
-    fp[K.F_PRIOR_OUT] = options.prior_out
-    fp[K.F_GEOM_LAMBDA] = options.geom_lambda
-    fp[K.F_GEOM_MAX] = options.geom_max
-    fp[K.F_MIN_VAR] = options.min_var
-    fp[K.F_DETAIL_DELTA] = options.detail_restorer_delta
-    fp[K.F_MIN_IMPROVEMENT] = 0.0 if last else options.min_improvement
-    ip[K.I_K_VS] = options.k_viewsel
-    ip[K.I_K_UP] = options.k_update
-    ip[K.I_PLANE] = int(options.plane_propagation)
-    ip[K.I_GEOM] = int(geometric)
-    ip[K.I_DETAIL] = int(detail)
-    ip[K.I_DETERMINISTIC] = int(options.view_sampling == "deterministic")
-    ip[K.I_MC] = options.mc_samples
-    ip[K.I_N_GOOD] = options.n_good_gt
-    ip[K.I_N_BAD] = options.n_bad_lt
-    ip[K.I_ALL8] = int(options.combos == "all8")
-    ip[K.I_RETRIES] = options.normal_perturb_retries
-    ip[K.I_TOP_K] = options.init_top_k
-    ip[K.I_N_REGIONS] = n_regions
-    return fp, ip
-
-
 def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
     """Bytes of the candidate row cache of an (h, w) view (see :class:`_State`)."""
     return h * w * (k_up * (4 * n_sources + 2 + 4) + 4)
@@ -247,40 +211,40 @@ def _caches(state: _State, ctx: ViewContext, k_up: int, reset: bool, pool: Buffe
     return rows
 
 
-def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, cache: bool = True,
+def init_cost(state: _State, ctx: ViewContext, params: KernelParams, cache: bool = True,
               pool: BufferPool | None = None) -> None:
     """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule); with ``cache``
     also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given)."""
     if cache:
-        _caches(state, ctx, int(ip[K.I_K_UP]), True, pool)
+        _caches(state, ctx, params.k_update, True, pool)
     P = state.P if cache else np.empty((1, 1, 1))
     known, known_wset = state.known, state.known_wset
     if known is None:  # the kernel also ignores carried-over costs of another shape
         known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
     K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, known, known_wset, ctx.flat, ctx.stride,
                        ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
-                       ctx.oy, ctx.wset, ctx.ns, fp, ip)
+                       ctx.oy, ctx.wset, ctx.ns, params)
     state.known = state.known_wset = None  # only valid for the hypotheses they were computed for
 
 
 def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
-              region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> np.ndarray:
+              region: np.ndarray, key: np.uint64, params: KernelParams) -> np.ndarray:
     """One red or black half-step on one view (in place). Call :func:`init_cost` first in every pass
     (and after changing the state's maps from outside): it fills the cost cache the half-steps trust.
 
     Returns (N_COUNTS,) int64: NCC windows evaluated for the view-selection rows, the current
     hypotheses, the remaining candidates and the refinement, and the number of pixels updated."""
-    rows = _caches(state, ctx, int(ip[K.I_K_UP]), False)
+    rows = _caches(state, ctx, params.k_update, False)
     counts = np.zeros((state.Z.shape[0], K.N_COUNTS), np.int64)
     K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.VER, state.RS, state.RV, state.RC,
                        state.RN, rows, cpre,
                        ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv,
-                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, fp, ip,
+                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, params,
                        counts)
     return counts.sum(axis=0)
 
 
-def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,
+def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, params: KernelParams,
                        view: int, level: int, zmin: float, zmax: float) -> np.ndarray | None:
     """Cpre for detail_restorer_reference='random': top-k photometric cost (§2.4 rule) of the upsampled
     depth with a random normal facing the camera (None for 'upsampled': computed by the caller)."""
@@ -292,7 +256,7 @@ def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions,
     key = np.uint64(stream_key(options.seed, view, level, 0, RESTORER_ITERATION, 0))
     K.random_init_kernel(tmp.Z, tmp.N, ctx.kinv, zmin, zmax, key, False)
     tmp.Z[:] = st.Z
-    init_cost(tmp, ctx, fp, ip, cache=False)
+    init_cost(tmp, ctx, params, cache=False)
     return tmp.C
 
 
@@ -468,10 +432,10 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
                         [snapshot[j] for j in src_idx] if snapshot is not None else None,
                         fine_window_region(st.Z, st.N, cameras[i][level], options, random_start, level), pool)
     zmin, zmax = float(v.depth_min), float(v.depth_max)
-    fp, ip = _params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
+    params = kernel_params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
     if detail:
-        cpre = restorer_reference(st, ctx, options, fp, ip, i, level, zmin, zmax)
-    init_cost(st, ctx, fp, ip, pool=pool)
+        cpre = restorer_reference(st, ctx, options, params, i, level, zmin, zmax)
+    init_cost(st, ctx, params, pool=pool)
     if not detail:
         cpre = st.C
     elif options.detail_restorer_reference == "upsampled":
@@ -479,12 +443,12 @@ def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras:
     for t in range(n_iter):
         check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
         t0 = time.perf_counter()
-        fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
-                         perturbation_scale(options, t, done_before), last=t == n_iter - 1)
+        params = kernel_params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
+                               perturbation_scale(options, t, done_before), last=t == n_iter - 1)
         counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, i, level, pass_index, t, colour))
-            counts += half_step(st, ctx, colour, cpre, pat, region, key, fp, ip)
+            counts += half_step(st, ctx, colour, cpre, pat, region, key, params)
         if on_iter is not None:
             on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
                                    iteration=t, step=step, depth=readonly(st.Z), normal=readonly(st.N),

@@ -229,7 +229,7 @@ def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
 
 @njit(cache=True, parallel=True)
 def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, plane, geo, sdepth, kinv, wgt, wa,
-                     mu_a, var_a, ox, oy, wset, ns, fp, ip):
+                     mu_a, var_a, ox, oy, wset, ns, params):
     """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
 
     k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
@@ -240,11 +240,11 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, p
     same window set, ``known_wset`` (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again."""
     h, w = Z.shape
     n_views = geo.shape[0]
-    top_k = ip[I_TOP_K]
-    geom = ip[I_GEOM] != 0
-    lam = fp[F_GEOM_LAMBDA]
-    gmax = fp[F_GEOM_MAX]
-    min_var = fp[F_MIN_VAR]
+    top_k = params.top_k
+    geom = params.geometric
+    lam = params.geom_lambda
+    gmax = params.geom_max
+    min_var = params.min_var
     have_known = known.shape[0] == h and known.shape[1] == w and known.shape[2] == n_views
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
@@ -304,7 +304,7 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, p
 
 @njit(cache=True, parallel=True)
 def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre, src, stride, plane, geo, sdepth, kinv,
-                     wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip, counts):
+                     wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, params, counts):
     """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7); add what it evaluated to
     ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
 
@@ -316,26 +316,26 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
     (NaN = not evaluated) and RN (H, W) i32 counts cache the candidates of each pixel's previous
     update (RN = 0 at the start of a pass): a candidate proposed again by the same sample of an
     unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values).
-    A hypothesis is replaced only by one whose cost is lower by more than fp[F_MIN_IMPROVEMENT]."""
+    A hypothesis is replaced only by one whose cost is lower by more than params.min_improvement."""
     h, w = Z.shape
     n_views = geo.shape[0]
-    zmin = fp[F_ZMIN]
-    zmax = fp[F_ZMAX]
-    eps = fp[F_EPS]
-    lam = fp[F_GEOM_LAMBDA]
-    gmax = fp[F_GEOM_MAX]
-    min_var = fp[F_MIN_VAR]
-    k_vs = ip[I_K_VS]
-    k_up = ip[I_K_UP]
-    plane_prop = ip[I_PLANE] != 0
-    geom = ip[I_GEOM] != 0
-    detail = ip[I_DETAIL] != 0
-    all8 = ip[I_ALL8] != 0
-    retries = ip[I_RETRIES]
-    top_k = ip[I_TOP_K]
-    n_regions = ip[I_N_REGIONS]
-    mc = ip[I_MC]
-    min_improvement = fp[F_MIN_IMPROVEMENT]
+    zmin = params.zmin
+    zmax = params.zmax
+    eps = params.perturbation
+    lam = params.geom_lambda
+    gmax = params.geom_max
+    min_var = params.min_var
+    k_vs = params.k_viewsel
+    k_up = params.k_update
+    plane_prop = params.plane_propagation
+    geom = params.geometric
+    detail = params.detail_restorer
+    all8 = params.all8
+    retries = params.normal_retries
+    top_k = params.top_k
+    n_regions = params.n_regions
+    mc = params.mc_samples
+    min_improvement = params.min_improvement
     for y in prange(h):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
@@ -405,9 +405,9 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                                                    min_var, sidx)
                     else:
                         R[k, j] = 2.0
-            vsum = view_weights(M, n_vs, n_views, Sel, x, y, fp[F_TAU_G], fp[F_TAU_BAD], fp[F_BETA],
-                                fp[F_BETA_FB], ip[I_N_GOOD], ip[I_N_BAD], fp[F_PRIOR_IN], fp[F_PRIOR_OUT],
-                                ip[I_DETERMINISTIC] != 0, mc, pk, 0, omega, v)
+            vsum = view_weights(M, n_vs, n_views, Sel, x, y, params.tau_good, params.tau_bad, params.beta,
+                                params.beta_fallback, params.n_good, params.n_bad, params.prior_in, params.prior_out,
+                                params.deterministic, mc, pk, 0, omega, v)
             z0 = np.float64(Z[y, x])
             n0x = np.float64(Nrm[y, x, 0])
             n0y = np.float64(Nrm[y, x, 1])
@@ -572,7 +572,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             if not (best < bar):
                 C[y, x] = c_old  # nothing won: same hypothesis, same cost; its caches stay valid
                 continue
-            if detail and not (best < Cpre[y, x] - fp[F_DETAIL_DELTA]):
+            if detail and not (best < Cpre[y, x] - params.detail_delta):
                 C[y, x] = c_old  # detail restorer: keep the upsampled hypothesis
                 continue
             Z[y, x] = zb
