@@ -1,20 +1,18 @@
-"""numba kernels of one reference view at one level: random init, initial cost, red-black half-step.
+"""numba kernels of one reference view at one level: random init, initial cost, red-black half-step
+(Xu & Tao 2019 ACMM's kernels with the modifications of Kuhn et al. 2020 DeepC-MVS).
 
 All kernels run ``prange`` over image rows. Per-row scratch arrays are allocated once per row (never
 per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a half-step uses the stream
 ``combine(key, y * W + x)``, so results do not depend on the thread count.
 
-Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments``):
-    ref context : kinv (9,), wgt/wa (H, W, S) f32, mu_a/var_a (H, W) f32
-    sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
-                  geo (N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``),
-                  sdepth (N, Hm, Wm) f32 (geometric passes)
-    pixel       : win (WORK_ROWS, work_width(S)) f32 and sidx i32 (``ncc.ncc_work``) with the pixel's
-                  window of n samples loaded (``ncc.load_window``); the per-pixel kernels take the window
-                  terms wgt, wa (H, W, S) f32 and the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64,
-                  wset (H, W) u8 (see ``context.ViewContext``)
-    fp          : float64 parameters, indices F_* below
-    ip          : int64 parameters, indices I_* below
+The kernels take named records (``records.py``): the hypothesis maps, the cost caches, the reference
+view's matching windows, the source images and the iteration's parameters. The small functions they call
+take the records' arrays one by one (``geometry.relative_geometry`` and ``ncc.bilateral_moments`` define
+them): src (N·(Hm+1)·(Wm+1),) f32 raveled padded source images, stride = Wm+1, plane = (Hm+1)(Wm+1), geo
+(N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``), sdepth (N, Hm, Wm) f32 source
+depths (geometric passes), kinv (9,) the inverse intrinsics; win (WORK_ROWS, work_width(S)) f32 and sidx
+i32 (``ncc.ncc_work``) hold the pixel's window of n samples (``ncc.load_window``), mu/var its weighted
+mean and variance.
 """
 
 from __future__ import annotations
@@ -40,19 +38,10 @@ from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
 
-# float parameters
-F_ZMIN, F_ZMAX, F_EPS, F_TAU_G, F_TAU_BAD, F_BETA, F_BETA_FB, F_PRIOR_IN, F_PRIOR_OUT = range(9)
-F_GEOM_LAMBDA, F_GEOM_MAX, F_MIN_VAR, F_DETAIL_DELTA, F_MIN_IMPROVEMENT = range(9, 14)
-N_FP = 14
 # columns of the half-step's counts (H, N_COUNTS): NCC windows evaluated for the view-selection rows, the
 # current hypothesis, the remaining candidates and the refinement hypotheses; pixels updated
 CNT_ROWS, CNT_CURRENT, CNT_REMAINING, CNT_REFINE, CNT_PIXELS = range(5)
 N_COUNTS = 5
-# int parameters
-I_K_VS, I_K_UP, I_PLANE, I_GEOM, I_DETAIL, I_DETERMINISTIC, I_MC, I_N_GOOD, I_N_BAD = range(9)
-I_ALL8, I_RETRIES, I_TOP_K, I_N_REGIONS = range(9, 13)
-N_IP = 13
-
 BIG = 1e30
 
 
@@ -228,16 +217,23 @@ def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
 
 
 @njit(cache=True, parallel=True)
-def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, plane, geo, sdepth, kinv, wgt, wa,
-                     mu_a, var_a, ox, oy, wset, ns, params):
-    """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
+def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, params):
+    """Cost and selected views of the stored hypotheses (the top-k rule of Xu & Tao 2019 ACMM's initial cost).
 
-    k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
-    views in geometric passes); Sel = {j : m_j <= k-th smallest}; k = 0 gives C = 2 (+ λ·δ), Sel = 0.
-    With ``store`` the m_j go to the cache P (H, W, N) f64 of the half-steps (NaN where the
-    hypothesis has no plane). ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier
-    pass over the same images (NaN = not evaluated), valid where that pass matched pixel (x, y) with the
-    same window set, ``known_wset`` (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again."""
+    k = min(#{m_j < 2}, top_k); cost = mean of the k smallest m_j (+ λ · mean g_j over the selected
+    views in geometric passes); selected_views = {j : m_j <= k-th smallest}; k = 0 gives cost 2 (+ λ·δ) and
+    no view. Writes ``maps`` (:class:`records.HypothesisMaps`) cost and selected_views. With ``store`` the m_j
+    go to ``view_costs`` (H, W, N) f64, the half-steps' cache (NaN where the hypothesis has no plane).
+    ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier pass over the same images (NaN =
+    not evaluated), valid where that pass matched pixel (x, y) with the same window set, ``known_wset``
+    (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again. ``ref``: :class:`records.ReferenceWindows`,
+    ``sources``: :class:`records.SourceImages`, ``params``: :class:`records.KernelParams`."""
+    # the records' fields as locals: the loops below read exactly what they read as separate arguments
+    Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
+    P = view_costs
+    kinv, wgt, wa, mu_a, var_a = ref.kinv, ref.weights, ref.weighted, ref.mean, ref.variance
+    ox, oy, wset, ns = ref.offset_x, ref.offset_y, ref.window_set, ref.n_samples
+    src, stride, plane, geo, sdepth = sources.pixels, sources.stride, sources.plane, sources.geometry, sources.depth
     h, w = Z.shape
     n_views = geo.shape[0]
     top_k = params.top_k
@@ -303,20 +299,32 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, p
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre, src, stride, plane, geo, sdepth, kinv,
-                     wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, params, counts):
-    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7); add what it evaluated to
+def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, params, counts):
+    """Update every pixel of one colour ((x + y) % 2 == colour) of ``maps`` (:class:`records.HypothesisMaps`)
+    in place: candidates from the sampling pattern, multi-hypothesis view selection, refinement (Xu & Tao
+    2019 ACMM, with the DeepC pattern and perturbation of Kuhn et al. 2020); add what it evaluated to
     ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
 
-    P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
-    ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
-    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it
-    and increments the pixel's version VER (H, W) u32. With ``rows``, RS (H, W, K_up) i16 pattern
-    samples, RV (H, W, K_up) u32 their pixels' versions, RC (H, W, K_up, N) f32 photometric costs
-    (NaN = not evaluated) and RN (H, W) i32 counts cache the candidates of each pixel's previous
-    update (RN = 0 at the start of a pass): a candidate proposed again by the same sample of an
-    unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values).
-    A hypothesis is replaced only by one whose cost is lower by more than params.min_improvement."""
+    ``caches`` (:class:`records.CostCaches`): ``view_costs`` caches m_j of each pixel's stored hypothesis
+    (filled by ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
+    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears them and
+    increments the pixel's version. With ``caches.rows`` the candidates of each pixel's previous update
+    and their cost rows are kept (row_count = 0 at the start of a pass): a candidate proposed again by the
+    same sample of an unchanged neighbour (same version) is bit-identical, so are its costs (which are
+    float32 values). A hypothesis is replaced only by one whose cost is lower by more than
+    ``params.min_improvement``; in the detail restorer's passes also only by one more than
+    ``params.detail_delta`` below ``Cpre`` (H, W) f32, the upsampled hypothesis's cost.
+    ``ref``: :class:`records.ReferenceWindows`, ``sources``: :class:`records.SourceImages`, ``pattern``:
+    :class:`records.SamplingPattern`, ``key``: the half-step's random stream (``rng.stream_key``),
+    ``params``: :class:`records.KernelParams`."""
+    # the records' fields as locals: the loops below read exactly what they read as separate arguments
+    Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
+    P, VER, rows = caches.view_costs, caches.versions, caches.rows
+    RS, RV, RC, RN = caches.row_samples, caches.row_versions, caches.row_costs, caches.row_count
+    kinv, wgt, wa, mu_a, var_a = ref.kinv, ref.weights, ref.weighted, ref.mean, ref.variance
+    ox, oy, wset, ns = ref.offset_x, ref.offset_y, ref.window_set, ref.n_samples
+    src, stride, plane, geo, sdepth = sources.pixels, sources.stride, sources.plane, sources.geometry, sources.depth
+    pat, region = pattern.offsets, pattern.regions
     h, w = Z.shape
     n_views = geo.shape[0]
     zmin = params.zmin

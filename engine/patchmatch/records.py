@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
+
 from engine.patchmatch.options import PatchMatchOptions
 
 
@@ -53,7 +55,7 @@ class KernelParams(NamedTuple):
 
 def good_threshold(options: PatchMatchOptions, iteration: int) -> float:
     """τ_g of iteration ``iteration`` (0-based in its pass): tau0 · exp(-t² / alpha), constant for alpha 0
-    (Xu & Tao 2019 ACMM, eq. 6)."""
+    (Xu & Tao 2019 ACMM)."""
     return options.tau0 * (math.exp(-(iteration**2) / options.alpha) if options.alpha > 0 else 1.0)
 
 
@@ -79,3 +81,59 @@ def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteratio
         normal_retries=int(options.normal_perturb_retries), n_regions=int(n_regions),
         plane_propagation=bool(options.plane_propagation), geometric=bool(geometric), detail_restorer=bool(detail),
         deterministic=options.view_sampling == "deterministic", all8=options.combos == "all8")
+
+
+class HypothesisMaps(NamedTuple):
+    """The reference view's hypothesis per pixel at the current level (Schönberger et al. 2016 COLMAP keep
+    depth and normal; Xu & Tao 2019 ACMM add the selected views). H, W: the level's image size."""
+
+    depth: np.ndarray  # (H, W) f32 camera z, scene units; 0 = none
+    normal: np.ndarray  # (H, W, 3) f32 unit normal, camera frame, facing the camera
+    cost: np.ndarray  # (H, W) f32 aggregated cost of the stored hypothesis
+    selected_views: np.ndarray  # (H, W) u32 bitmask over the source views that support it
+
+
+class CostCaches(NamedTuple):
+    """What the half-steps of one pass remember between updates of a pixel (N sources, K = K_up). Every
+    cached value is a float32 cost of an unchanged hypothesis, so a cached run is bit-identical to one that
+    evaluates every window afresh (see ``kernels.half_step_kernel``)."""
+
+    view_costs: np.ndarray  # (H, W, N) f64 per-view photometric cost of the stored hypothesis, NaN = unknown
+    versions: np.ndarray  # (H, W) u32 count of the stored hypothesis's changes in this pass
+    row_samples: np.ndarray  # (H, W, K) i16 pattern sample of each candidate of the pixel's last update
+    row_versions: np.ndarray  # (H, W, K) u32 the version of that sample's pixel then
+    row_costs: np.ndarray  # (H, W, K, N) f32 the candidates' photometric costs, NaN = not evaluated
+    row_count: np.ndarray  # (H, W) i32 candidates of the last update (0 = none cached)
+    rows: bool  # whether the row cache is used (the row_* arrays are (1, 1, ...) placeholders otherwise)
+
+
+class ReferenceWindows(NamedTuple):
+    """Reference-side terms of the bilaterally weighted NCC (Schönberger et al. 2016 COLMAP) with
+    each pixel's window set (``context.ViewContext``); S = the larger window's sample count."""
+
+    kinv: np.ndarray  # (9,) f64 inverse intrinsics K⁻¹, row-major (pixel index -> ray)
+    weights: np.ndarray  # (H, W, S) f32 bilateral weights w of the pixel's window, zeros past its samples
+    weighted: np.ndarray  # (H, W, S) f32 weighted centred intensities w·a
+    mean: np.ndarray  # (H, W) f32 weighted mean intensity μ_a
+    variance: np.ndarray  # (H, W) f32 weighted intensity variance v_a
+    offset_x: np.ndarray  # (n_sets, S) f32 sample offsets of each window set (pixels)
+    offset_y: np.ndarray  # (n_sets, S) f32
+    window_set: np.ndarray  # (H, W) u8 the window set of each pixel (0 standard, 1 fine)
+    n_samples: np.ndarray  # (n_sets,) i64 samples of each window set
+
+
+class SourceImages(NamedTuple):
+    """The N source images with the ref -> source geometry (``geometry.pack_geometry``)."""
+
+    pixels: np.ndarray  # (N·(Hm+1)·(Wm+1),) f32 the raveled padded images (Hm, Wm the largest source size)
+    stride: int  # Wm + 1: one image row
+    plane: int  # (Hm + 1)(Wm + 1): one image
+    geometry: np.ndarray  # (N, GEO_COLS) f64 packed ref -> source matrices and source sizes
+    depth: np.ndarray  # (N, Hm, Wm) f32 the sources' depth maps of the previous pass (geometric passes)
+
+
+class SamplingPattern(NamedTuple):
+    """Where a pixel looks for candidates (``propagation.sampling_pattern``)."""
+
+    offsets: np.ndarray  # (P, 2) i32 sample offsets (dx, dy), all of odd |dx| + |dy| (the other colour)
+    regions: np.ndarray  # (P,) i32 region of each sample: each region gives at most one candidate
