@@ -1,4 +1,5 @@
-"""Multi-scale PatchMatch driver (SPEC.md §2.11): levels, passes over all views, iterations, events.
+"""Multi-scale PatchMatch driver (the schedule of Xu & Tao 2019 ACMM, as Kuhn et al. 2020 DeepC-MVS use it):
+levels, passes over all views, iterations, events.
 
 Schedule per level ℓ = L-1 .. 0 (L-1 coarsest): photometric pass (random init at the coarsest level,
 JBU-upsampled maps plus detail restorer elsewhere), then ``geom_passes`` geometric passes reading
@@ -135,7 +136,7 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
 
     Args:
         views: the views; ``source_views`` index into this list.
-        options: settings (defaults: SPEC.md §12).
+        options: settings (defaults: :class:`PatchMatchOptions`).
         observer: optional; ``on_iteration(IterationEvent)`` after every red-black iteration of every
             view, pass and level, ``on_stage(name, **info)`` at pass boundaries. Either may be absent.
         progress: optional ``progress(description, done, total)``, called with done 0 when a pass starts

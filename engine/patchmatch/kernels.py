@@ -64,7 +64,8 @@ def photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, 
 
 @njit(cache=True, _nrt=False)
 def geometric_cost(geo, sdepth, j, x, y, z, gmax):
-    """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (§2.9)."""
+    """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (Xu & Tao 2019 ACMM's
+    geometric consistency term)."""
     e = reprojection_error(geo, j, sdepth, x, y, z)
     if e < 0.0 or e > gmax:
         return gmax
@@ -197,23 +198,106 @@ def current_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, r
     return acc / vsum
 
 
-@njit(cache=True, parallel=True)
-def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
-    """Random hypotheses (§2.4): z ~ U[zmin, zmax], Marsaglia normal facing the camera.
+@njit(cache=True, _nrt=False, inline="always")
+def cached_rows(R, cand_s, cand_v, n_cand, n_old, x, y, pat, VER, RS, RV, RC):
+    """Fill the cost rows R (K, N) of pixel (x, y)'s ``n_cand`` candidates (pattern samples ``cand_s``) from
+    its row cache (``records.CostCaches``: RS, RV, RC its previous update's ``n_old`` samples, their pixels'
+    versions and cost rows): a candidate proposed again by the same sample of a pixel whose version VER is
+    unchanged is the same hypothesis, so its costs are (NaN = unknown). Records the versions in ``cand_v``."""
+    for k in range(n_cand):
+        sk = cand_s[k]
+        ver = VER[y + pat[sk, 1], x + pat[sk, 0]]
+        cand_v[k] = ver
+        # the sample's slot (samples are unique in a list, and lists keep their order mostly)
+        r = -1
+        if k < n_old and RS[y, x, k] == sk:
+            r = k
+        else:
+            for i in range(n_old):
+                if RS[y, x, i] == sk:
+                    r = i
+                    break
+        if r >= 0 and RV[y, x, r] != ver:
+            r = -1
+        for j in range(R.shape[1]):
+            R[k, j] = RC[y, x, r, j] if r >= 0 else np.nan
 
-    With ``only_invalid`` only pixels with Z <= 0 are drawn (holes after upsampling)."""
-    h, w = Z.shape
+
+@njit(cache=True, _nrt=False, inline="always")
+def refinement_hypotheses(pk, rp, zb, nbx, nby, nbz, zmin, zmax, eps, retries, all8, hz, hn):
+    """The local refinement's hypotheses around the best one (zb, nb) into ``hz`` (8,) and ``hn`` (8, 3); returns
+    their count. Combinations of the current, a perturbed (relative depth ±eps, normal angles ±eps·π/2 with
+    ``retries`` halvings, Schönberger et al. 2016 COLMAP) and a random depth / normal, drawn from the pixel's
+    stream ``pk``: ACMM's five (Xu & Tao 2019, perturbation ε of Kuhn et al. 2020) or, with ``all8``, all eight."""
+    z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
+    z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
+    rnx, rny, rnz, draw = random_normal(pk, 102, rp)
+    pnx, pny, pnz, draw = perturb_normal(pk, 200, rp, nbx, nby, nbz, eps, retries)
+    n_h = 0
+    if all8:
+        for dz in range(3):
+            zz = zb if dz == 0 else (z_prt if dz == 1 else z_rnd)
+            for dn in range(3):
+                if dz == 0 and dn == 0:
+                    continue
+                hz[n_h] = zz
+                if dn == 0:
+                    hn[n_h, 0] = nbx
+                    hn[n_h, 1] = nby
+                    hn[n_h, 2] = nbz
+                elif dn == 1:
+                    hn[n_h, 0] = pnx
+                    hn[n_h, 1] = pny
+                    hn[n_h, 2] = pnz
+                else:
+                    hn[n_h, 0] = rnx
+                    hn[n_h, 1] = rny
+                    hn[n_h, 2] = rnz
+                n_h += 1
+    else:
+        # ACMM order: (z_rnd, n), (z, n_rnd), (z_rnd, n_rnd), (z, n_prt), (z_prt, n)
+        hz[0] = z_rnd
+        hn[0, 0] = nbx
+        hn[0, 1] = nby
+        hn[0, 2] = nbz
+        hz[1] = zb
+        hn[1, 0] = rnx
+        hn[1, 1] = rny
+        hn[1, 2] = rnz
+        hz[2] = z_rnd
+        hn[2, 0] = rnx
+        hn[2, 1] = rny
+        hn[2, 2] = rnz
+        hz[3] = zb
+        hn[3, 0] = pnx
+        hn[3, 1] = pny
+        hn[3, 2] = pnz
+        hz[4] = z_prt
+        hn[4, 0] = nbx
+        hn[4, 1] = nby
+        hn[4, 2] = nbz
+        n_h = 5
+    return n_h
+
+
+@njit(cache=True, parallel=True)
+def random_init_kernel(depth, normal, kinv, zmin, zmax, key, only_invalid):
+    """Random hypotheses (the random initialisation of ACMM and COLMAP): depth (H, W) f32 ~ U[zmin, zmax],
+    normal (H, W, 3) f32 a Marsaglia sample facing the camera (kinv (9,) f64 K⁻¹); in place.
+
+    With ``only_invalid`` only pixels with depth <= 0 are drawn (holes after upsampling)."""
+    h, w = depth.shape
     for y in prange(h):
         for x in range(w):
-            if only_invalid and Z[y, x] > 0.0:
+            if only_invalid and depth[y, x] > 0.0:
                 continue
             pk = combine(key, y * w + x)
             rp = ray(kinv, x, y)
-            Z[y, x] = zmin + (zmax - zmin) * uniform(pk, 0)
+            depth[y, x] = zmin + (zmax - zmin) * uniform(pk, 0)
             nx, ny, nz, _ = random_normal(pk, 1, rp)
-            Nrm[y, x, 0] = nx
-            Nrm[y, x, 1] = ny
-            Nrm[y, x, 2] = nz
+            normal[y, x, 0] = nx
+            normal[y, x, 1] = ny
+            normal[y, x, 2] = nz
 
 
 @njit(cache=True, parallel=True)
@@ -378,23 +462,7 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
             n_old = RN[y, x] if rows else 0
             # cost rows of the candidates: what the previous update of this pixel evaluated, if the same
             # sample's pixel has not changed since (R[k, j] NaN = unknown)
-            for k in range(n_cand):
-                sk = cand_s[k]
-                ver = VER[y + pat[sk, 1], x + pat[sk, 0]]
-                cand_v[k] = ver
-                # the sample's slot (samples are unique in a list, and lists keep their order mostly)
-                r = -1
-                if k < n_old and RS[y, x, k] == sk:
-                    r = k
-                else:
-                    for i in range(n_old):
-                        if RS[y, x, i] == sk:
-                            r = i
-                            break
-                if r >= 0 and RV[y, x, r] != ver:
-                    r = -1
-                for j in range(n_views):
-                    R[k, j] = RC[y, x, r, j] if r >= 0 else np.nan
+            cached_rows(R, cand_s, cand_v, n_cand, n_old, x, y, pat, VER, RS, RV, RC)
             # photometric cost matrix of the best candidates over all views (drives view selection)
             for k in range(n_vs):
                 missing = False
@@ -513,54 +581,7 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
                         RC[y, x, k, j] = R[k, j]  # float32 values (or NaN): exact
                 RN[y, x] = n_cand
             # local refinement: combinations of current, perturbed and random depth / normal
-            z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
-            z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
-            rnx, rny, rnz, draw = random_normal(pk, 102, rp)
-            pnx, pny, pnz, draw = perturb_normal(pk, 200, rp, nbx, nby, nbz, eps, retries)
-            n_h = 0
-            if all8:
-                for dz in range(3):
-                    zz = zb if dz == 0 else (z_prt if dz == 1 else z_rnd)
-                    for dn in range(3):
-                        if dz == 0 and dn == 0:
-                            continue
-                        hz[n_h] = zz
-                        if dn == 0:
-                            hn[n_h, 0] = nbx
-                            hn[n_h, 1] = nby
-                            hn[n_h, 2] = nbz
-                        elif dn == 1:
-                            hn[n_h, 0] = pnx
-                            hn[n_h, 1] = pny
-                            hn[n_h, 2] = pnz
-                        else:
-                            hn[n_h, 0] = rnx
-                            hn[n_h, 1] = rny
-                            hn[n_h, 2] = rnz
-                        n_h += 1
-            else:
-                # ACMM order: (z_rnd, n), (z, n_rnd), (z_rnd, n_rnd), (z, n_prt), (z_prt, n)
-                hz[0] = z_rnd
-                hn[0, 0] = nbx
-                hn[0, 1] = nby
-                hn[0, 2] = nbz
-                hz[1] = zb
-                hn[1, 0] = rnx
-                hn[1, 1] = rny
-                hn[1, 2] = rnz
-                hz[2] = z_rnd
-                hn[2, 0] = rnx
-                hn[2, 1] = rny
-                hn[2, 2] = rnz
-                hz[3] = zb
-                hn[3, 0] = pnx
-                hn[3, 1] = pny
-                hn[3, 2] = pnz
-                hz[4] = z_prt
-                hn[4, 0] = nbx
-                hn[4, 1] = nby
-                hn[4, 2] = nbz
-                n_h = 5
+            n_h = refinement_hypotheses(pk, rp, zb, nbx, nby, nbz, zmin, zmax, eps, retries, all8, hz, hn)
             for i in range(n_h):
                 zi = hz[i]
                 if not (zi >= zmin and zi <= zmax):
