@@ -14,9 +14,14 @@ from engine.camera import Camera
 from engine.errors import DeepCError, OptionsError
 from engine.metrics import depth_metrics
 from engine.observer import IterationEvent, NullObserver, ObserverList
-from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, effective_levels, run_patchmatch
-from engine.patchmatch import kernels as K
-from engine.patchmatch.engine import _params
+from engine.patchmatch import (
+    PatchMatchOptions,
+    PatchMatchView,
+    ViewMaps,
+    effective_levels,
+    kernel_params,
+    run_patchmatch,
+)
 from support.pm_synthetic import make_scene
 
 FAST = dict(iterations=1, levels=2, geom_passes=1)
@@ -68,9 +73,9 @@ def test_options_defaults_and_validation() -> None:
     # the good-cost threshold stays at tau0 over a pass by default (a documented deviation from SPEC's
     # decay, alpha = 90, which --set patchmatch.alpha=90 restores)
     assert o.alpha == 0.0
-    assert [_params(o, 1.0, 2.0, t, False, False, 24)[0][K.F_TAU_G] for t in (0, 7)] == [0.8, 0.8]
+    assert [kernel_params(o, 1.0, 2.0, t).tau_good for t in (0, 7)] == [0.8, 0.8]
     spec = PatchMatchOptions(alpha=90.0)
-    assert _params(spec, 1.0, 2.0, 7, False, False, 24)[0][K.F_TAU_G] == pytest.approx(0.8 * math.exp(-49 / 90))
+    assert kernel_params(spec, 1.0, 2.0, 7).tau_good == pytest.approx(0.8 * math.exp(-49 / 90))
     for bad in (dict(pattern="x"), dict(window=10), dict(k_update=4), dict(iterations=0), dict(levels=0),
                 dict(schedule="fast"), dict(num_threads=-1), dict(sigma_color=0.0), dict(fine_window=4),
                 dict(fine_window=1), dict(fine_window_step=3), dict(fine_sigma_color=0.0), dict(fine_min_var=-1.0),

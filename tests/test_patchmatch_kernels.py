@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 
 from engine.camera import Camera
-from engine.patchmatch import PatchMatchOptions
+from engine.patchmatch import PatchMatchOptions, ViewState, kernel_params, run_view_level
 from engine.patchmatch import kernels as K
 from engine.patchmatch import reference as ref
 from engine.patchmatch.context import FINE_CREASE, FINE_EDGE, build_context, depth_edge_band, fine_window_region
-from engine.patchmatch.engine import _params, _State, half_step, init_cost
 from engine.patchmatch.geometry import (
     pack_geometry,
     perturb_normal,
@@ -25,6 +24,7 @@ from engine.patchmatch.ncc import bilateral_moments, load_window, ncc_cost, ncc_
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import area_resize, jbu_upsample
 from engine.patchmatch.rng import combine, stream_key, uniform
+from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
 from engine.patchmatch.view_selection import view_weights
 
 WIN, SIDX = ncc_work(128)  # working arrays of the cost functions (windows of up to 128 samples)
@@ -452,10 +452,9 @@ def _tiny_problem(seed: int, geometric: bool, options: PatchMatchOptions):
     depths = [rng.uniform(2.5, 4.5, size=(14, 16)).astype(np.float32) for _ in range(2)] if geometric else None
     ctx = build_context(imgs[0], a, imgs[1:], [b, c], options, depths)
     prob = ref.RefProblem(imgs[0], a, imgs[1:], [b, c], depths, options)
-    st = _State(np.zeros((14, 16), np.float32), np.zeros((14, 16, 3), np.float32), np.zeros((14, 16), np.float32),
-                np.zeros((14, 16), np.uint32))
+    st = ViewState.zeros(14, 16)
     kinv = np.linalg.inv(a.K_idx).ravel()
-    K.random_init_kernel(st.Z, st.N, kinv, 2.0, 5.0, np.uint64(stream_key(seed, 0, 0, 0, 99, 0)), False)
+    K.random_init_kernel(st.depth, st.normal, kinv, 2.0, 5.0, np.uint64(stream_key(seed, 0, 0, 0, 99, 0)), False)
     return ctx, prob, st
 
 
@@ -463,11 +462,11 @@ def _tiny_problem(seed: int, geometric: bool, options: PatchMatchOptions):
 def test_init_cost_matches_reference(geometric: bool) -> None:
     opts = PatchMatchOptions(init_top_k=2, fine_window=5 if geometric else 0)
     ctx, prob, st = _tiny_problem(8, geometric, opts)
-    fp, ip = _params(opts, 2.0, 5.0, 0, geometric, False, 24)
-    init_cost(st, ctx, fp, ip)
-    C_ref, S_ref = ref.init_cost_ref(prob, st.Z, st.N, geometric)
-    np.testing.assert_allclose(st.C, C_ref, atol=5e-4)  # float32 NCC on the weak-texture third
-    assert (st.S == S_ref).mean() > 0.97  # masks may differ only on near-ties
+    params = kernel_params(opts, 2.0, 5.0, 0, geometric, False, 24)
+    init_cost(st, ctx, params)
+    C_ref, S_ref = ref.init_cost_ref(prob, st.depth, st.normal, geometric)
+    np.testing.assert_allclose(st.cost, C_ref, atol=5e-4)  # float32 NCC on the weak-texture third
+    assert (st.selected_views == S_ref).mean() > 0.97  # masks may differ only on near-ties
 
 
 def test_init_cost_reuses_the_previous_pass_costs_only_where_the_window_matches() -> None:
@@ -476,28 +475,28 @@ def test_init_cost_reuses_the_previous_pass_costs_only_where_the_window_matches(
     a pixel whose window set changed, or a state without carried-over costs, is evaluated afresh."""
     opts = PatchMatchOptions(init_top_k=2, fine_window=5, fine_edge_radius=0)
     ctx, _, st = _tiny_problem(8, False, opts)
-    fp, ip = _params(opts, 2.0, 5.0, 0, False, False, 24)
-    init_cost(st, ctx, fp, ip)
-    fresh_C, fresh_P = st.C.copy(), st.P.copy()
+    params = kernel_params(opts, 2.0, 5.0, 0, False, False, 24)
+    init_cost(st, ctx, params)
+    fresh_C, fresh_P = st.cost.copy(), st.view_costs.copy()
     assert np.isfinite(fresh_P).mean() > 0.9
     # carried over from a pass that evaluated half of the views: same costs
     partial = fresh_P.astype(np.float32)
     partial[..., 0] = np.nan
     st.drop_caches(keep_costs_of=ctx)
-    st.known = partial.copy()
-    init_cost(st, ctx, fp, ip)
-    np.testing.assert_array_equal(st.C, fresh_C)
-    np.testing.assert_array_equal(st.P, fresh_P)
-    assert st.known is None  # used once: the half-steps change the hypotheses
+    st.known_costs = partial.copy()
+    init_cost(st, ctx, params)
+    np.testing.assert_array_equal(st.cost, fresh_C)
+    np.testing.assert_array_equal(st.view_costs, fresh_P)
+    assert st.known_costs is None  # used once: the half-steps change the hypotheses
     # poisoned carried-over costs show where they are used
     poison = np.where(np.isfinite(fresh_P), np.float32(0.0), np.nan).astype(np.float32)
-    changed_window = np.zeros(st.Z.shape, bool)
+    changed_window = np.zeros(st.depth.shape, bool)
     changed_window[::3] = True
-    st.known, st.known_wset = poison, np.where(changed_window, 1 - ctx.wset, ctx.wset).astype(np.uint8)
-    init_cost(st, ctx, fp, ip)
+    st.known_costs, st.known_window_set = poison, np.where(changed_window, 1 - ctx.wset, ctx.wset).astype(np.uint8)
+    init_cost(st, ctx, params)
     valid = np.isfinite(fresh_P).all(axis=-1)
-    assert np.all(st.C[valid & ~changed_window] == 0.0)
-    np.testing.assert_array_equal(st.C[changed_window], fresh_C[changed_window])
+    assert np.all(st.cost[valid & ~changed_window] == 0.0)
+    np.testing.assert_array_equal(st.cost[changed_window], fresh_C[changed_window])
 
 
 @pytest.mark.parametrize("geometric,pattern,view_sampling,combos,detail,eps,alpha,min_improvement", [
@@ -513,23 +512,64 @@ def test_half_step_matches_reference(geometric: bool, pattern: str, view_samplin
                              fine_window=0 if pattern == "deepc_far" else 5, alpha=alpha,
                              min_improvement=min_improvement)
     ctx, prob, st = _tiny_problem(9, geometric, opts)
-    pat, region = sampling_pattern(pattern)
-    fp, ip = _params(opts, 2.0, 5.0, 1, geometric, detail, int(region.max()) + 1, eps)
-    init_cost(st, ctx, fp, ip)
-    Z, N, C, S = st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy()
-    Z0 = st.Z.copy()
+    pat = pattern_of(opts)
+    params = kernel_params(opts, 2.0, 5.0, 1, geometric, detail, n_regions(pat), eps)
+    init_cost(st, ctx, params)
+    Z, N, C, S = st.depth.copy(), st.normal.copy(), st.cost.copy(), st.selected_views.copy()
+    Z0 = st.depth.copy()
     # detail restorer: a reference cost that lets about half of the pixels through
-    cpre = st.C + np.float32(0.1) + (np.arange(st.C.size).reshape(st.C.shape) % 2) * np.float32(0.5) if detail \
-        else st.C.copy()
+    alternate = (np.arange(st.cost.size).reshape(st.cost.shape) % 2) * np.float32(0.5)
+    cpre = st.cost + np.float32(0.1) + alternate if detail else st.cost.copy()
     key = np.uint64(stream_key(3, 0, 0, 0, 1, 0))
-    half_step(st, ctx, 0, cpre.astype(np.float32), pat, region, key, fp, ip)
+    half_step(st, ctx, 0, cpre.astype(np.float32), pat, key, params)
     ref.half_step_ref(prob, Z, N, C, S, cpre.astype(np.float32), 0, int(key), 1, 2.0, 5.0, geometric, detail,
-                      (pat, region), eps)
-    same = np.isclose(st.Z, Z, rtol=1e-5) & np.all(np.isclose(st.N, N, atol=1e-5), axis=-1)
+                      tuple(pat), eps)
+    same = np.isclose(st.depth, Z, rtol=1e-5) & np.all(np.isclose(st.normal, N, atol=1e-5), axis=-1)
     assert same.mean() > 0.97, f"{(~same).sum()} of {same.size} pixels differ"
-    both = same & np.isclose(st.C, C, atol=1e-3)
+    both = same & np.isclose(st.cost, C, atol=1e-3)
     assert both.mean() > 0.95
-    assert (st.Z != Z0).any()  # the step did change something
+    assert (st.depth != Z0).any()  # the step did change something
+
+
+@pytest.mark.parametrize("all8", [False, True])
+def test_refinement_hypotheses_match_reference(all8: bool) -> None:
+    rng = np.random.default_rng(6)
+    kinv = np.linalg.inv(_cameras()[0].K_idx).ravel()
+    hz, hn = np.empty(8), np.empty((8, 3))
+    for _ in range(40):
+        key = np.uint64(rng.integers(1 << 62))
+        x, y = int(rng.integers(0, 24)), int(rng.integers(0, 20))
+        rp = ray(kinv, x, y)
+        z = float(rng.uniform(2.0, 5.0))
+        nb = np.asarray(random_normal(np.uint64(rng.integers(1 << 62)), 0, rp)[:3])
+        eps = float(2.0 ** -rng.integers(0, 8))
+        n_h = K.refinement_hypotheses(key, rp, z, nb[0], nb[1], nb[2], 2.0, 5.0, eps, 3, all8, hz, hn)
+        want = ref.refinement_hypotheses_ref(int(key), np.asarray(rp), z, nb, 2.0, 5.0, eps, 3, all8)
+        assert n_h == len(want) == (8 if all8 else 5)
+        for i, (zz, nn) in enumerate(want):
+            assert hz[i] == pytest.approx(zz, rel=1e-12)
+            np.testing.assert_allclose(hn[i], nn, atol=1e-9)
+
+
+def test_cached_rows_reuse_a_row_only_for_the_same_sample_of_an_unchanged_pixel() -> None:
+    pat = pattern_of(PatchMatchOptions()).offsets
+    h, w, k_up, n_views = 30, 30, 4, 3
+    x, y = 15, 15
+    VER = np.zeros((h, w), np.uint32)
+    RS = np.zeros((h, w, k_up), np.int16)
+    RV = np.zeros((h, w, k_up), np.uint32)
+    RC = np.arange(h * w * k_up * n_views, dtype=np.float32).reshape(h, w, k_up, n_views)
+    RS[y, x, :3] = [5, 9, 2]  # the previous update's samples; sample 9's pixel changed since
+    dx, dy = pat[9]
+    VER[y + dy, x + dx] = 1
+    cand_s = np.array([2, 5, 9, 7], np.int64)  # 2 and 5 in other slots, 9 stale, 7 new
+    cand_v = np.empty(k_up, np.uint32)
+    R = np.empty((k_up, n_views))
+    K.cached_rows(R, cand_s, cand_v, 4, 3, x, y, pat, VER, RS, RV, RC)
+    np.testing.assert_array_equal(R[0], RC[y, x, 2])
+    np.testing.assert_array_equal(R[1], RC[y, x, 0])
+    assert np.isnan(R[2:]).all()
+    assert cand_v.tolist() == [0, 0, 1, 0]
 
 
 def test_view_order_is_heaviest_first_over_positive_weights() -> None:
@@ -617,26 +657,26 @@ def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> N
     every update from empty caches (i.e. evaluate every cost afresh), with far fewer NCC windows."""
     opts = PatchMatchOptions(combos=combos)
     ctx, _, st = _tiny_problem(12, geometric, opts)
-    pat, region = sampling_pattern(opts.pattern)
-    fp, ip = _params(opts, 2.0, 5.0, 0, geometric, False, int(region.max()) + 1)
-    init_cost(st, ctx, fp, ip)
-    fresh = _State(st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy())
+    pattern = pattern_of(opts)
+    params = kernel_params(opts, 2.0, 5.0, 0, geometric, False, n_regions(pattern))
+    init_cost(st, ctx, params)
+    fresh = st.copy_maps()
     hits = 0
     n_cached = np.zeros(K.N_COUNTS, np.int64)
     n_fresh = np.zeros(K.N_COUNTS, np.int64)
     for t in range(4):
-        fp, ip = _params(opts, 2.0, 5.0, t, geometric, False, int(region.max()) + 1)
+        params = kernel_params(opts, 2.0, 5.0, t, geometric, False, n_regions(pattern))
         for colour in (0, 1):
             key = np.uint64(stream_key(4, 0, 0, 0, t, colour))
             if t > 0:
-                hits += int(np.sum(st.RN > 0))
-            n_cached += half_step(st, ctx, colour, st.C.copy(), pat, region, key, fp, ip)
+                hits += int(np.sum(st.row_count > 0))
+            n_cached += half_step(st, ctx, colour, st.cost.copy(), pattern, key, params)
             fresh.drop_caches()
-            n_fresh += half_step(fresh, ctx, colour, fresh.C.copy(), pat, region, key, fp, ip)
-            for a, b in ((st.Z, fresh.Z), (st.N, fresh.N), (st.C, fresh.C), (st.S, fresh.S)):
+            n_fresh += half_step(fresh, ctx, colour, fresh.cost.copy(), pattern, key, params)
+            for a, b in zip(st.maps(), fresh.maps(), strict=True):
                 assert a.tobytes() == b.tobytes()
     assert hits > 0
-    assert n_cached[K.CNT_PIXELS] == n_fresh[K.CNT_PIXELS] == 4 * st.Z.size
+    assert n_cached[K.CNT_PIXELS] == n_fresh[K.CNT_PIXELS] == 4 * st.depth.size
     # every pixel update: the view-selection rows cost at most K_vs windows per source view afresh, and
     # the refinement (never cached) the same with and without caches
     assert 0 < n_fresh[K.CNT_ROWS] <= opts.k_viewsel * ctx.num_sources * n_fresh[K.CNT_PIXELS]
@@ -645,20 +685,20 @@ def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> N
     assert n_cached[K.CNT_REMAINING] < n_fresh[K.CNT_REMAINING]
     assert n_cached[K.CNT_CURRENT] < n_fresh[K.CNT_CURRENT]
     # slots the next update would hit: the sample's pixel still has the version the row was made with
-    h, w = st.Z.shape
+    h, w = st.depth.shape
     live = 0
     for y in range(h):
         for x in range(w):
-            for k in range(st.RN[y, x]):
-                dx, dy = pat[st.RS[y, x, k]]
-                live += st.RV[y, x, k] == st.VER[y + dy, x + dx]
-    assert live > 0.2 * st.RN.sum(), (live, st.RN.sum())
+            for k in range(st.row_count[y, x]):
+                dx, dy = pattern.offsets[st.row_samples[y, x, k]]
+                live += st.row_versions[y, x, k] == st.versions[y + dy, x + dx]
+    assert live > 0.2 * st.row_count.sum(), (live, st.row_count.sum())
     # the cached per-view costs of the stored hypotheses are their true costs
-    known = ~np.isnan(st.P)
+    known = ~np.isnan(st.view_costs)
     assert known.mean() > 0.1
-    check = _State(st.Z.copy(), st.N.copy(), st.C.copy(), st.S.copy())
-    init_cost(check, ctx, fp, ip)
-    assert np.array_equal(st.P[known], check.P[known])
+    check = st.copy_maps()
+    init_cost(check, ctx, params)
+    assert np.array_equal(st.view_costs[known], check.view_costs[known])
 
 
 def test_min_improvement_keeps_hypotheses_that_are_not_clearly_beaten() -> None:
@@ -668,18 +708,40 @@ def test_min_improvement_keeps_hypotheses_that_are_not_clearly_beaten() -> None:
     for margin in (0.0, 0.003, 0.05, 10.0):
         opts = PatchMatchOptions(min_improvement=margin)
         ctx, _, st = _tiny_problem(12, False, opts)
-        pat, region = sampling_pattern(opts.pattern)
-        fp, ip = _params(opts, 2.0, 5.0, 2, False, False, int(region.max()) + 1)
-        init_cost(st, ctx, fp, ip)
-        for t in range(3):  # past the random start, where almost any candidate wins by far
-            for colour in (0, 1):
-                half_step(st, ctx, colour, st.C.copy(), pat, region, np.uint64(stream_key(4, 0, 0, 0, t, colour)),
-                          fp, ip)
-        Z, N = st.Z.copy(), st.N.copy()
+        run_view_level(st, ctx, opts, 2.0, 5.0, iterations=3)  # past the random start, where almost any
+        # candidate wins by far; then one more iteration that is not a pass's last (where any lower cost wins)
+        params = kernel_params(opts, 2.0, 5.0, 3, False, False, n_regions(pattern_of(opts)))
+        init_cost(st, ctx, params)
+        Z, N = st.depth.copy(), st.normal.copy()
         for colour in (0, 1):
-            half_step(st, ctx, colour, st.C.copy(), pat, region, np.uint64(stream_key(4, 0, 0, 0, 3, colour)), fp, ip)
-        moved = (st.Z != Z) | np.any(st.N != N, axis=-1)
+            half_step(st, ctx, colour, st.cost.copy(), pattern_of(opts), np.uint64(stream_key(4, 0, 0, 0, 3, colour)),
+                      params)
+        moved = (st.depth != Z) | np.any(st.normal != N, axis=-1)
         changed.append(moved.mean())
         if margin == 10.0:
             assert not moved.any()  # (C is still recomputed: the view weights change from update to update)
     assert changed[0] > changed[1] > changed[2] > changed[3] == 0.0, changed
+
+
+def test_run_view_level_runs_a_pass_and_reports_every_iteration() -> None:
+    """The public one-view entry point: initial cost, then the iterations (each reported with the windows it
+    evaluated and every pixel updated once), and the caches dropped at the end, the final hypotheses' costs
+    kept for the level's next pass only."""
+    opts = PatchMatchOptions(geom_passes=1)
+    ctx, _, st = _tiny_problem(12, False, opts)
+    start = st.copy_maps()
+    seen = []
+    total = run_view_level(st, ctx, opts, 2.0, 5.0, iterations=3,
+                           on_iteration=lambda t, counts, seconds: seen.append((t, counts.copy(), seconds)))
+    assert [t for t, _, _ in seen] == [0, 1, 2]
+    assert all(c[K.CNT_PIXELS] == st.depth.size and c[: K.CNT_PIXELS].sum() > 0 and s >= 0 for _, c, s in seen)
+    np.testing.assert_array_equal(total, sum(c for _, c, _ in seen))
+    assert (st.depth != start.depth).mean() > 0.5
+    assert st.view_costs is None and st.row_count is None
+    assert st.known_costs is not None and st.known_costs.shape == st.depth.shape + (ctx.num_sources,)
+    again = start.copy_maps()
+    run_view_level(again, ctx, opts, 2.0, 5.0, iterations=3)
+    for a, b in zip(st.maps(), again.maps(), strict=True):
+        assert a.tobytes() == b.tobytes()  # same streams, same maps
+    run_view_level(again, ctx, opts, 2.0, 5.0, pass_index=1, iterations=1)  # the level's last pass
+    assert again.known_costs is None

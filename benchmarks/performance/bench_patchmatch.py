@@ -32,9 +32,9 @@ import warnings
 import numba
 import numpy as np
 
-from engine.patchmatch import PatchMatchOptions, run_patchmatch
+from engine.patchmatch import PatchMatchOptions, ViewState, kernel_params, run_patchmatch
 from engine.patchmatch.context import build_context
-from engine.patchmatch.engine import _params, _State, init_cost
+from engine.patchmatch.view_pass import init_cost
 from support import bench
 from support.pm_synthetic import make_scene
 
@@ -52,18 +52,18 @@ def ncc_throughput(width: int, height: int, n_src: int, threads: int) -> dict:
     opts = PatchMatchOptions()
     ctx = build_context(v.image_gray, v.camera, [views[j].image_gray for j in v.source_views],
                         [views[j].camera for j in v.source_views], opts)
-    st = _State(np.full((height, width), 4.0, np.float32), np.zeros((height, width, 3), np.float32),
-                np.zeros((height, width), np.float32), np.zeros((height, width), np.uint32))
-    st.N[..., 2] = -1.0
-    fp, ip = _params(opts, 1.0, 10.0, 0, False, False, 24)
+    st = ViewState.zeros(height, width)
+    st.depth[:] = 4.0
+    st.normal[..., 2] = -1.0
+    params = kernel_params(opts, 1.0, 10.0)
     old = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        init_cost(st, ctx, fp, ip)  # warm-up / compile
+        init_cost(st, ctx, params)  # warm-up / compile
         best = np.inf
         for _ in range(3):
             t = time.perf_counter()
-            init_cost(st, ctx, fp, ip)
+            init_cost(st, ctx, params)
             best = min(best, time.perf_counter() - t)
     finally:
         numba.set_num_threads(old)

@@ -41,9 +41,39 @@ from engine.pipeline import patchmatch_views
 from engine.patchmatch import PatchMatchOptions
 from engine.patchmatch import kernels as K
 from engine.patchmatch.context import build_context
-from engine.patchmatch.engine import _params, _State, init_cost, half_step
-from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.rng import stream_key
+try:
+    from engine.patchmatch import ViewState, kernel_params
+    from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
+    def new_state(h, w):
+        return ViewState.zeros(h, w)
+    def maps(st):
+        return st.maps()
+    def init(st, ctx, t):
+        init_cost(st, ctx, params(t))
+    def step(st, ctx, colour, key, t):
+        half_step(st, ctx, colour, st.cost, pattern, key, params(t))
+except ImportError:  # a baseline tree from before the kernels took named records
+    from engine.patchmatch.engine import _params, _State, init_cost, half_step
+    from engine.patchmatch.propagation import sampling_pattern
+    class ViewState(_State):
+        depth = property(lambda self: self.Z)
+        normal = property(lambda self: self.N)
+    def new_state(h, w):
+        return ViewState(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32),
+                         np.zeros((h, w), np.float32), np.zeros((h, w), np.uint32))
+    def maps(st):
+        return st.Z, st.N, st.C, st.S
+    def kernel_params(opts, zmin, zmax, t, geom, detail, n_regions, eps):
+        return _params(opts, zmin, zmax, t, geom, detail, n_regions, eps)
+    def pattern_of(opts):
+        return sampling_pattern(opts.pattern)
+    def n_regions(pattern):
+        return int(pattern[1].max()) + 1
+    def init(st, ctx, t):
+        init_cost(st, ctx, *params(t))
+    def step(st, ctx, colour, key, t):
+        half_step(st, ctx, colour, st.C, *pattern, key, *params(t))
 scene, size, threads, reps, T, pre, geom = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), \
     int(sys.argv[5]), int(sys.argv[6]), sys.argv[7] == "1"
 sc = load_scene(scene, SceneOptions(max_image_size=size, num_source_views=5))
@@ -57,35 +87,33 @@ def source_depth(j):
 depths = [source_depth(j) for j in src] if geom else None
 ctx = build_context(v.image_gray, v.camera, [views[j].image_gray for j in src], [views[j].camera for j in src], opts,
                     depths)
-pat, region = sampling_pattern(opts.pattern)
-n_regions = int(region.max()) + 1
+pattern = pattern_of(opts)
 h, w = v.image_gray.shape
 numba.set_num_threads(threads)
 kinv = np.linalg.inv(v.camera.K_idx).ravel()
 
 def params(t):
-    return _params(opts, v.depth_min, v.depth_max, t, geom, False, n_regions, 2.0 ** -t)
+    return kernel_params(opts, v.depth_min, v.depth_max, t, geom, False, n_regions(pattern), 2.0 ** -t)
 
 def iterate(st, T, pass_id):
     for t in range(T):
-        fp, ip = params(t)
         for colour in (0, 1):
-            half_step(st, ctx, colour, st.C, pat, region, np.uint64(stream_key(0, 0, 0, pass_id, t, colour)), fp, ip)
+            step(st, ctx, colour, np.uint64(stream_key(0, 0, 0, pass_id, t, colour)), t)
 
 best = None
 digest = None
 for r in range(reps + 1):  # the first is a warm-up (compilation, page faults)
-    st = _State(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
-                np.zeros((h, w), np.uint32))
-    K.random_init_kernel(st.Z, st.N, kinv, v.depth_min, v.depth_max, np.uint64(stream_key(0, 0, 0, 0, 99, 0)), False)
+    st = new_state(h, w)
+    K.random_init_kernel(st.depth, st.normal, kinv, v.depth_min, v.depth_max,
+                         np.uint64(stream_key(0, 0, 0, 0, 99, 0)), False)
     if pre:
-        init_cost(st, ctx, *params(0))
+        init(st, ctx, 0)
         iterate(st, pre, 1)
     t0, c0 = time.perf_counter(), time.process_time()
-    init_cost(st, ctx, *params(0))
+    init(st, ctx, 0)
     iterate(st, T, 0)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    d = hashlib.md5(b"".join(a.tobytes() for a in (st.Z, st.N, st.C, st.S))).hexdigest()
+    d = hashlib.md5(b"".join(a.tobytes() for a in maps(st))).hexdigest()
     assert digest in (None, d), "run-to-run difference"
     digest = d
     if r > 0 and (best is None or cpu < best[1]):

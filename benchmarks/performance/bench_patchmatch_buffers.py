@@ -20,12 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.patchmatch import PatchMatchOptions
+from engine.patchmatch import PatchMatchOptions, ViewState, kernel_params
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
-from engine.patchmatch.engine import _params, _State, half_step, init_cost
 from engine.patchmatch.kernels import random_init_kernel
-from engine.patchmatch.propagation import sampling_pattern
+from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
 from engine.pipeline import patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
@@ -52,15 +51,14 @@ def main() -> None:
     h, w = v.image_gray.shape
     # a plausible hypothesis map: random planes (the band of the fine window then covers much of the image, the
     # costs are as expensive as anywhere)
-    st = _State(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
-                np.zeros((h, w), np.uint32))
+    st = ViewState.zeros(h, w)
     kinv = np.linalg.inv(v.camera.K_idx).ravel()
-    random_init_kernel(st.Z, st.N, kinv, float(v.depth_min), float(v.depth_max), np.uint64(1), False)
-    band = fine_window_region(st.Z, st.N, v.camera, opts)
+    random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), np.uint64(1), False)
+    band = fine_window_region(st.depth, st.normal, v.camera, opts)
     imgs = [views[j].image_gray for j in v.source_views]
     cams = [views[j].camera for j in v.source_views]
-    pat, region = sampling_pattern(opts.pattern)
-    fp, ip = _params(opts, v.depth_min, v.depth_max, 0, False, False, int(region.max()) + 1)
+    pattern = pattern_of(opts)
+    params = kernel_params(opts, v.depth_min, v.depth_max, 0, False, False, n_regions(pattern))
 
     def context(pool: BufferPool | None) -> float:
         t = time.perf_counter()
@@ -74,18 +72,18 @@ def main() -> None:
 
     def costs(pool: BufferPool | None) -> float:
         t = time.perf_counter()
-        init_cost(st, ctx, fp, ip, pool=pool)
+        init_cost(st, ctx, params, pool=pool)
         seconds = time.perf_counter() - t
         st.drop_caches(pool=pool)
         return seconds
 
-    Z0, N0 = st.Z.copy(), st.N.copy()
+    Z0, N0 = st.depth.copy(), st.normal.copy()
 
     def half(pool: BufferPool | None) -> float:
-        st.Z[:], st.N[:] = Z0, N0
+        st.depth[:], st.normal[:] = Z0, N0
         t = time.perf_counter()
-        init_cost(st, ctx, fp, ip, pool=pool)
-        half_step(st, ctx, 0, st.C, pat, region, np.uint64(7), fp, ip)
+        init_cost(st, ctx, params, pool=pool)
+        half_step(st, ctx, 0, st.cost, pattern, np.uint64(7), params)
         seconds = time.perf_counter() - t
         st.drop_caches(pool=pool)
         return seconds

@@ -1,18 +1,31 @@
-"""PatchMatch MVS engine (numba, CPU): SPEC.md §2 with the DeepC modifications.
+"""PatchMatch MVS engine (numba, CPU): Xu & Tao 2019 ACMM's multi-scale PatchMatch with the modifications of
+Kuhn et al. 2020 DeepC-MVS, on Schönberger et al. 2016 COLMAP's bilateral NCC and perturbations.
 
 Public API::
 
     from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
     maps = run_patchmatch(views, PatchMatchOptions(schedule="acmm"), observer=obs)
 
+One view at one level (tests, benchmarks)::
+
+    state = ViewState.zeros(h, w)            # or maps to start from
+    ctx = build_context(ref_img, ref_cam, src_imgs, src_cams, options)
+    counts = run_view_level(state, ctx, options, zmin, zmax)
+
 Modules: ``options`` (settings), ``rng`` (counter-based randomness), ``geometry`` (homographies,
 plane propagation, normals), ``ncc`` (bilateral NCC), ``propagation`` (sampling patterns),
-``view_selection`` (ACMM multi-hypothesis view weights), ``kernels`` (numba half-step and init
-kernels), ``pyramid`` (area downsampling, JBU), ``context`` (per-view precomputation), ``engine``
-(the multi-scale driver) and ``reference`` (slow plain-Python references for the tests).
+``view_selection`` (ACMM multi-hypothesis view weights), ``records`` (the named records the kernels take),
+``kernels`` (numba half-step and init kernels), ``state`` (a view's maps and cost caches), ``view_pass``
+(one view at one level), ``pyramid`` (area downsampling, JBU), ``context`` (per-view precomputation),
+``engine`` (the multi-scale driver) and ``reference`` (slow plain-Python references for the tests).
 """
 
+from engine.patchmatch.context import ViewContext, build_context
 from engine.patchmatch.engine import PatchMatchView, ViewMaps, effective_levels, run_patchmatch
 from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.records import KernelParams, kernel_params
+from engine.patchmatch.state import ViewState
+from engine.patchmatch.view_pass import run_view_level
 
-__all__ = ["PatchMatchOptions", "PatchMatchView", "ViewMaps", "effective_levels", "run_patchmatch"]
+__all__ = ["KernelParams", "PatchMatchOptions", "PatchMatchView", "ViewContext", "ViewMaps", "ViewState",
+           "build_context", "effective_levels", "kernel_params", "run_patchmatch", "run_view_level"]

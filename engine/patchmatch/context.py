@@ -22,6 +22,7 @@ from engine.patchmatch.ncc import (
     window_terms,
 )
 from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.records import ReferenceWindows, SourceImages
 
 
 @dataclasses.dataclass
@@ -73,6 +74,15 @@ class ViewContext:
     def samples_per_cost(self) -> np.ndarray:
         """(H, W) i64 weighted samples one photometric cost takes at each pixel."""
         return self.ns[self.wset]
+
+    def reference_windows(self) -> ReferenceWindows:
+        """The reference-side arrays as the kernels take them (no copies)."""
+        return ReferenceWindows(self.kinv, self.wgt, self.wa, self.mu_a, self.var_a, self.ox, self.oy, self.wset,
+                                self.ns)
+
+    def source_images(self) -> SourceImages:
+        """The source-side arrays as the kernels take them (no copies)."""
+        return SourceImages(self.flat, self.stride, self.plane, self.geo, self.sdepth)
 
     @property
     def stride(self) -> int:

@@ -1,4 +1,5 @@
-"""Multi-scale PatchMatch driver (SPEC.md §2.11): levels, passes over all views, iterations, events.
+"""Multi-scale PatchMatch driver (the schedule of Xu & Tao 2019 ACMM, as Kuhn et al. 2020 DeepC-MVS use it):
+levels, passes over all views, iterations, events.
 
 Schedule per level ℓ = L-1 .. 0 (L-1 coarsest): photometric pass (random init at the coarsest level,
 JBU-upsampled maps plus detail restorer elsewhere), then ``geom_passes`` geometric passes reading
@@ -10,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -24,18 +24,19 @@ from engine.interrupt import check_interrupt
 from engine.observer import IterationEvent, readonly
 from engine.patchmatch import kernels as K
 from engine.patchmatch.buffers import BufferPool
-from engine.patchmatch.context import ViewContext, build_context, fine_window_region
+from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
-from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
 from engine.patchmatch.rng import stream_key
+from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, ViewState, row_cache_bytes
+from engine.patchmatch.view_pass import run_view_level
+
+# engine.memory sizes the cost caches with these (they live in state.py)
+__all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "row_cache_bytes",
+           "run_patchmatch"]
 
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
-RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
-# the candidate row cache takes K_up · (4 N + 6) + 4 bytes per pixel (165 MB at 768x512 with 5 sources,
-# 291 MB with 10); above this it is left out (results are the same either way, only slower)
-ROW_CACHE_MAX_BYTES = 2 << 30
 
 ProgressFn = Callable[[str, int, int], Any]
 
@@ -78,48 +79,6 @@ class ViewMaps:
     def empty(cls, height: int, width: int) -> ViewMaps:
         return cls(np.zeros((height, width), np.float32), np.zeros((height, width, 3), np.float32),
                    np.zeros((height, width), np.float32), np.zeros((height, width), np.uint32))
-
-
-@dataclasses.dataclass
-class _State:
-    """Mutable per-view maps at the current level, and the cost caches of the running pass (set by
-    :func:`init_cost`, see ``kernels.half_step_kernel``): ``P`` (H, W, N) f64 per-view photometric cost
-    of each pixel's stored hypothesis (NaN = unknown); ``VER`` (H, W) u32 hypothesis versions; ``RS``
-    (H, W, K_up) i16, ``RV`` (H, W, K_up) u32, ``RC`` (H, W, K_up, N) f32, ``RN`` (H, W) i32: the
-    candidates (pattern sample and its pixel's version) and cost rows of each pixel's last update.
-    Between the passes of a level: ``known`` (H, W, N) f32, the last pass's P, with ``known_wset`` (H, W) u8
-    the window set each pixel matched with (:func:`init_cost` of the next pass reuses them)."""
-
-    Z: np.ndarray
-    N: np.ndarray
-    C: np.ndarray
-    S: np.ndarray
-    P: np.ndarray | None = None
-    VER: np.ndarray | None = None
-    RS: np.ndarray | None = None
-    RV: np.ndarray | None = None
-    RC: np.ndarray | None = None
-    RN: np.ndarray | None = None
-    known: np.ndarray | None = None
-    known_wset: np.ndarray | None = None
-
-    def drop_caches(self, keep_costs_of: ViewContext | None = None, pool: BufferPool | None = None) -> None:
-        """Free the pass's caches (into ``pool`` when given); with ``keep_costs_of`` (the pass's context) keep
-        the photometric costs of the stored hypotheses for the next pass at this level (float32 holds them
-        exactly)."""
-        if keep_costs_of is not None and self.P is not None:
-            # the context's wset is never pooled: keeping a reference is enough
-            self.known, self.known_wset = self.P.astype(np.float32), keep_costs_of.wset
-        else:
-            self.known = self.known_wset = None
-        if pool is not None:
-            pool.give(self.P, self.VER, self.RS, self.RV, self.RC, self.RN)
-        self.P = self.VER = self.RS = self.RV = self.RC = self.RN = None
-
-    def maps(self) -> dict[str, np.ndarray]:
-        """The maps a checkpoint saves (no copies, unlike ``dataclasses.asdict``, which would also deep-copy
-        the caches)."""
-        return {"Z": self.Z, "N": self.N, "C": self.C, "S": self.S}
 
 
 def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
@@ -171,145 +130,13 @@ def effective_levels(views: list[PatchMatchView], options: PatchMatchOptions) ->
     return levels
 
 
-def perturbation_scale(options: PatchMatchOptions, iteration: int, done_before: int) -> float:
-    """ε of iteration ``iteration`` of a pass preceded by ``done_before`` iterations of earlier passes
-    (all levels): 2^-t per pass ('pass'), or 2^-(done_before + t) floored at eps_min ('global')."""
-    if options.eps_schedule == "pass":
-        return 2.0 ** (-iteration)
-    return max(2.0 ** (-(done_before + iteration)), options.eps_min)
-
-
-def _params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int, geometric: bool,
-            detail: bool, n_regions: int, eps: float | None = None,
-            last: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Kernel parameter vectors; ``eps`` defaults to 2^-iteration; ``last``: the pass's last iteration, where any
-    lower cost replaces a hypothesis (``PatchMatchOptions.min_improvement``)."""
-    fp = np.zeros(K.N_FP, np.float64)
-    ip = np.zeros(K.N_IP, np.int64)
-    fp[K.F_ZMIN] = zmin
-    fp[K.F_ZMAX] = zmax
-    fp[K.F_EPS] = 2.0 ** (-iteration) if eps is None else eps
-    fp[K.F_TAU_G] = options.tau0 * (math.exp(-(iteration**2) / options.alpha) if options.alpha > 0 else 1.0)
-    fp[K.F_TAU_BAD] = options.tau_bad
-    fp[K.F_BETA] = options.beta
-    fp[K.F_BETA_FB] = options.beta_fallback
-    fp[K.F_PRIOR_IN] = options.prior_in
-    fp[K.F_PRIOR_OUT] = options.prior_out
-    fp[K.F_GEOM_LAMBDA] = options.geom_lambda
-    fp[K.F_GEOM_MAX] = options.geom_max
-    fp[K.F_MIN_VAR] = options.min_var
-    fp[K.F_DETAIL_DELTA] = options.detail_restorer_delta
-    fp[K.F_MIN_IMPROVEMENT] = 0.0 if last else options.min_improvement
-    ip[K.I_K_VS] = options.k_viewsel
-    ip[K.I_K_UP] = options.k_update
-    ip[K.I_PLANE] = int(options.plane_propagation)
-    ip[K.I_GEOM] = int(geometric)
-    ip[K.I_DETAIL] = int(detail)
-    ip[K.I_DETERMINISTIC] = int(options.view_sampling == "deterministic")
-    ip[K.I_MC] = options.mc_samples
-    ip[K.I_N_GOOD] = options.n_good_gt
-    ip[K.I_N_BAD] = options.n_bad_lt
-    ip[K.I_ALL8] = int(options.combos == "all8")
-    ip[K.I_RETRIES] = options.normal_perturb_retries
-    ip[K.I_TOP_K] = options.init_top_k
-    ip[K.I_N_REGIONS] = n_regions
-    return fp, ip
-
-
-def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
-    """Bytes of the candidate row cache of an (h, w) view (see :class:`_State`)."""
-    return h * w * (k_up * (4 * n_sources + 2 + 4) + 4)
-
-
-def _caches(state: _State, ctx: ViewContext, k_up: int, reset: bool, pool: BufferPool | None = None) -> bool:
-    """(Re)allocate the state's cost caches for this context (from ``pool`` when given); ``reset`` empties
-    them (new pass). Returns whether the row cache is used (it is left out above ROW_CACHE_MAX_BYTES)."""
-    h, w = state.Z.shape
-    n = ctx.num_sources
-    empty = np.empty if pool is None else pool.take
-    if state.P is None or state.P.shape != (h, w, n):
-        state.P = empty((h, w, n), np.float64)
-        state.VER = empty((h, w), np.uint32)
-        reset = True
-    rows = row_cache_bytes(h, w, k_up, n) <= ROW_CACHE_MAX_BYTES
-    if not rows:
-        state.RS, state.RV = np.empty((1, 1, k_up), np.int16), np.empty((1, 1, k_up), np.uint32)
-        state.RC, state.RN = np.empty((1, 1, k_up, n), np.float32), np.zeros((1, 1), np.int32)
-    elif state.RN is None or state.RC.shape != (h, w, k_up, n):
-        # contents are never read before written: RN = 0 (below) makes every cached row unknown
-        state.RS, state.RV = empty((h, w, k_up), np.int16), empty((h, w, k_up), np.uint32)
-        state.RC, state.RN = empty((h, w, k_up, n), np.float32), empty((h, w), np.int32)
-        state.RN[:] = 0
-    if reset:
-        state.P[:] = np.nan
-        state.VER[:] = 0
-        state.RN[:] = 0
-    return rows
-
-
-def init_cost(state: _State, ctx: ViewContext, fp: np.ndarray, ip: np.ndarray, cache: bool = True,
-              pool: BufferPool | None = None) -> None:
-    """Recompute cost and selected views of the stored hypotheses (§2.4 top-k rule); with ``cache``
-    also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given)."""
-    if cache:
-        _caches(state, ctx, int(ip[K.I_K_UP]), True, pool)
-    P = state.P if cache else np.empty((1, 1, 1))
-    known, known_wset = state.known, state.known_wset
-    if known is None:  # the kernel also ignores carried-over costs of another shape
-        known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
-    K.init_cost_kernel(state.Z, state.N, state.C, state.S, P, cache, known, known_wset, ctx.flat, ctx.stride,
-                       ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox,
-                       ctx.oy, ctx.wset, ctx.ns, fp, ip)
-    state.known = state.known_wset = None  # only valid for the hypotheses they were computed for
-
-
-def half_step(state: _State, ctx: ViewContext, colour: int, cpre: np.ndarray, pat: np.ndarray,
-              region: np.ndarray, key: np.uint64, fp: np.ndarray, ip: np.ndarray) -> np.ndarray:
-    """One red or black half-step on one view (in place). Call :func:`init_cost` first in every pass
-    (and after changing the state's maps from outside): it fills the cost cache the half-steps trust.
-
-    Returns (N_COUNTS,) int64: NCC windows evaluated for the view-selection rows, the current
-    hypotheses, the remaining candidates and the refinement, and the number of pixels updated."""
-    rows = _caches(state, ctx, int(ip[K.I_K_UP]), False)
-    counts = np.zeros((state.Z.shape[0], K.N_COUNTS), np.int64)
-    K.half_step_kernel(colour, state.Z, state.N, state.C, state.S, state.P, state.VER, state.RS, state.RV, state.RC,
-                       state.RN, rows, cpre,
-                       ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.sdepth, ctx.kinv,
-                       ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, pat, region, key, fp, ip,
-                       counts)
-    return counts.sum(axis=0)
-
-
-def restorer_reference(st: _State, ctx: ViewContext, options: PatchMatchOptions, fp: np.ndarray, ip: np.ndarray,
-                       view: int, level: int, zmin: float, zmax: float) -> np.ndarray | None:
-    """Cpre for detail_restorer_reference='random': top-k photometric cost (§2.4 rule) of the upsampled
-    depth with a random normal facing the camera (None for 'upsampled': computed by the caller)."""
-    if options.detail_restorer_reference != "random":
-        return None
-    h, w = st.Z.shape
-    tmp = _State(np.empty((h, w), np.float32), np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
-                 np.empty((h, w), np.uint32))
-    key = np.uint64(stream_key(options.seed, view, level, 0, RESTORER_ITERATION, 0))
-    K.random_init_kernel(tmp.Z, tmp.N, ctx.kinv, zmin, zmax, key, False)
-    tmp.Z[:] = st.Z
-    init_cost(tmp, ctx, fp, ip, cache=False)
-    return tmp.C
-
-
-def _fix_normals(state: _State, cam: Camera) -> None:
-    """Turn upsampled normals that face away from the camera (averaging can do that)."""
-    rays = cam.pixel_rays().astype(np.float32)
-    flip = np.einsum("hwc,hwc->hw", state.N, rays) > 0
-    state.N[flip] *= -1.0
-
-
 def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | None = None,
                    observer: Any = None, progress: ProgressFn | None = None, checkpoint: Any = None) -> list[ViewMaps]:
     """Multi-scale PatchMatch MVS over all views; returns one :class:`ViewMaps` per view.
 
     Args:
         views: the views; ``source_views`` index into this list.
-        options: settings (defaults: SPEC.md §12).
+        options: settings (defaults: :class:`PatchMatchOptions`).
         observer: optional; ``on_iteration(IterationEvent)`` after every red-black iteration of every
             view, pass and level, ``on_stage(name, **info)`` at pass boundaries. Either may be absent.
         progress: optional ``progress(description, done, total)``, called with done 0 when a pass starts
@@ -345,8 +172,6 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
 def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
          on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
          checkpoint: Any = None) -> list[ViewMaps]:
-    pat, region = sampling_pattern(options.pattern)
-    n_regions = int(region.max()) + 1
     n_views = len(views)
     # pyramid of images and cameras
     images: list[list[np.ndarray]] = []
@@ -360,7 +185,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             cams.append(v.camera if level == 0 else v.camera.rescaled(w, h))
         images.append(imgs)
         cameras.append(cams)
-    states: list[_State | None] = [None] * n_views
+    states: list[ViewState | None] = [None] * n_views
     step = 0
     done = 0  # iterations of all earlier passes (perturbation schedule 'global')
     n_active = sum(active)
@@ -377,24 +202,24 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                     done += options.pass_iterations(pass_index)
             if level > resume[0]:
                 continue
-        new_states: list[_State | None] = []
+        new_states: list[ViewState | None] = []
         for i, v in enumerate(views):
             if resume is not None:
                 break  # this level's states are the resume point's
             check_interrupt()
             h, w = images[i][level].shape
-            st = _State(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32),
-                        np.zeros((h, w), np.float32), np.zeros((h, w), np.uint32))
+            st = ViewState.zeros(h, w)
             if active[i]:
                 cam = cameras[i][level]
                 kinv = np.linalg.inv(cam.K_idx).ravel()
                 if not coarsest:
                     prev = states[i]
-                    st.Z, st.N = jbu_upsample(prev.Z, prev.N, images[i][level], options.jbu_radius,
-                                              options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
-                    _fix_normals(st, cam)
+                    st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, images[i][level], options.jbu_radius,
+                                                       options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
+                    _face_camera(st.normal, cam)
                 key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
-                K.random_init_kernel(st.Z, st.N, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
+                K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key,
+                                     not coarsest)
             new_states.append(st)
         states = new_states if resume is None else resume[2]
         for pass_index in range(1 + options.geom_passes):
@@ -406,21 +231,21 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             n_iter = options.pass_iterations(pass_index)
             if on_stage is not None:
                 on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
-            snapshot = [s.Z.copy() for s in states] if geometric else None
+            snapshot = [s.depth.copy() for s in states] if geometric else None
             if progress is not None:
                 progress(f"level {level} {kind}", 0, n_views)
             for i, v in enumerate(views):
                 check_interrupt()
-                saved = None if checkpoint is None else checkpoint.load(level, pass_index, i, states[i].Z.shape)
+                saved = None if checkpoint is None else checkpoint.load(level, pass_index, i, states[i].depth.shape)
                 if saved is not None:
-                    states[i] = _State(**saved)
+                    states[i] = ViewState.from_checkpoint(saved)
                     step += n_iter if active[i] else 0
                 elif active[i]:
-                    step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, kind,
-                                          detail, n_iter, options, pat, region, n_regions, on_iter, step, done,
-                                          random_start=coarsest and pass_index == 0, pool=pool)
+                    step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, detail,
+                                          options, on_iter, step, done, random_start=coarsest and pass_index == 0,
+                                          pool=pool)
                 if checkpoint is not None and saved is None:
-                    checkpoint.save(level, pass_index, i, states[i].maps())
+                    checkpoint.save(level, pass_index, i, states[i].checkpoint_arrays())
                 if progress is not None:
                     progress(f"level {level} {kind}", i + 1, n_views)
             done += n_iter
@@ -433,16 +258,16 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             h, w = images[i][0].shape
             out.append(ViewMaps.empty(h, w))
             continue
-        valid = st.Z > 0
-        st.N[~valid] = 0.0
-        st.C[~valid] = 0.0
-        out.append(ViewMaps(st.Z, st.N, st.C, st.S))
+        valid = st.depth > 0
+        st.normal[~valid] = 0.0
+        st.cost[~valid] = 0.0
+        out.append(ViewMaps(st.depth, st.normal, st.cost, st.selected_views))
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n_views)
     return out
 
 
-def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, int, list[_State]] | None:
+def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, int, list[ViewState]] | None:
     """(level, pass, every view's state after that pass) from the checkpoint's latest complete pass, or
     None to start from the beginning (no checkpoint, nothing saved, or a saved state failed its checks)."""
     point = None if checkpoint is None else checkpoint.resume_point()
@@ -454,47 +279,41 @@ def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, i
         saved = checkpoint.load(level, pass_index, i, images[i][level].shape)
         if saved is None:
             return None
-        states.append(_State(**saved))
+        states.append(ViewState.from_checkpoint(saved))
     return level, pass_index, states
 
 
-def _run_view_pass(i: int, v: PatchMatchView, st: _State, images: list, cameras: list, snapshot: list | None,
-                   level: int, pass_index: int, kind: str, detail: bool, n_iter: int, options: PatchMatchOptions,
-                   pat: np.ndarray, region: np.ndarray, n_regions: int, on_iter: Callable | None, step: int,
-                   done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None) -> int:
+def _face_camera(normal: np.ndarray, cam: Camera) -> None:
+    """Turn upsampled normals (H, W, 3) that face away from the camera (averaging can do that), in place."""
+    rays = cam.pixel_rays().astype(np.float32)
+    flip = np.einsum("hwc,hwc->hw", normal, rays) > 0
+    normal[flip] *= -1.0
+
+
+def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, cameras: list, snapshot: list | None,
+                   level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
+                   step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None) -> int:
+    """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
+    from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
+    counter after it."""
     src_idx = list(v.source_views)
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
                         [cameras[j][level] for j in src_idx], options,
                         [snapshot[j] for j in src_idx] if snapshot is not None else None,
-                        fine_window_region(st.Z, st.N, cameras[i][level], options, random_start, level), pool)
-    zmin, zmax = float(v.depth_min), float(v.depth_max)
-    fp, ip = _params(options, zmin, zmax, 0, kind == "geometric", detail, n_regions)
-    if detail:
-        cpre = restorer_reference(st, ctx, options, fp, ip, i, level, zmin, zmax)
-    init_cost(st, ctx, fp, ip, pool=pool)
-    if not detail:
-        cpre = st.C
-    elif options.detail_restorer_reference == "upsampled":
-        cpre = st.C.copy()
-    for t in range(n_iter):
-        check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
-        t0 = time.perf_counter()
-        fp, ip = _params(options, zmin, zmax, t, kind == "geometric", detail, n_regions,
-                         perturbation_scale(options, t, done_before), last=t == n_iter - 1)
-        counts = np.zeros(K.N_COUNTS, np.int64)
-        for colour in (0, 1):
-            key = np.uint64(stream_key(options.seed, i, level, pass_index, t, colour))
-            counts += half_step(st, ctx, colour, cpre, pat, region, key, fp, ip)
-        if on_iter is not None:
-            on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
-                                   iteration=t, step=step, depth=readonly(st.Z), normal=readonly(st.N),
-                                   cost=readonly(st.C), selected_views=readonly(st.S),
-                                   seconds=time.perf_counter() - t0,
-                                   ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
-        step += 1
-    # the caches are only valid within this pass (ctx); the photometric costs of the final hypotheses also hold
-    # in the next pass of this level (same images; init_cost checks the window set)
-    st.drop_caches(keep_costs_of=ctx if pass_index < options.geom_passes else None, pool=pool)
+                        fine_window_region(st.depth, st.normal, cameras[i][level], options, random_start, level), pool)
+    kind = "geometric" if pass_index > 0 else "photometric"
+    first_step = step
+
+    def event(t: int, counts: np.ndarray, seconds: float) -> None:
+        on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
+                               iteration=t, step=first_step + t, depth=readonly(st.depth),
+                               normal=readonly(st.normal), cost=readonly(st.cost),
+                               selected_views=readonly(st.selected_views), seconds=seconds,
+                               ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
+
+    run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
+                   pass_index=pass_index, detail=detail, done_before=done_before,
+                   on_iteration=event if on_iter is not None else None, pool=pool)
     if pool is not None:
         ctx.release(pool)
-    return step
+    return step + options.pass_iterations(pass_index)

@@ -1,4 +1,6 @@
-"""Per-hypothesis geometry (SPEC.md §2.2, §2.4, §2.9, §2.10) as small numba functions.
+"""Per-hypothesis geometry as small numba functions: plane-induced homographies and plane propagation (Xu & Tao
+2019 ACMM; Kuhn et al. 2020 DeepC-MVS), random and perturbed normals (Schönberger et al. 2016 COLMAP) and the
+forward-backward reprojection error of the geometric consistency term (ACMM).
 
 Conventions: index-space intrinsics (pixel (col, row) centre at (col, row)); a hypothesis at pixel p
 is (z, n): camera-frame depth z and unit normal n facing the camera (n · r_p < 0), with
@@ -70,8 +72,8 @@ def ray(kinv: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
 
 @njit(cache=True, inline="always")
 def propagate_depth(zq: float, nx: float, ny: float, nz: float, rq: tuple, rp: tuple, plane: bool) -> float:
-    """Depth at p of the plane through q's hypothesis (SPEC §2.2); raw z_q when ``plane`` is False
-    or when the ray of p is (nearly) parallel to the plane."""
+    """Depth at p of the plane through q's hypothesis (plane-based depth propagation, Kuhn et al. 2020
+    DeepC-MVS); raw z_q when ``plane`` is False or when the ray of p is (nearly) parallel to the plane."""
     if not plane:
         return zq
     den = nx * rp[0] + ny * rp[1] + nz * rp[2]
@@ -95,7 +97,7 @@ def plane_vector(kinv: np.ndarray, rp: tuple, z: float, nx: float, ny: float, nz
 
 @njit(cache=True)
 def random_normal(key: np.uint64, draw: int, rp: tuple) -> tuple:
-    """Marsaglia sphere sample turned to face the camera (SPEC §2.4).
+    """Marsaglia sphere sample turned to face the camera (the random normals of ACMM and COLMAP).
 
     Uses draws ``draw, draw+1, ...`` of the stream; returns (nx, ny, nz, next_draw)."""
     q1 = 0.0
@@ -118,7 +120,7 @@ def random_normal(key: np.uint64, draw: int, rp: tuple) -> tuple:
 @njit(cache=True)
 def perturb_normal(key: np.uint64, draw: int, rp: tuple, nx: float, ny: float, nz: float,
                    eps: float, retries: int) -> tuple:
-    """COLMAP PerturbNormal (SPEC §2.10): random rotation with angles in ±eps·π/2; halve the range
+    """COLMAP PerturbNormal (Schönberger et al. 2016): random rotation with angles in ±eps·π/2; halve the range
     and retry while the result faces away, then fall back to n. Returns (nx, ny, nz, next_draw)."""
     scale = eps * math.pi
     for _ in range(retries + 1):
@@ -148,8 +150,9 @@ def perturb_normal(key: np.uint64, draw: int, rp: tuple, nx: float, ny: float, n
 
 @njit(cache=True, inline="always")
 def reprojection(geo: np.ndarray, j: int, depth: np.ndarray, x: float, y: float, z: float) -> tuple[float, float]:
-    """Forward-backward reprojection of depth z at ref pixel (x, y) via source j (§2.9, §3): (error px,
-    depth of the point reprojected from source j in the reference camera).
+    """Forward-backward reprojection of depth z at ref pixel (x, y) via source j (ACMM's geometric
+    consistency; the counter map of Kuhn et al. 2020): (error px, depth of the point reprojected from source j
+    in the reference camera).
 
     ``geo`` is the packed geometry (:func:`pack_geometry`), ``depth`` (N, Hm, Wm) the source depth maps.
     The source depth is read at the nearest pixel of the projection; the error is -1 when the point

@@ -1,20 +1,18 @@
-"""numba kernels of one reference view at one level: random init, initial cost, red-black half-step.
+"""numba kernels of one reference view at one level: random init, initial cost, red-black half-step
+(Xu & Tao 2019 ACMM's kernels with the modifications of Kuhn et al. 2020 DeepC-MVS).
 
 All kernels run ``prange`` over image rows. Per-row scratch arrays are allocated once per row (never
 per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a half-step uses the stream
 ``combine(key, y * W + x)``, so results do not depend on the thread count.
 
-Shared arguments (see ``geometry.relative_geometry`` and ``ncc.bilateral_moments``):
-    ref context : kinv (9,), wgt/wa (H, W, S) f32, mu_a/var_a (H, W) f32
-    sources     : flat (N·(Hm+1)·(Wm+1),) f32 raveled padded images, stride = Wm+1, plane = (Hm+1)(Wm+1),
-                  geo (N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``),
-                  sdepth (N, Hm, Wm) f32 (geometric passes)
-    pixel       : win (WORK_ROWS, work_width(S)) f32 and sidx i32 (``ncc.ncc_work``) with the pixel's
-                  window of n samples loaded (``ncc.load_window``); the per-pixel kernels take the window
-                  terms wgt, wa (H, W, S) f32 and the window sets ox/oy (n_sets, S) f32, ns (n_sets,) i64,
-                  wset (H, W) u8 (see ``context.ViewContext``)
-    fp          : float64 parameters, indices F_* below
-    ip          : int64 parameters, indices I_* below
+The kernels take named records (``records.py``): the hypothesis maps, the cost caches, the reference
+view's matching windows, the source images and the iteration's parameters. The small functions they call
+take the records' arrays one by one (``geometry.relative_geometry`` and ``ncc.bilateral_moments`` define
+them): src (N·(Hm+1)·(Wm+1),) f32 raveled padded source images, stride = Wm+1, plane = (Hm+1)(Wm+1), geo
+(N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``), sdepth (N, Hm, Wm) f32 source
+depths (geometric passes), kinv (9,) the inverse intrinsics; win (WORK_ROWS, work_width(S)) f32 and sidx
+i32 (``ncc.ncc_work``) hold the pixel's window of n samples (``ncc.load_window``), mu/var its weighted
+mean and variance.
 """
 
 from __future__ import annotations
@@ -40,19 +38,10 @@ from engine.patchmatch.propagation import gather_candidates
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
 
-# float parameters
-F_ZMIN, F_ZMAX, F_EPS, F_TAU_G, F_TAU_BAD, F_BETA, F_BETA_FB, F_PRIOR_IN, F_PRIOR_OUT = range(9)
-F_GEOM_LAMBDA, F_GEOM_MAX, F_MIN_VAR, F_DETAIL_DELTA, F_MIN_IMPROVEMENT = range(9, 14)
-N_FP = 14
 # columns of the half-step's counts (H, N_COUNTS): NCC windows evaluated for the view-selection rows, the
 # current hypothesis, the remaining candidates and the refinement hypotheses; pixels updated
 CNT_ROWS, CNT_CURRENT, CNT_REMAINING, CNT_REFINE, CNT_PIXELS = range(5)
 N_COUNTS = 5
-# int parameters
-I_K_VS, I_K_UP, I_PLANE, I_GEOM, I_DETAIL, I_DETERMINISTIC, I_MC, I_N_GOOD, I_N_BAD = range(9)
-I_ALL8, I_RETRIES, I_TOP_K, I_N_REGIONS = range(9, 13)
-N_IP = 13
-
 BIG = 1e30
 
 
@@ -75,7 +64,8 @@ def photometric_cost(src, stride, plane, geo, j, win, n, mu, var, x, y, m0, m1, 
 
 @njit(cache=True, _nrt=False)
 def geometric_cost(geo, sdepth, j, x, y, z, gmax):
-    """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (§2.9)."""
+    """Truncated forward-backward reprojection error g_j (px) of depth z at (x, y) (Xu & Tao 2019 ACMM's
+    geometric consistency term)."""
     e = reprojection_error(geo, j, sdepth, x, y, z)
     if e < 0.0 or e > gmax:
         return gmax
@@ -208,43 +198,133 @@ def current_cost(src, stride, plane, geo, sdepth, kinv, win, n, mu, var, x, y, r
     return acc / vsum
 
 
-@njit(cache=True, parallel=True)
-def random_init_kernel(Z, Nrm, kinv, zmin, zmax, key, only_invalid):
-    """Random hypotheses (§2.4): z ~ U[zmin, zmax], Marsaglia normal facing the camera.
+@njit(cache=True, _nrt=False, inline="always")
+def cached_rows(R, cand_s, cand_v, n_cand, n_old, x, y, pat, VER, RS, RV, RC):
+    """Fill the cost rows R (K, N) of pixel (x, y)'s ``n_cand`` candidates (pattern samples ``cand_s``) from
+    its row cache (``records.CostCaches``: RS, RV, RC its previous update's ``n_old`` samples, their pixels'
+    versions and cost rows): a candidate proposed again by the same sample of a pixel whose version VER is
+    unchanged is the same hypothesis, so its costs are (NaN = unknown). Records the versions in ``cand_v``."""
+    for k in range(n_cand):
+        sk = cand_s[k]
+        ver = VER[y + pat[sk, 1], x + pat[sk, 0]]
+        cand_v[k] = ver
+        # the sample's slot (samples are unique in a list, and lists keep their order mostly)
+        r = -1
+        if k < n_old and RS[y, x, k] == sk:
+            r = k
+        else:
+            for i in range(n_old):
+                if RS[y, x, i] == sk:
+                    r = i
+                    break
+        if r >= 0 and RV[y, x, r] != ver:
+            r = -1
+        for j in range(R.shape[1]):
+            R[k, j] = RC[y, x, r, j] if r >= 0 else np.nan
 
-    With ``only_invalid`` only pixels with Z <= 0 are drawn (holes after upsampling)."""
-    h, w = Z.shape
+
+@njit(cache=True, _nrt=False, inline="always")
+def refinement_hypotheses(pk, rp, zb, nbx, nby, nbz, zmin, zmax, eps, retries, all8, hz, hn):
+    """The local refinement's hypotheses around the best one (zb, nb) into ``hz`` (8,) and ``hn`` (8, 3); returns
+    their count. Combinations of the current, a perturbed (relative depth ±eps, normal angles ±eps·π/2 with
+    ``retries`` halvings, Schönberger et al. 2016 COLMAP) and a random depth / normal, drawn from the pixel's
+    stream ``pk``: ACMM's five (Xu & Tao 2019, perturbation ε of Kuhn et al. 2020) or, with ``all8``, all eight."""
+    z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
+    z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
+    rnx, rny, rnz, draw = random_normal(pk, 102, rp)
+    pnx, pny, pnz, draw = perturb_normal(pk, 200, rp, nbx, nby, nbz, eps, retries)
+    n_h = 0
+    if all8:
+        for dz in range(3):
+            zz = zb if dz == 0 else (z_prt if dz == 1 else z_rnd)
+            for dn in range(3):
+                if dz == 0 and dn == 0:
+                    continue
+                hz[n_h] = zz
+                if dn == 0:
+                    hn[n_h, 0] = nbx
+                    hn[n_h, 1] = nby
+                    hn[n_h, 2] = nbz
+                elif dn == 1:
+                    hn[n_h, 0] = pnx
+                    hn[n_h, 1] = pny
+                    hn[n_h, 2] = pnz
+                else:
+                    hn[n_h, 0] = rnx
+                    hn[n_h, 1] = rny
+                    hn[n_h, 2] = rnz
+                n_h += 1
+    else:
+        # ACMM order: (z_rnd, n), (z, n_rnd), (z_rnd, n_rnd), (z, n_prt), (z_prt, n)
+        hz[0] = z_rnd
+        hn[0, 0] = nbx
+        hn[0, 1] = nby
+        hn[0, 2] = nbz
+        hz[1] = zb
+        hn[1, 0] = rnx
+        hn[1, 1] = rny
+        hn[1, 2] = rnz
+        hz[2] = z_rnd
+        hn[2, 0] = rnx
+        hn[2, 1] = rny
+        hn[2, 2] = rnz
+        hz[3] = zb
+        hn[3, 0] = pnx
+        hn[3, 1] = pny
+        hn[3, 2] = pnz
+        hz[4] = z_prt
+        hn[4, 0] = nbx
+        hn[4, 1] = nby
+        hn[4, 2] = nbz
+        n_h = 5
+    return n_h
+
+
+@njit(cache=True, parallel=True)
+def random_init_kernel(depth, normal, kinv, zmin, zmax, key, only_invalid):
+    """Random hypotheses (the random initialisation of ACMM and COLMAP): depth (H, W) f32 ~ U[zmin, zmax],
+    normal (H, W, 3) f32 a Marsaglia sample facing the camera (kinv (9,) f64 K⁻¹); in place.
+
+    With ``only_invalid`` only pixels with depth <= 0 are drawn (holes after upsampling)."""
+    h, w = depth.shape
     for y in prange(h):
         for x in range(w):
-            if only_invalid and Z[y, x] > 0.0:
+            if only_invalid and depth[y, x] > 0.0:
                 continue
             pk = combine(key, y * w + x)
             rp = ray(kinv, x, y)
-            Z[y, x] = zmin + (zmax - zmin) * uniform(pk, 0)
+            depth[y, x] = zmin + (zmax - zmin) * uniform(pk, 0)
             nx, ny, nz, _ = random_normal(pk, 1, rp)
-            Nrm[y, x, 0] = nx
-            Nrm[y, x, 1] = ny
-            Nrm[y, x, 2] = nz
+            normal[y, x, 0] = nx
+            normal[y, x, 1] = ny
+            normal[y, x, 2] = nz
 
 
 @njit(cache=True, parallel=True)
-def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, plane, geo, sdepth, kinv, wgt, wa,
-                     mu_a, var_a, ox, oy, wset, ns, fp, ip):
-    """Cost and selected views of the stored hypotheses (§2.4 top-k rule, ACMM).
+def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, params):
+    """Cost and selected views of the stored hypotheses (the top-k rule of Xu & Tao 2019 ACMM's initial cost).
 
-    k = min(#{m_j < 2}, top_k); C = mean of the k smallest m_j (+ λ · mean g_j over the selected
-    views in geometric passes); Sel = {j : m_j <= k-th smallest}; k = 0 gives C = 2 (+ λ·δ), Sel = 0.
-    With ``store`` the m_j go to the cache P (H, W, N) f64 of the half-steps (NaN where the
-    hypothesis has no plane). ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier
-    pass over the same images (NaN = not evaluated), valid where that pass matched pixel (x, y) with the
-    same window set, ``known_wset`` (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again."""
+    k = min(#{m_j < 2}, top_k); cost = mean of the k smallest m_j (+ λ · mean g_j over the selected
+    views in geometric passes); selected_views = {j : m_j <= k-th smallest}; k = 0 gives cost 2 (+ λ·δ) and
+    no view. Writes ``maps`` (:class:`records.HypothesisMaps`) cost and selected_views. With ``store`` the m_j
+    go to ``view_costs`` (H, W, N) f64, the half-steps' cache (NaN where the hypothesis has no plane).
+    ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier pass over the same images (NaN =
+    not evaluated), valid where that pass matched pixel (x, y) with the same window set, ``known_wset``
+    (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again. ``ref``: :class:`records.ReferenceWindows`,
+    ``sources``: :class:`records.SourceImages`, ``params``: :class:`records.KernelParams`."""
+    # the records' fields as locals: the loops below read exactly what they read as separate arguments
+    Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
+    P = view_costs
+    kinv, wgt, wa, mu_a, var_a = ref.kinv, ref.weights, ref.weighted, ref.mean, ref.variance
+    ox, oy, wset, ns = ref.offset_x, ref.offset_y, ref.window_set, ref.n_samples
+    src, stride, plane, geo, sdepth = sources.pixels, sources.stride, sources.plane, sources.geometry, sources.depth
     h, w = Z.shape
     n_views = geo.shape[0]
-    top_k = ip[I_TOP_K]
-    geom = ip[I_GEOM] != 0
-    lam = fp[F_GEOM_LAMBDA]
-    gmax = fp[F_GEOM_MAX]
-    min_var = fp[F_MIN_VAR]
+    top_k = params.top_k
+    geom = params.geometric
+    lam = params.geom_lambda
+    gmax = params.geom_max
+    min_var = params.min_var
     have_known = known.shape[0] == h and known.shape[1] == w and known.shape[2] == n_views
     for y in prange(h):
         costs = np.empty(n_views, np.float64)
@@ -303,39 +383,51 @@ def init_cost_kernel(Z, Nrm, C, Sel, P, store, known, known_wset, src, stride, p
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre, src, stride, plane, geo, sdepth, kinv,
-                     wgt, wa, mu_a, var_a, ox, oy, wset, ns, pat, region, key, fp, ip, counts):
-    """Update every pixel of one colour ((x + y) % 2 == colour) in place (§2.7); add what it evaluated to
+def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, params, counts):
+    """Update every pixel of one colour ((x + y) % 2 == colour) of ``maps`` (:class:`records.HypothesisMaps`)
+    in place: candidates from the sampling pattern, multi-hypothesis view selection, refinement (Xu & Tao
+    2019 ACMM, with the DeepC pattern and perturbation of Kuhn et al. 2020); add what it evaluated to
     ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
 
-    P (H, W, N) f64 caches m_j of each pixel's stored hypothesis (NaN = unknown; filled by
-    ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
-    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears it
-    and increments the pixel's version VER (H, W) u32. With ``rows``, RS (H, W, K_up) i16 pattern
-    samples, RV (H, W, K_up) u32 their pixels' versions, RC (H, W, K_up, N) f32 photometric costs
-    (NaN = not evaluated) and RN (H, W) i32 counts cache the candidates of each pixel's previous
-    update (RN = 0 at the start of a pass): a candidate proposed again by the same sample of an
-    unchanged neighbour (same version) is bit-identical, so are its costs (which are float32 values).
-    A hypothesis is replaced only by one whose cost is lower by more than fp[F_MIN_IMPROVEMENT]."""
+    ``caches`` (:class:`records.CostCaches`): ``view_costs`` caches m_j of each pixel's stored hypothesis
+    (filled by ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
+    current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears them and
+    increments the pixel's version. With ``caches.rows`` the candidates of each pixel's previous update
+    and their cost rows are kept (row_count = 0 at the start of a pass): a candidate proposed again by the
+    same sample of an unchanged neighbour (same version) is bit-identical, so are its costs (which are
+    float32 values). A hypothesis is replaced only by one whose cost is lower by more than
+    ``params.min_improvement``; in the detail restorer's passes also only by one more than
+    ``params.detail_delta`` below ``Cpre`` (H, W) f32, the upsampled hypothesis's cost.
+    ``ref``: :class:`records.ReferenceWindows`, ``sources``: :class:`records.SourceImages`, ``pattern``:
+    :class:`records.SamplingPattern`, ``key``: the half-step's random stream (``rng.stream_key``),
+    ``params``: :class:`records.KernelParams`."""
+    # the records' fields as locals: the loops below read exactly what they read as separate arguments
+    Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
+    P, VER, rows = caches.view_costs, caches.versions, caches.rows
+    RS, RV, RC, RN = caches.row_samples, caches.row_versions, caches.row_costs, caches.row_count
+    kinv, wgt, wa, mu_a, var_a = ref.kinv, ref.weights, ref.weighted, ref.mean, ref.variance
+    ox, oy, wset, ns = ref.offset_x, ref.offset_y, ref.window_set, ref.n_samples
+    src, stride, plane, geo, sdepth = sources.pixels, sources.stride, sources.plane, sources.geometry, sources.depth
+    pat, region = pattern.offsets, pattern.regions
     h, w = Z.shape
     n_views = geo.shape[0]
-    zmin = fp[F_ZMIN]
-    zmax = fp[F_ZMAX]
-    eps = fp[F_EPS]
-    lam = fp[F_GEOM_LAMBDA]
-    gmax = fp[F_GEOM_MAX]
-    min_var = fp[F_MIN_VAR]
-    k_vs = ip[I_K_VS]
-    k_up = ip[I_K_UP]
-    plane_prop = ip[I_PLANE] != 0
-    geom = ip[I_GEOM] != 0
-    detail = ip[I_DETAIL] != 0
-    all8 = ip[I_ALL8] != 0
-    retries = ip[I_RETRIES]
-    top_k = ip[I_TOP_K]
-    n_regions = ip[I_N_REGIONS]
-    mc = ip[I_MC]
-    min_improvement = fp[F_MIN_IMPROVEMENT]
+    zmin = params.zmin
+    zmax = params.zmax
+    eps = params.perturbation
+    lam = params.geom_lambda
+    gmax = params.geom_max
+    min_var = params.min_var
+    k_vs = params.k_viewsel
+    k_up = params.k_update
+    plane_prop = params.plane_propagation
+    geom = params.geometric
+    detail = params.detail_restorer
+    all8 = params.all8
+    retries = params.normal_retries
+    top_k = params.top_k
+    n_regions = params.n_regions
+    mc = params.mc_samples
+    min_improvement = params.min_improvement
     for y in prange(h):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
@@ -370,23 +462,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             n_old = RN[y, x] if rows else 0
             # cost rows of the candidates: what the previous update of this pixel evaluated, if the same
             # sample's pixel has not changed since (R[k, j] NaN = unknown)
-            for k in range(n_cand):
-                sk = cand_s[k]
-                ver = VER[y + pat[sk, 1], x + pat[sk, 0]]
-                cand_v[k] = ver
-                # the sample's slot (samples are unique in a list, and lists keep their order mostly)
-                r = -1
-                if k < n_old and RS[y, x, k] == sk:
-                    r = k
-                else:
-                    for i in range(n_old):
-                        if RS[y, x, i] == sk:
-                            r = i
-                            break
-                if r >= 0 and RV[y, x, r] != ver:
-                    r = -1
-                for j in range(n_views):
-                    R[k, j] = RC[y, x, r, j] if r >= 0 else np.nan
+            cached_rows(R, cand_s, cand_v, n_cand, n_old, x, y, pat, VER, RS, RV, RC)
             # photometric cost matrix of the best candidates over all views (drives view selection)
             for k in range(n_vs):
                 missing = False
@@ -405,9 +481,9 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                                                    min_var, sidx)
                     else:
                         R[k, j] = 2.0
-            vsum = view_weights(M, n_vs, n_views, Sel, x, y, fp[F_TAU_G], fp[F_TAU_BAD], fp[F_BETA],
-                                fp[F_BETA_FB], ip[I_N_GOOD], ip[I_N_BAD], fp[F_PRIOR_IN], fp[F_PRIOR_OUT],
-                                ip[I_DETERMINISTIC] != 0, mc, pk, 0, omega, v)
+            vsum = view_weights(M, n_vs, n_views, Sel, x, y, params.tau_good, params.tau_bad, params.beta,
+                                params.beta_fallback, params.n_good, params.n_bad, params.prior_in, params.prior_out,
+                                params.deterministic, mc, pk, 0, omega, v)
             z0 = np.float64(Z[y, x])
             n0x = np.float64(Nrm[y, x, 0])
             n0y = np.float64(Nrm[y, x, 1])
@@ -505,54 +581,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
                         RC[y, x, k, j] = R[k, j]  # float32 values (or NaN): exact
                 RN[y, x] = n_cand
             # local refinement: combinations of current, perturbed and random depth / normal
-            z_rnd = zmin + (zmax - zmin) * uniform(pk, 100)
-            z_prt = zb * (1.0 - eps + 2.0 * eps * uniform(pk, 101))
-            rnx, rny, rnz, draw = random_normal(pk, 102, rp)
-            pnx, pny, pnz, draw = perturb_normal(pk, 200, rp, nbx, nby, nbz, eps, retries)
-            n_h = 0
-            if all8:
-                for dz in range(3):
-                    zz = zb if dz == 0 else (z_prt if dz == 1 else z_rnd)
-                    for dn in range(3):
-                        if dz == 0 and dn == 0:
-                            continue
-                        hz[n_h] = zz
-                        if dn == 0:
-                            hn[n_h, 0] = nbx
-                            hn[n_h, 1] = nby
-                            hn[n_h, 2] = nbz
-                        elif dn == 1:
-                            hn[n_h, 0] = pnx
-                            hn[n_h, 1] = pny
-                            hn[n_h, 2] = pnz
-                        else:
-                            hn[n_h, 0] = rnx
-                            hn[n_h, 1] = rny
-                            hn[n_h, 2] = rnz
-                        n_h += 1
-            else:
-                # ACMM order: (z_rnd, n), (z, n_rnd), (z_rnd, n_rnd), (z, n_prt), (z_prt, n)
-                hz[0] = z_rnd
-                hn[0, 0] = nbx
-                hn[0, 1] = nby
-                hn[0, 2] = nbz
-                hz[1] = zb
-                hn[1, 0] = rnx
-                hn[1, 1] = rny
-                hn[1, 2] = rnz
-                hz[2] = z_rnd
-                hn[2, 0] = rnx
-                hn[2, 1] = rny
-                hn[2, 2] = rnz
-                hz[3] = zb
-                hn[3, 0] = pnx
-                hn[3, 1] = pny
-                hn[3, 2] = pnz
-                hz[4] = z_prt
-                hn[4, 0] = nbx
-                hn[4, 1] = nby
-                hn[4, 2] = nbz
-                n_h = 5
+            n_h = refinement_hypotheses(pk, rp, zb, nbx, nby, nbz, zmin, zmax, eps, retries, all8, hz, hn)
             for i in range(n_h):
                 zi = hz[i]
                 if not (zi >= zmin and zi <= zmax):
@@ -572,7 +601,7 @@ def half_step_kernel(colour, Z, Nrm, C, Sel, P, VER, RS, RV, RC, RN, rows, Cpre,
             if not (best < bar):
                 C[y, x] = c_old  # nothing won: same hypothesis, same cost; its caches stay valid
                 continue
-            if detail and not (best < Cpre[y, x] - fp[F_DETAIL_DELTA]):
+            if detail and not (best < Cpre[y, x] - params.detail_delta):
                 C[y, x] = c_old  # detail restorer: keep the upsampled hypothesis
                 continue
             Z[y, x] = zb

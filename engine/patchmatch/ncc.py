@@ -1,4 +1,4 @@
-"""Bilaterally weighted NCC (SPEC.md §2.3).
+"""Bilaterally weighted NCC (Schönberger et al. 2016 COLMAP; Xu & Tao 2019 ACMM).
 
 The weights depend only on the reference image, so they are computed once per reference view and
 level (:func:`bilateral_moments`): normalised weights w (H, W, S), the products w·a, and the window

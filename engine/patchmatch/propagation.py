@@ -1,4 +1,5 @@
-"""Sampling patterns and candidate gathering (SPEC.md §2.6) for the red-black checkerboard.
+"""Sampling patterns and candidate gathering for the red-black checkerboard (Xu & Tao 2019 ACMM's
+adaptive checkerboard sampling; the DeepC pattern of Kuhn et al. 2020).
 
 A pattern is a list of offsets (dx, dy) with a region id each. In every region the in-image sample
 with a valid depth and the lowest stored cost wins; the winners, ranked by their stored cost, are the

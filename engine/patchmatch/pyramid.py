@@ -1,4 +1,4 @@
-"""Image pyramid and joint bilateral upsampling (SPEC.md §1.2, §2.11).
+"""Image pyramid and joint bilateral upsampling (the multi-scale scheme of Xu & Tao 2019 ACMM).
 
 Level sizes are round(W·0.5^ℓ) × round(H·0.5^ℓ) of the working size; images are area-averaged
 (exact pixel-overlap weights, like cv2.INTER_AREA) and cameras rescaled with ``Camera.rescaled``.

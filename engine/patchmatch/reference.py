@@ -1,4 +1,5 @@
-"""Slow plain-Python/numpy references of the numba kernels, written straight from SPEC.md §2.
+"""Slow plain-Python/numpy references of the numba kernels, written straight from the papers'
+formulas (Xu & Tao 2019 ACMM; Kuhn et al. 2020 DeepC-MVS; Schönberger et al. 2016 COLMAP).
 
 They share no code with the kernels (only the counter-based random numbers, which are part of the
 specification of determinism), so the tests comparing the two check the kernels' formulas, indexing
@@ -14,7 +15,7 @@ import numpy as np
 from engine.patchmatch import rng
 from engine.patchmatch.ncc import FINE_CREASE, FINE_EDGE
 
-# ----------------------------------------------------------------------------- NCC (§2.3)
+# ----------------------------------------------------------------------------- NCC (COLMAP)
 
 
 def bilateral_weights_ref(img: np.ndarray, x: int, y: int, offsets: np.ndarray, weighting: str,
@@ -138,7 +139,7 @@ def edge_band_ref(depth: np.ndarray, normal: np.ndarray, K: np.ndarray, jump: fl
     return band
 
 
-# ----------------------------------------------------------------------------- geometry (§2.2, §2.9)
+# ----------------------------------------------------------------------------- geometry (ACMM)
 
 
 def homography_ref(K_ref: np.ndarray, R_ref: np.ndarray, t_ref: np.ndarray, K_src: np.ndarray, R_src: np.ndarray,
@@ -186,7 +187,7 @@ def propagate_depth_ref(K_ref: np.ndarray, q: tuple[int, int], zq: float, nq: np
     return zq * float(nq @ rq) / den
 
 
-# ----------------------------------------------------------------------------- view selection (§2.8)
+# ----------------------------------------------------------------------------- view selection (ACMM)
 
 
 def view_weights_ref(M: np.ndarray, n_rows: int, neighbour_masks: list[int], tau_g: float, tau_bad: float = 1.2,
@@ -225,7 +226,7 @@ def view_weights_ref(M: np.ndarray, n_rows: int, neighbour_masks: list[int], tau
     return v
 
 
-# ----------------------------------------------------------------------------- JBU (§2.11)
+# ----------------------------------------------------------------------------- JBU (ACMM)
 
 
 def jbu_ref(depth_lo: np.ndarray, normal_lo: np.ndarray, guide_hi: np.ndarray, radius: int = 2,
@@ -260,7 +261,7 @@ def jbu_ref(depth_lo: np.ndarray, normal_lo: np.ndarray, guide_hi: np.ndarray, r
     return depth.astype(np.float32), normal.astype(np.float32)
 
 
-# ----------------------------------------------------------------------------- random hypotheses (§2.4, §2.10)
+# ----------------------------------------------------------------------------- random hypotheses (ACMM, COLMAP)
 
 
 def random_normal_ref(key: int, draw: int, rp: np.ndarray) -> tuple[np.ndarray, int]:
@@ -293,7 +294,20 @@ def perturb_normal_ref(key: int, draw: int, rp: np.ndarray, n: np.ndarray, eps: 
     return n
 
 
-# ----------------------------------------------------------------------------- one half-step (§2.7)
+def refinement_hypotheses_ref(key: int, rp: np.ndarray, z: float, n: np.ndarray, zmin: float, zmax: float, eps: float,
+                              retries: int, all8: bool) -> list[tuple[float, np.ndarray]]:
+    """The local refinement's (depth, normal) hypotheses around (z, n): ACMM's five combinations of the current,
+    perturbed and random depth and normal, or all eight besides the current one."""
+    z_rnd = zmin + (zmax - zmin) * rng.uniform(np.uint64(key), 100)
+    z_prt = z * (1.0 - eps + 2.0 * eps * rng.uniform(np.uint64(key), 101))
+    n_rnd, _ = random_normal_ref(key, 102, rp)
+    n_prt = perturb_normal_ref(key, 200, rp, n, eps, retries)
+    if all8:
+        return [(zz, nn) for zz in (z, z_prt, z_rnd) for nn in (n, n_prt, n_rnd)][1:]
+    return [(z_rnd, n), (z, n_rnd), (z_rnd, n_rnd), (z, n_prt), (z_prt, n)]
+
+
+# ----------------------------------------------------------------------------- one half-step (ACMM, DeepC)
 
 
 class RefProblem:
@@ -347,7 +361,7 @@ class RefProblem:
 
 
 def init_cost_ref(prob: RefProblem, Z: np.ndarray, N: np.ndarray, geometric: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Top-k initial cost and selected-view masks of all pixels (§2.4)."""
+    """Top-k initial cost and selected-view masks of all pixels (ACMM's top-k rule)."""
     h, w = Z.shape
     o = prob.o
     C = np.zeros((h, w))
@@ -432,14 +446,8 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
                 cost = prob.aggregated(x, y, z, nq, v, geometric)
                 if cost < best:
                     best, zb, nb, won = cost, z, nq, True
-            z_rnd = zmin + (zmax - zmin) * rng.uniform(np.uint64(pk), 100)
-            z_prt = zb * (1.0 - eps + 2.0 * eps * rng.uniform(np.uint64(pk), 101))
-            n_rnd, _ = random_normal_ref(pk, 102, rp)
-            n_prt = perturb_normal_ref(pk, 200, rp, nb, eps, o.normal_perturb_retries)
-            if o.combos == "all8":
-                hyps = [(zz, nn) for zz in (zb, z_prt, z_rnd) for nn in (nb, n_prt, n_rnd)][1:]
-            else:
-                hyps = [(z_rnd, nb), (zb, n_rnd), (z_rnd, n_rnd), (zb, n_prt), (z_prt, nb)]
+            hyps = refinement_hypotheses_ref(pk, rp, zb, nb, zmin, zmax, eps, o.normal_perturb_retries,
+                                             o.combos == "all8")
             for zz, nn in hyps:
                 if not (zmin <= zz <= zmax):
                     continue

@@ -1,4 +1,4 @@
-"""Multi-hypothesis joint view selection (SPEC.md §2.8, ACMM's constants).
+"""Multi-hypothesis joint view selection (Xu & Tao 2019 ACMM, with the constants of its code).
 
 From the photometric cost rows M[k, j] of the best K_vs candidates, each source view gets a weight
 ω_j (many good costs -> Gaussian of the good costs; few bad costs -> a small constant; else 0),

@@ -1,0 +1,143 @@
+"""One pass of PatchMatch over one reference view at one pyramid level: the initial cost of its hypotheses,
+then red-black iterations (Xu & Tao 2019 ACMM; Kuhn et al. 2020 DeepC-MVS).
+
+:func:`run_view_level` is the public entry point (the engine runs every view pass with it; tests and
+benchmarks call it on a :class:`~engine.patchmatch.state.ViewState` and a ``context.ViewContext`` they
+build). :func:`init_cost` and :func:`half_step` are its two steps, for tests that look between them.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from engine.interrupt import check_interrupt
+from engine.patchmatch import kernels as K
+from engine.patchmatch.buffers import BufferPool
+from engine.patchmatch.context import ViewContext
+from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.propagation import sampling_pattern
+from engine.patchmatch.records import KernelParams, SamplingPattern, kernel_params
+from engine.patchmatch.rng import stream_key
+from engine.patchmatch.state import ViewState
+
+RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
+
+IterationFn = Callable[[int, np.ndarray, float], object]
+
+
+def perturbation_scale(options: PatchMatchOptions, iteration: int, done_before: int) -> float:
+    """ε of iteration ``iteration`` of a pass preceded by ``done_before`` iterations of earlier passes
+    (all levels): 2^-t per pass ('pass', Kuhn et al. 2020), or 2^-(done_before + t) floored at eps_min
+    ('global')."""
+    if options.eps_schedule == "pass":
+        return 2.0 ** (-iteration)
+    return max(2.0 ** (-(done_before + iteration)), options.eps_min)
+
+
+def pattern_of(options: PatchMatchOptions) -> SamplingPattern:
+    """The sampling pattern ``options.pattern`` names."""
+    return SamplingPattern(*sampling_pattern(options.pattern))
+
+
+def n_regions(pattern: SamplingPattern) -> int:
+    """Regions of a sampling pattern (``KernelParams.n_regions``)."""
+    return int(pattern.regions.max()) + 1
+
+
+def init_cost(state: ViewState, ctx: ViewContext, params: KernelParams, cache: bool = True,
+              pool: BufferPool | None = None) -> None:
+    """Recompute cost and selected views of the stored hypotheses (ACMM's top-k initial cost); with ``cache``
+    also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given)."""
+    if cache:
+        state.prepare_caches(ctx.num_sources, params.k_update, True, pool)
+    view_costs = state.view_costs if cache else np.empty((1, 1, 1))
+    known, known_wset = state.known_costs, state.known_window_set
+    if known is None:  # the kernel also ignores carried-over costs of another shape
+        known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
+    K.init_cost_kernel(state.maps(), view_costs, cache, known, known_wset, ctx.reference_windows(),
+                       ctx.source_images(), params)
+    state.known_costs = state.known_window_set = None  # only valid for the hypotheses they were computed for
+
+
+def half_step(state: ViewState, ctx: ViewContext, colour: int, cpre: np.ndarray, pattern: SamplingPattern,
+              key: np.uint64, params: KernelParams) -> np.ndarray:
+    """One red (``colour`` 1) or black (0) half-step on one view (in place). Call :func:`init_cost` first in
+    every pass (and after changing the state's maps from outside): it fills the cost cache the half-steps
+    trust. ``cpre`` (H, W) f32: the detail restorer's reference cost (read only with
+    ``params.detail_restorer``); ``key``: the half-step's random stream (``rng.stream_key``).
+
+    Returns (N_COUNTS,) int64: NCC windows evaluated for the view-selection rows, the current
+    hypotheses, the remaining candidates and the refinement, and the number of pixels updated."""
+    rows = state.prepare_caches(ctx.num_sources, params.k_update, False)
+    counts = np.zeros((state.depth.shape[0], K.N_COUNTS), np.int64)
+    K.half_step_kernel(colour, state.maps(), state.caches(rows), cpre, ctx.reference_windows(), ctx.source_images(),
+                       pattern, key, params, counts)
+    return counts.sum(axis=0)
+
+
+def restorer_reference(state: ViewState, ctx: ViewContext, options: PatchMatchOptions, params: KernelParams,
+                       view: int, level: int) -> np.ndarray | None:
+    """Cpre for detail_restorer_reference='random': top-k photometric cost (ACMM's initial cost) of the
+    upsampled depth with a random normal facing the camera (None for 'upsampled': computed by the caller)."""
+    if options.detail_restorer_reference != "random":
+        return None
+    h, w = state.depth.shape
+    tmp = ViewState(np.empty((h, w), np.float32), np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
+                    np.empty((h, w), np.uint32))
+    key = np.uint64(stream_key(options.seed, view, level, 0, RESTORER_ITERATION, 0))
+    K.random_init_kernel(tmp.depth, tmp.normal, ctx.kinv, params.zmin, params.zmax, key, False)
+    tmp.depth[:] = state.depth
+    init_cost(tmp, ctx, params, cache=False)
+    return tmp.cost
+
+
+def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOptions, zmin: float, zmax: float, *,
+                   view: int = 0, level: int = 0, pass_index: int = 0, detail: bool = False,
+                   iterations: int | None = None, done_before: int = 0, on_iteration: IterationFn | None = None,
+                   pool: BufferPool | None = None) -> np.ndarray:
+    """Run one pass of PatchMatch over one reference view at one pyramid level, in place on ``state``.
+
+    The initial cost of the stored hypotheses (ACMM's top-k rule), then ``iterations`` (default
+    ``options.pass_iterations(pass_index)``) red-black iterations of a black and a red :func:`half_step`.
+    Pass 0 is photometric, later passes are geometric (``ctx`` must then hold the sources' depth maps);
+    ``detail`` turns the detail restorer on (ACMM; the photometric pass of a finer level, after upsampling).
+    ``view``, ``level`` and ``pass_index`` name the pass's random streams (``rng.stream_key``): the same
+    arguments give the same maps on any thread count. ``done_before``: iterations of all earlier passes
+    (perturbation schedule 'global'). ``zmin``, ``zmax``: the view's depth range (camera z, scene units).
+
+    ``on_iteration(t, counts, seconds)`` is called after every iteration with the (N_COUNTS,) int64 counts
+    of its two half-steps (columns ``kernels.CNT_*``). A stop request (``engine.interrupt``) is honoured
+    between iterations. The pass's caches are dropped at the end; the photometric costs of the final
+    hypotheses are kept for the next pass of this level (``pass_index < options.geom_passes``).
+    Returns the (N_COUNTS,) int64 counts of the whole pass."""
+    pattern = pattern_of(options)
+    geometric = pass_index > 0
+    n_iter = options.pass_iterations(pass_index) if iterations is None else iterations
+    params = kernel_params(options, zmin, zmax, 0, geometric, detail, n_regions(pattern))
+    if detail:
+        cpre = restorer_reference(state, ctx, options, params, view, level)
+    init_cost(state, ctx, params, pool=pool)
+    if not detail:
+        cpre = state.cost
+    elif options.detail_restorer_reference == "upsampled":
+        cpre = state.cost.copy()
+    total = np.zeros(K.N_COUNTS, np.int64)
+    for t in range(n_iter):
+        check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
+        t0 = time.perf_counter()
+        params = kernel_params(options, zmin, zmax, t, geometric, detail, n_regions(pattern),
+                               perturbation_scale(options, t, done_before), last=t == n_iter - 1)
+        counts = np.zeros(K.N_COUNTS, np.int64)
+        for colour in (0, 1):
+            key = np.uint64(stream_key(options.seed, view, level, pass_index, t, colour))
+            counts += half_step(state, ctx, colour, cpre, pattern, key, params)
+        if on_iteration is not None:
+            on_iteration(t, counts, time.perf_counter() - t0)
+        total += counts
+    # the caches are only valid within this pass (ctx); the photometric costs of the final hypotheses also hold
+    # in the next pass of this level (same images; init_cost checks the window set)
+    state.drop_caches(keep_costs_of=ctx if pass_index < options.geom_passes else None, pool=pool)
+    return total
