@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
+import support.patchmatch_reference as ref
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.errors import OptionsError
 from engine.patchmatch import PatchMatchOptions, ViewMaps
-from engine.patchmatch import reference as ref
 from support.pm_synthetic import make_scene
 
 

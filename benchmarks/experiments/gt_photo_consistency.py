@@ -11,7 +11,7 @@ far better than the GT itself (mean 1 - NCC 0.45 vs 0.81), and PatchMatch's esti
 Regions: "ground" = GT pixels whose world-frame GT normal is within 15° of the ground normal (the median GT
 normal of the bottom tenth of every view: the scene's floor), "other" = every other GT pixel. For each region
 of view ``--view``: ``--samples`` random GT pixels, 1 - NCC (SPEC.md §2.3 bilateral weights, dense 11×11 window,
-plane-induced homographies, bilinear sampling: ``engine.patchmatch.reference``) averaged over the ``--sources``
+plane-induced homographies, bilinear sampling: ``support.patchmatch_reference``) averaged over the ``--sources``
 views nearest in index, for s in SCALES and for the run's own depth and normal; which s wins per pixel. Then
 within 1 % of the run over all views, per region.
 """
@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from engine.io.images import to_gray
-from engine.patchmatch.reference import homography_ref, ncc_cost_ref
 from engine.run_folder import read_map
 from support import bench
 from support.gt_normals import depth_normals
+from support.patchmatch_reference import homography_ref, ncc_cost_ref
 from support.scoring import within_by_region
 from workbench.session import ViewerSession
 

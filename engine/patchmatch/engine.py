@@ -18,11 +18,11 @@ from typing import Any
 import numba
 import numpy as np
 
+import engine.patchmatch.kernels as K
 from engine.camera import Camera
 from engine.errors import DeepCError
 from engine.interrupt import check_interrupt
 from engine.observer import IterationEvent, readonly
-from engine.patchmatch import kernels as K
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions

@@ -13,8 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+import engine.patchmatch.kernels as K
 from engine.interrupt import check_interrupt
-from engine.patchmatch import kernels as K
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.options import PatchMatchOptions

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from engine.patchmatch import rng
+import engine.patchmatch.rng as rng
 from engine.patchmatch.ncc import FINE_CREASE, FINE_EDGE
 
 # ----------------------------------------------------------------------------- NCC (COLMAP)
