@@ -65,12 +65,12 @@ def test_options_defaults_and_validation() -> None:
     assert (acmm.pass_iterations(0), acmm.pass_iterations(1)) == (3, 2)
     assert PatchMatchOptions(schedule="acmm", iterations=5).pass_iterations(1) == 5
     assert o.window_offsets() == [-5, -3, -1, 1, 3, 5]
-    # the fine window near depth edges is on by default (a documented deviation from SPEC's single window)
+    # the fine window near depth edges is on by default (a documented deviation from ACMM's single window)
     assert (o.fine_window, o.fine_edge_radius, o.fine_max_level) == (5, 5, 0)
     assert o.fine_window_offsets() == [-2, -1, 0, 1, 2]
     assert PatchMatchOptions(fine_window=0).fine_window_offsets() == []
     assert PatchMatchOptions.from_dict(o.to_dict()) == o
-    # the good-cost threshold stays at tau0 over a pass by default (a documented deviation from SPEC's
+    # the good-cost threshold stays at tau0 over a pass by default (a documented deviation from ACMM's
     # decay, alpha = 90, which --set patchmatch.alpha=90 restores)
     assert o.alpha == 0.0
     assert [kernel_params(o, 1.0, 2.0, t).tau_good for t in (0, 7)] == [0.8, 0.8]
@@ -181,7 +181,7 @@ def test_levels_shrink_for_small_images(small_scene) -> None:
 @pytest.mark.parametrize("restorer,reference,min_within", [(False, "random", 90.0), (True, "random", 90.0),
                                                            (True, "upsampled", 65.0)])
 def test_quality_on_synthetic_scene(scene, restorer: bool, reference: str, min_within: float) -> None:
-    # With the SPEC-literal detail restorer (Cpre = top-k cost of the upsampled hypothesis, delta 0.1)
+    # With ACMM's detail restorer (Cpre = top-k cost of the upsampled hypothesis, delta 0.1)
     # the finer levels' photometric passes almost never overwrite the upsampled maps, and on a 120x90
     # scene the geometric passes lock in the coarse estimate: about 76% within 1% instead of 95%.
     # The default reference (cost of a random normal at the upsampled depth) lets textured pixels refine.
