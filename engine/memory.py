@@ -35,7 +35,7 @@ import numpy as np
 
 from engine.camera import Camera, rescaled_size
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
-from engine.patchmatch.engine import ROW_CACHE_MAX_BYTES, row_cache_bytes
+from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
@@ -136,7 +136,7 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     inputs = 12 * cached + 4 * total + 27 * original_largest
     per_view_context = 4 * (2 * offsets + 2 + 2 * sources) * largest
     patchmatch = (4 * 4 // 3 + 24 + 4 + 6 + 4 * sources + 1) * total + per_view_context + 3 * 24 * largest
-    # the view being processed keeps per-pass cost caches (engine/patchmatch/engine.py _caches): current
+    # the view being processed keeps per-pass cost caches (ViewState.prepare_caches): current
     # hypothesis costs (float64 per source), versions and, below ROW_CACHE_MAX_BYTES, the candidate rows
     rows = row_cache_bytes(largest, 1, pm.k_update, sources)
     patchmatch += (8 * sources + 4) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)

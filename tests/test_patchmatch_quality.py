@@ -5,7 +5,7 @@ Issue target: within_1pct >= 90 % and valid_fraction >= 95 %. Measured with the 
 the fine window keeps 10 % of the standard window's variance, a constant good-cost threshold (alpha 0),
 detail_restorer_reference='random', eps_schedule='global', min_improvement 0.003): within_1pct 90.08 %
 (seeds 0-2: 90.08 / 90.08 / 90.09), within_5pct 95.4 %, valid 100 %. Without the crease band it is 89.5 %,
-with the 11x11 window alone (SPEC) about 80 %: that window straddles both surfaces along occlusion edges
+with the 11x11 window alone (the paper's) about 80 %: that window straddles both surfaces along occlusion edges
 and creases on 160x120 images. What is left: background pixels beside the objects that one or two of the
 four source views see and the strips of the outer views that no source view sees (2.6 %, never right); see
 the engineering notes and benchmarks/results/ncc_sharpness_fine_crease_angle.json. The margin over the target is small
@@ -48,7 +48,7 @@ def pooled(tiny_maps) -> dict[str, float]:
 
 def test_tiny_issue_target(pooled) -> None:
     # measured 90.08 / 95.4 / 100 (seeds 0-2: 90.08-90.09); 89.5 without the crease band
-    # (fine_crease_angle=0), 80 / 92 with the 11 px window alone, 70 with the SPEC-literal restorer
+    # (fine_crease_angle=0), 80 / 92 with the 11 px window alone, 70 with the paper's literal restorer
     assert pooled["valid_fraction"] >= 95.0, pooled
     assert pooled["within_1pct"] >= 90.0, pooled
     assert pooled["within_5pct"] >= 95.0, pooled

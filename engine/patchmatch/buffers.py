@@ -5,7 +5,7 @@ caches, 180 MB with 5 sources). Freshly allocated, each 4 KiB page of them fault
 the parallel kernels, and on this virtual machine that cost varies a lot from run to run. Reused arrays
 make one view's window terms 1.07x and its initial cost plus a half-step 1.06x faster in the committed
 measurement (``benchmarks/results/bench_patchmatch_buffers.json``, best of 9); repeat with
-``benchmarks/bench_patchmatch_buffers.py``, whose ratios change from run to run with the machine.
+``benchmarks/performance/bench_patchmatch_buffers.py``, whose ratios change from run to run with the machine.
 """
 
 from __future__ import annotations

@@ -239,7 +239,7 @@ def ncc_cost(flat: np.ndarray, base: int, stride: int, sw: int, sh: int, win: np
     Three loops instead of one: LLVM does not vectorise a loop with gathers on this CPU (its cost
     model rejects them), so the projection (two divisions per sample) and the weighted sums get loops of
     their own that it vectorises 8 wide (2.1x the samples per second of the single loop,
-    benchmarks/bench_patchmatch.py). The scalar loop in between loads the four texels and blends them:
+    benchmarks/performance/bench_patchmatch.py). The scalar loop in between loads the four texels and blends them:
     it is bound by loads and stores, so it stores one blended value per sample instead of four texels,
     and the vector loops run over whole vectors instead of ending in a scalar remainder (with the inlined
     aggregated_cost, 1.05-1.21x per half-step: benchmarks/results/bench_patchmatch_ab_blend.json).
