@@ -28,6 +28,7 @@ import rerun as rr
 from engine.camera import Camera
 from engine.observer import IterationEvent, NullObserver
 from engine.options import Options, check, option
+from workbench.map_images import colorize, normal_to_rgb, subsample
 
 
 @dataclasses.dataclass
@@ -57,26 +58,6 @@ def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
     return [view for bit, view in enumerate(source_views) if mask >> bit & 1]
 
 
-def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis",
-             invalid: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) scalars -> (H, W, 3) uint8 through a matplotlib colormap; ``invalid`` pixels black."""
-    from matplotlib import colormaps
-
-    scaled = np.clip((np.nan_to_num(values, nan=vmin) - vmin) / max(vmax - vmin, 1e-12), 0.0, 1.0)
-    lut = (colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
-    rgb = lut[(scaled * 255).astype(np.uint8)]
-    if invalid is not None:
-        rgb[invalid] = 0
-    return rgb
-
-
-def normal_to_rgb(normal: np.ndarray) -> np.ndarray:
-    """(H, W, 3) unit normals -> uint8 RGB (n + 1) / 2; missing normals black."""
-    rgb = ((np.clip(normal, -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
-    rgb[~normal.any(axis=2)] = 0
-    return rgb
-
-
 COST_METER = 127.5  # uint8 cost map: value / 127.5 = matching cost in [0, 2]
 ERROR_METER = 10.0  # uint8 error map: value / 10 = relative depth error in percent (0 = none or no GT)
 
@@ -91,15 +72,6 @@ def _popcount(mask: np.ndarray) -> np.ndarray:
     for bit in range(32):
         count += ((mask >> np.uint32(bit)) & np.uint32(1)).astype(np.uint8)
     return count
-
-
-def subsample(array: np.ndarray, max_size: int) -> np.ndarray:
-    """Nearest-neighbour subsampling by an integer step so the longer side is at most ``max_size``
-    (0 = unchanged); keeps depth values real, never blended."""
-    if max_size <= 0:
-        return array
-    step = int(np.ceil(max(array.shape[:2]) / max_size))
-    return np.ascontiguousarray(array[::step, ::step]) if step > 1 else array
 
 
 class RerunStream(NullObserver):
