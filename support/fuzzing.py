@@ -295,7 +295,7 @@ def images_target(tmp: Path) -> FuzzTarget:
 
 
 def regress_suite_target(tmp: Path) -> FuzzTarget:
-    """Regression suite TOML (workbench/regress.py load_suite): every key kind, parsed as ``deepc regress`` does."""
+    """Regression suite TOML (workbench.regress.suite.load_suite): every key kind, parsed as ``deepc regress`` does."""
     from workbench.regress import load_suite
 
     for scene in ("tiny", "small"):  # load_suite checks that each scene folder has sparse/

@@ -105,7 +105,7 @@ def test_eval_prints_the_table_and_writes_json(tmp_path):
 
 
 def test_run_writes_the_contract_outputs_and_a_recording(tmp_path):
-    """CONTRACT §4/§5 on the tiny scene with a short schedule (the quality tests use the full one)."""
+    """The run folder and metrics.json on the tiny scene with a short schedule (the quality tests use the full one)."""
     import json
 
     from rerun.chunk import RrdReader

@@ -22,7 +22,7 @@ from engine.refinement.options import RefinementOptions
 from engine.scene import SceneOptions
 from engine.synthetic.layout import RandomSceneKnobs
 from workbench.flags import add_options_flags, options_from_args, section_overrides
-from workbench.stream import StreamOptions
+from workbench.stream_options import StreamOptions
 
 BASELINES = Path(__file__).resolve().parent / "baselines"
 

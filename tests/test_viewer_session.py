@@ -10,7 +10,7 @@ import pytest
 from engine.errors import DeepCError
 from engine.refinement.options import RefinementOptions
 from workbench.session import ViewerSession, ViewParams
-from workbench.viewer import safe_file_name
+from workbench.viewer_export import safe_file_name
 
 
 @pytest.fixture(scope="module")

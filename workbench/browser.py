@@ -29,7 +29,7 @@ def _only_loopback(route) -> None:
 @contextlib.contextmanager
 def chromium(width: int = 1000, height: int = 700, timeout_ms: int = 30_000) -> Iterator:
     """A persistent chromium context (yielded); closed, with its profile folder, on exit."""
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import sync_playwright  # lazy: playwright
 
     with tempfile.TemporaryDirectory(prefix="deepc-chromium-") as profile, sync_playwright() as p:
         context = p.chromium.launch_persistent_context(

@@ -14,10 +14,10 @@ from __future__ import annotations
 import sys
 import time
 
+from workbench.regress import DEFAULT_SUITE, load_suite, warm_up
+
 
 def main() -> int:
-    from workbench.regress import DEFAULT_SUITE, load_suite, warm_up
-
     start = time.perf_counter()
     warm_up(load_suite(DEFAULT_SUITE).runs)
     print(f"numba cache ready ({time.perf_counter() - start:.1f} s)", file=sys.stderr)

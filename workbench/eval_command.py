@@ -1,8 +1,8 @@
-"""``deepc eval RECON.ply GT.ply|GT.mlp [--tolerances ...] [--json OUT.json]`` (CONTRACT.md §3).
+"""``deepc eval RECON.ply GT.ply|GT.mlp [--tolerances ...] [--json OUT.json]``.
 
 Prints the ETH3D-style table (percent). GT may be a PLY of surface points or an ETH3D
 ``scan_alignment.mlp``. When the GT PLY is ``SCENE/ground_truth/points.ply`` of a scene with GT depth
-maps, the unobserved-space rule uses those maps (SPEC.md §9.1).
+maps, the unobserved-space rule uses those maps (Schöps et al. 2017).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from pathlib import Path
 from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, EvaluationResult, evaluate_file, parse_tolerances
 from engine.io.atomic import atomic_write_text
+from engine.scene import SceneOptions, load_scene
 
 
 def _gt_views_for(gt_path: Path):
@@ -24,8 +25,6 @@ def _gt_views_for(gt_path: Path):
     scene_root = gt_path.parent.parent
     if not (scene_root / "ground_truth" / "depth_maps").is_dir() or not (scene_root / "sparse").is_dir():
         return None
-    from engine.scene import SceneOptions, load_scene
-
     try:
         scene = load_scene(scene_root, SceneOptions(max_image_size=1024))
     except DeepCError as exc:

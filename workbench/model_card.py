@@ -46,7 +46,7 @@ def inputs_line(inputs: dict | None) -> str:
 
 def write_recipe_model_card(path: Path, weights: Path, result: dict, recipe: Recipe) -> None:
     """A Markdown card: recipe, split with citations, options, training time, validation history."""
-    from engine.confidence.weights import load_weights
+    from engine.confidence.weights import load_weights  # lazy: torch
 
     model = load_weights(weights)
     meta, best, history = model.meta, result["best"], result["history"]

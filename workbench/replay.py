@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import socket
 import subprocess
 import tempfile
 import threading
@@ -18,22 +19,22 @@ import time
 import urllib.parse
 from pathlib import Path
 
+import rerun_cli
+from rerun.chunk import RrdReader
+
 from engine.errors import DeepCError
+from layouts import LAYOUTS
 from workbench.recording import APP_ID
 
 _URL = re.compile(r"(http://[^\s]+\?url=[^\s]+)")
 
 
 def rerun_binary() -> Path:
-    import rerun_cli
-
     return Path(rerun_cli.__file__).parent / "rerun"
 
 
 def recording_views(path: str | Path) -> list[str]:
     """View entity names (``maps/<view>/...``) in a recording; raises DeepCError if it is not one."""
-    from rerun.chunk import RrdReader
-
     path = Path(path)
     if not path.is_file():
         raise DeepCError("recording not found", path)
@@ -48,8 +49,6 @@ def recording_views(path: str | Path) -> list[str]:
 
 def layout_file(path: str | Path, layout: str, folder: Path) -> Path:
     """Write the blueprint ``layout`` for the recording at ``path`` into ``folder``; returns the .rbl."""
-    from layouts import LAYOUTS
-
     if layout not in LAYOUTS:
         raise DeepCError(f"unknown layout {layout!r} (one of {', '.join(LAYOUTS)})")
     views = recording_views(path) or ["none"]
@@ -144,8 +143,6 @@ class NativeViewer:
     """The native rerun viewer, listening for a live stream on 127.0.0.1 (needs a display)."""
 
     def __init__(self, host: str = "127.0.0.1"):
-        import socket
-
         with socket.socket() as sock:
             sock.bind((host, 0))
             port = sock.getsockname()[1]

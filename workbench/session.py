@@ -24,10 +24,10 @@ from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.ply import read_points
-from engine.refinement.guard import keep_confident, kept_estimates
-from engine.refinement.options import RefinementOptions
-from engine.run_folder import read_map, read_metrics
+from engine.run_folder import read_run_metrics
 from engine.scene import Scene, SceneOptions, load_scene
+from workbench.map_images import colorize, view_images
+from workbench.run_maps import ViewData, read_view_data
 
 COLOR_MODES = ("rgb", "confidence", "views", "error")
 REPORT_TOLERANCE = 0.02  # the paper's and ETH3D's headline tolerance (model units: metres)
@@ -55,36 +55,6 @@ class ViewParams:
 
     def fusion_key(self) -> tuple:
         return (self.filter_key(), tuple(sorted(self.fusion.to_dict().items())))
-
-
-@dataclasses.dataclass
-class ViewData:
-    """The maps of one view read from an output folder (None where the run did not write them)."""
-
-    depth: np.ndarray
-    normal: np.ndarray
-    counter: np.ndarray | None
-    confidence: np.ndarray | None
-    refined_depth: np.ndarray | None
-    refined_normal: np.ndarray | None
-    refined_counter: np.ndarray | None = None  # counter maps of the refined maps (older full runs: None)
-    refined_confidence: np.ndarray | None = None  # confidence of the refined maps (second network)
-
-    def maps(self, pipeline: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """(depth, normal, confidence, counter) that ``pipeline`` filters and fuses: ``full`` takes the refined
-        maps with their own confidence and counter maps (the first network's for older full runs), except where
-        network 1 trusts the PatchMatch estimate (``refinement.keep_confident``, as the pipeline fuses them)."""
-        if pipeline != "full":
-            return self.depth, self.normal, self.confidence, self.counter
-        counter = self.counter if self.refined_counter is None else self.refined_counter
-        if self.refined_confidence is None or self.confidence is None:
-            return self.refined_depth, self.refined_normal, self.confidence, counter
-        threshold = RefinementOptions().keep_confident
-        depth, normal, confidence = keep_confident(self.depth, self.normal, self.confidence, self.refined_depth,
-                                                   self.refined_normal, self.refined_confidence, threshold)
-        if self.counter is not None and counter is not None:
-            counter = np.where(kept_estimates(self.depth, self.confidence, threshold), self.counter, counter)
-        return depth, normal, confidence, counter
 
 
 # Exact clouds are bounded by bytes as well as by count: a per-pixel cloud of 11 views at 768 px is
@@ -144,13 +114,13 @@ class ViewerSession:
         """Open the output folder of ``deepc run`` (metrics.json + stereo maps) or a bare scene."""
         path = Path(path)
         if (path / "metrics.json").is_file():
-            metrics = read_metrics(path)
-            scene_path = Path(metrics.get("scene_path", ""))
+            metrics = read_run_metrics(path)
+            scene_path = Path(metrics.scene_path)
             if not (scene_path / "sparse").is_dir():
                 raise DeepCError(f"the scene this run was made from is gone ({scene_path})", path / "metrics.json")
-            options = scene_options or SceneOptions.from_dict(metrics.get("options", {}).get("scene", {}))
+            options = scene_options or SceneOptions.from_dict(metrics.scene_options())
             scene = load_scene(scene_path, options)
-            return cls(scene, _read_view_data(path, scene), path)
+            return cls(scene, read_view_data(path, scene), path)
         if (path / "sparse").is_dir() or (path / "sparse" / "0").is_dir():
             return cls(load_scene(path, scene_options or SceneOptions()), None, None)
         raise DeepCError("neither an output folder of deepc run (no metrics.json) nor a COLMAP workspace", path)
@@ -305,8 +275,6 @@ class ViewerSession:
     # ---- colours and per-view images ----------------------------------------------------------------
     def colors(self, cloud: FusedCloud, mode: str) -> np.ndarray:
         """(N, 3) uint8 colours of the cloud for a colour mode."""
-        from workbench.stream import colorize
-
         if mode == "rgb" or len(cloud) == 0:
             return cloud.rgb
         if mode == "confidence":
@@ -327,34 +295,7 @@ class ViewerSession:
 
     def view_images(self, i: int) -> dict[str, np.ndarray]:
         """uint8 RGB images of view ``i``'s maps for the side panel: image, depth, normal, counter, confidence."""
-        from workbench.stream import colorize, normal_to_rgb
-
-        images = {"image": (np.asarray(self.scene.image(i)) * 255 + 0.5).astype(np.uint8)}
-        if not self.data:
-            return images
-        d = self.data[i]
-        lo, hi = self.scene.views[i].depth_range
-        images["depth"] = colorize(d.depth, lo, hi, "turbo", d.depth <= 0)
-        images["normal"] = normal_to_rgb(d.normal)
-        if d.counter is not None:
-            images["counter"] = colorize(d.counter, 0, 5, "coolwarm", d.depth <= 0)
-        if d.confidence is not None:
-            images["confidence"] = colorize(d.confidence, 0.0, 1.0, "viridis", d.depth <= 0)
-        return images
-
-
-def _read_view_data(out_dir: Path, scene: Scene) -> list[ViewData]:
-    data = []
-    for v in scene.views:
-        depth = read_map(out_dir, "depth", v.name)
-        normal = read_map(out_dir, "normal", v.name)
-        if depth is None or normal is None:
-            raise DeepCError(f"the run has no depth/normal map for view {v.name}", out_dir)
-        data.append(ViewData(depth, normal, read_map(out_dir, "counter", v.name),
-                             read_map(out_dir, "confidence", v.name), read_map(out_dir, "refined_depth", v.name),
-                             read_map(out_dir, "refined_normal", v.name), read_map(out_dir, "refined_counter", v.name),
-                             read_map(out_dir, "refined_confidence", v.name)))
-    return data
+        return view_images(self.scene, i, self.data[i] if self.data else None)
 
 
 def describe(scores: dict[str, Any] | None) -> str:

@@ -18,7 +18,6 @@ step. Logging can be thinned (every k-th iteration, one view, reduced resolution
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -27,21 +26,8 @@ import rerun as rr
 
 from engine.camera import Camera
 from engine.observer import IterationEvent, NullObserver
-from engine.options import Options, option
-
-
-@dataclasses.dataclass
-class StreamOptions(Options):
-    """What the rerun stream logs (thinning keeps recordings small)."""
-
-    every: int = option(1, "log every k-th red-black iteration (the last one of each pass always)", source="ours",
-                        low=1)
-    view: int | None = option(None, "log the per-iteration maps of this view index only; unset = all views",
-                              source="ours", low=0)
-    max_size: int = option(0, "downscale logged maps to this longer side (0 = full size)", unit="px", source="ours",
-                           low=0)
-    selected_views_mask: bool = option(True, "log the raw selected-views bitmask (uint32) as well as the count",
-                                       source="ours")
+from workbench.map_images import colorize, normal_to_rgb, subsample
+from workbench.stream_options import StreamOptions
 
 
 def entity_name(index: int, name: str) -> str:
@@ -52,26 +38,6 @@ def entity_name(index: int, name: str) -> str:
 def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
     """Decode a selected-views bitmask into view indices (bit k = ``source_views[k]``)."""
     return [view for bit, view in enumerate(source_views) if mask >> bit & 1]
-
-
-def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis",
-             invalid: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) scalars -> (H, W, 3) uint8 through a matplotlib colormap; ``invalid`` pixels black."""
-    from matplotlib import colormaps
-
-    scaled = np.clip((np.nan_to_num(values, nan=vmin) - vmin) / max(vmax - vmin, 1e-12), 0.0, 1.0)
-    lut = (colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
-    rgb = lut[(scaled * 255).astype(np.uint8)]
-    if invalid is not None:
-        rgb[invalid] = 0
-    return rgb
-
-
-def normal_to_rgb(normal: np.ndarray) -> np.ndarray:
-    """(H, W, 3) unit normals -> uint8 RGB (n + 1) / 2; missing normals black."""
-    rgb = ((np.clip(normal, -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
-    rgb[~normal.any(axis=2)] = 0
-    return rgb
 
 
 COST_METER = 127.5  # uint8 cost map: value / 127.5 = matching cost in [0, 2]
@@ -88,15 +54,6 @@ def _popcount(mask: np.ndarray) -> np.ndarray:
     for bit in range(32):
         count += ((mask >> np.uint32(bit)) & np.uint32(1)).astype(np.uint8)
     return count
-
-
-def subsample(array: np.ndarray, max_size: int) -> np.ndarray:
-    """Nearest-neighbour subsampling by an integer step so the longer side is at most ``max_size``
-    (0 = unchanged); keeps depth values real, never blended."""
-    if max_size <= 0:
-        return array
-    step = int(np.ceil(max(array.shape[:2]) / max_size))
-    return np.ascontiguousarray(array[::step, ::step]) if step > 1 else array
 
 
 class RerunStream(NullObserver):

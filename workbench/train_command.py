@@ -13,6 +13,7 @@ writes the weights with a model card (workbench/model_card.py): how the shipped 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import sys
 import time
@@ -20,83 +21,25 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.confidence.data import load_run
+from engine.confidence.options import ConfidenceOptions, TrainOptions
+from engine.confidence.recipe import SceneEntry, load_recipe
+from engine.consistency import CounterOptions
 from engine.errors import DeepCError
-from engine.io.atomic import write_json
-
-
-def parse_seeds(text: str) -> list[int]:
-    """'0-59' or '1,2,5-9' -> list of ints (an argparse type)."""
-    from engine.confidence.recipe import parse_seeds as seeds_of
-
-    try:
-        return seeds_of(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"seeds must look like 0-59 or 1,2,5-9, got {text!r}") from None
-
-
-def add_train_arguments(train: argparse.ArgumentParser) -> None:
-    from engine.confidence.options import TrainOptions
-    from workbench.flags import add_options_flags
-
-    train.add_argument("scenes", nargs="*", metavar="SCENE_OR_RUN",
-                       help="training scenes with GT depth maps, or finished run folders of such scenes")
-    train.add_argument("--recipe", default=None, metavar="FILE.toml",
-                       help="train as the recipe says (scenes, split, engine runs, options; see "
-                            "engine/confidence/recipes/); flags given explicitly override its [training]")
-    train.add_argument("--data", default=None, metavar="DIR",
-                       help="with --recipe: the folder its scene paths are relative to (default: its [data] root)")
-    train.add_argument("--synthetic", type=parse_seeds, default=[], metavar="SEEDS",
-                       help="also train on these randomised synthetic scenes, e.g. 0-59")
-    train.add_argument("--validation", nargs="*", default=[], metavar="SCENE_OR_RUN",
-                       help="held-out scenes or runs scored every epoch (each a separate ROC-AUC)")
-    train.add_argument("--validation-synthetic", type=parse_seeds, default=[], metavar="SEEDS",
-                       help="held-out synthetic scenes, scored together, e.g. 1000-1003")
-    train.add_argument("--cache", default="runs/train_cache", metavar="DIR",
-                       help="cache of rendered scenes (DIR/scenes) and engine runs (DIR/runs)")
-    train.add_argument("--out", default=None, metavar="WEIGHTS.pt",
-                       help="best weights (default: runs/train/<loss>_<fusion>/weights.pt)")
-    train.add_argument("--checkpoint", default=None, metavar="FILE",
-                       help="resumable state, written every epoch (default: next to --out); an existing "
-                            "checkpoint is resumed")
-    train.add_argument("--max-epochs", type=int, default=None, metavar="N",
-                       help="stop after this many epochs in total (resume later to go on)")
-    train.add_argument("--init", default=None, metavar="WEIGHTS.pt",
-                       help="start from these weights (warm start) instead of a random initialisation")
-    train.add_argument("--validation-max-views", type=int, default=0, metavar="N",
-                       help="score at most N evenly spaced views of each validation set per epoch (0 = all)")
-    train.add_argument("--model-card", default=None, metavar="FILE.md",
-                       help="also write a model card (data, options, validation ROC-AUC per scene, date)")
-    train.add_argument("--refined", action="store_true",
-                       help="train the second network of --pipeline full (confidence.refined_weights): every "
-                            "training and validation run is first refined as the full pipeline does (confidence "
-                            "of --refine-weights, refinement, counter maps of the refined maps; cached in "
-                            "RUN/refined/ and reused while weights, options and maps match) and the network "
-                            "learns on the refined maps")
-    train.add_argument("--refine-weights", default=None, metavar="WEIGHTS.pt",
-                       help="with --refined: network-1 weights whose confidence guides the refinement "
-                            "(default: the shipped engine/confidence/weights/deepc_middle.pt)")
-    train.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                       help="with --refined: options of that refinement as for deepc run --pipeline full, stages "
-                            f"{', '.join(REFINE_SECTIONS)}, e.g. --set refinement.lambda_reg=5")
-    engine_group = train.add_argument_group("engine runs on training scenes")
-    engine_group.add_argument("--num-source-views", type=int, default=4, metavar="N")
-    engine_group.add_argument("--max-image-size", type=int, default=0, metavar="PX")
-    engine_group.add_argument("--schedule", choices=("paper", "acmm"), default="acmm")
-    add_options_flags(train.add_argument_group("training"), TrainOptions)
-
-
-#: ``--set`` stages of ``deepc train --refined`` (those that determine the refined maps)
-REFINE_SECTIONS = ("refinement", "counter", "confidence")
+from engine.io.atomic import atomic_write_text, write_json
+from engine.patchmatch import PatchMatchOptions
+from engine.pipeline import PipelineOptions
+from engine.refinement.options import RefinementOptions
+from engine.run_folder import INFERENCE, POST_REFINEMENT, file_sha256
+from engine.scene import SceneOptions
+from engine.training_runs import ensure_run
+from workbench.flags import given_flags, options_from_args, section_overrides
+from workbench.model_card import inputs_line, write_recipe_model_card
+from workbench.train_flags import REFINE_SECTIONS
 
 
 def refine_options(assignments: list[str]):
     """The :class:`PipelineOptions` of the full pipeline with ``--set`` overrides of :data:`REFINE_SECTIONS`."""
-    from engine.confidence.options import ConfidenceOptions
-    from engine.consistency import CounterOptions
-    from engine.pipeline import PipelineOptions
-    from engine.refinement.options import RefinementOptions
-    from workbench.flags import section_overrides
-
     for item in assignments:
         section = item.partition("=")[0].partition(".")[0]
         if section not in REFINE_SECTIONS:
@@ -111,8 +54,7 @@ def _log(text: str) -> None:
 
 
 def _resolve_runs(paths: list[str], seeds: list[int], cache: Path, scene_options, pipeline_options) -> list[Path]:
-    from engine.synthetic.dataset import write_training_scenes
-    from engine.training_runs import ensure_run
+    from engine.synthetic.dataset import write_training_scenes  # lazy: pycolmap
 
     folders = [Path(p) for p in paths]
     if seeds:
@@ -132,8 +74,7 @@ class Refiner:
     """Refines runs (or reuses their cached refined maps) with one network-1 weights file, loaded once."""
 
     def __init__(self, weights: str | None, options):
-        from engine.confidence.weights import DEFAULT_WEIGHTS, load_weights
-        from engine.run_folder import file_sha256
+        from engine.confidence.weights import DEFAULT_WEIGHTS, load_weights  # lazy: torch
 
         self.weights = Path(weights).resolve() if weights else DEFAULT_WEIGHTS
         self.model = load_weights(self.weights)
@@ -141,7 +82,7 @@ class Refiner:
         self.sha256 = file_sha256(self.weights)
 
     def __call__(self, run: Path) -> None:
-        from engine.refine_run import refine_run
+        from engine.refine_run import refine_run  # lazy: torch
 
         result = refine_run(run, self.weights, self.options, model=self.model,
                             log=lambda line: _log("  refining " + line))
@@ -154,8 +95,6 @@ class Refiner:
 
     def description(self) -> dict:
         """What the training inputs are, for the checkpoint identity and the weights' meta."""
-        from engine.run_folder import INFERENCE, POST_REFINEMENT
-
         confidence = self.options.confidence.to_dict()
         return {"maps": "refined", "refine_weights": str(self.weights), "refine_weights_sha256": self.sha256,
                 "refinement": {k: v for k, v in self.options.refinement.to_dict().items() if k not in POST_REFINEMENT},
@@ -163,8 +102,6 @@ class Refiner:
 
 
 def _load(runs: list[Path], refiner: Refiner | None = None):
-    from engine.confidence.data import load_run
-
     samples = []
     for run in runs:
         if refiner is not None:
@@ -179,13 +116,9 @@ def _subset(samples: list, count: int) -> list:
     return [samples[int(i)] for i in np.linspace(0, len(samples) - 1, count).round()]
 
 
-def recipe_run(entry, cache: Path) -> Path:
+def recipe_run(entry: SceneEntry, cache: Path) -> Path:
     """The cached engine run of one recipe scene (rendered first when synthetic)."""
-    from engine.patchmatch import PatchMatchOptions
-    from engine.pipeline import PipelineOptions
-    from engine.scene import SceneOptions
-    from engine.synthetic.dataset import write_training_scenes
-    from engine.training_runs import ensure_run
+    from engine.synthetic.dataset import write_training_scenes  # lazy: pycolmap
 
     folder = entry.path or write_training_scenes(cache / "scenes", [entry.seed])[0]
     scene_options = SceneOptions(num_source_views=entry.engine.get("num_source_views", 4),
@@ -198,15 +131,12 @@ def recipe_run(entry, cache: Path) -> Path:
 
 def cmd_train_recipe(args: argparse.Namespace) -> int:
     """``deepc train --recipe FILE``: the recipe's training and validation scenes, options and sampling."""
-    from engine.confidence.options import TrainOptions
-    from engine.confidence.recipe import load_recipe
-    from engine.confidence.training import ValidationSet, train
-    from workbench.flags import given_flags
-
     if (args.scenes or args.synthetic or args.validation or args.validation_synthetic or args.refined
             or args.refine_weights or args.set or args.init):
         raise DeepCError("deepc train --recipe: the recipe names the scenes and maps; give no SCENE, --synthetic, "
                          "--validation, --refined, --refine-weights, --set or --init")
+    from engine.confidence.training import ValidationSet, train  # lazy: torch
+
     recipe = load_recipe(args.recipe, args.data)
     refiner = None
     if recipe.refined is not None:
@@ -240,7 +170,6 @@ def cmd_train_recipe(args: argparse.Namespace) -> int:
     result["recipe"] = {"name": recipe.name, "text": recipe.text}
     write_json(out.with_name(out.stem + ".history.json"), result)
     card = Path(args.model_card) if args.model_card else out.with_name("MODEL_CARD.md")
-    from workbench.model_card import write_recipe_model_card
     write_recipe_model_card(card, out, result, recipe)
     best = result["best"]
     print(json.dumps({"weights": str(out), "model_card": str(card), "best_epoch": best["epoch"],
@@ -270,11 +199,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         return cmd_train_recipe(args)
     if args.data:
         raise DeepCError("deepc train: --data only makes sense with --recipe")
-    from engine.confidence.training import TrainOptions, ValidationSet, train
-    from engine.patchmatch import PatchMatchOptions
-    from engine.pipeline import PipelineOptions
-    from engine.scene import SceneOptions
-    from workbench.flags import options_from_args
+    from engine.confidence.training import ValidationSet, train  # lazy: torch
 
     options: TrainOptions = options_from_args(TrainOptions, args)
     if not args.scenes and not args.synthetic:
@@ -314,7 +239,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     data_names = sorted({s.scene for s in train_samples})
     init = None
     if args.init:
-        from engine.confidence.weights import load_weights
+        from engine.confidence.weights import load_weights  # lazy: torch
+
         init = load_weights(args.init)
     result = train(train_samples, validation, options, checkpoint, out, progress=progress,
                    data_names=data_names, max_epochs=args.max_epochs, init=init,
@@ -332,11 +258,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[Path], args: argparse.Namespace) -> None:
     """A Markdown model card for the best weights of a training."""
-    import datetime
-
-    from engine.confidence.weights import load_weights
-    from engine.io.atomic import atomic_write_text
-    from workbench.model_card import inputs_line
+    from engine.confidence.weights import load_weights  # lazy: torch
 
     model = load_weights(weights)
     meta = model.meta
@@ -353,7 +275,7 @@ def write_model_card(path: Path, weights: Path, result: dict, train_runs: list[P
         + (f"; warm start from `{meta['init']}`" if meta.get("init") else "") + ".",
         f"- Training data ({len(train_runs)} scenes, whole scenes only): "
         + ", ".join(sorted(Path(r).name for r in train_runs)) + ". Engine runs: vanilla PatchMatch, "
-        f"schedule {args.schedule}, {args.num_source_views} source views, labels per SPEC.md §4.3 (2 px).",
+        f"schedule {args.schedule}, {args.num_source_views} source views, labels as in Kuhn et al. 2020, §3.2 (2 px).",
         inputs_line(meta.get("inputs")),
         "- Options: " + ", ".join(f"{k}={v}" for k, v in meta.get("options", {}).items()), "",
         "## Validation ROC-AUC ×100 (pooled over labelled pixels) at the selected epoch", "",

@@ -6,26 +6,30 @@ thresholds. A change answers at once with a preview (the unfiltered cloud masked
 attributes) and the exact recomputation follows from a worker thread; only stages downstream of the
 change are recomputed (``workbench/session.py``). The GUI thread never computes. All browser tabs
 share one session. Binds 127.0.0.1 unless told otherwise.
+
+The controls are declared in ``workbench/viewer_panel.py``, the newest-request-wins scheduling of previews
+and recomputations is ``workbench/scheduler.py``, and the Export panel's files ``workbench/viewer_export.py``.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
-import re
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import viser
 from viser.transforms import SO3
 
-from engine.fusion import FUSION_PRESETS, FusionOptions
-from engine.io.ply import write_ply
-from workbench.session import COLOR_MODES, ViewerSession, ViewParams, describe
-from workbench.stream import subsample
+from engine.fusion import FusedCloud
+from workbench.map_images import subsample
+from workbench.scheduler import LatestOnly, RecomputeScheduler
+from workbench.session import ViewerSession, ViewParams, describe
+from workbench.viewer_export import safe_file_name, write_cloud_ply, write_state_rrd
+from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of
+
+# preset_of is imported from here by benchmarks/bench_viewer.py
+__all__ = ["DISPLAY_MAX_POINTS", "ViewerApp", "preset_of", "serve"]
 
 THUMBNAIL = 160  # longest side of the images sent with the frustums
 PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows
@@ -35,7 +39,6 @@ DISPLAY_MAX_POINTS = 1_000_000
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
 EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user who never lets go)
-CUSTOM = "custom"  # the fusion preset dropdown's entry for slider values no preset has
 
 
 def _even_stride(total: int, count: int) -> np.ndarray:
@@ -47,91 +50,33 @@ def _shown_note(total: int) -> str:
     return f" ({DISPLAY_MAX_POINTS:,} drawn)" if total > DISPLAY_MAX_POINTS else ""
 
 
-# The FusionOptions fields the Fusion panel controls, each with the type its widget's value converts to.
-FUSION_CONTROLS = {"max_reproj_error": float, "max_depth_error": float, "max_normal_error": float,
-                   "min_num_pixels": int, "point_per_pixel": bool}
+class ViewerApp(ControlPanel):
+    """The viser server, its scene and GUI (:class:`ControlPanel`), and the scheduled recomputations.
 
-
-def preset_of(fusion: FusionOptions) -> str:
-    """Name of the preset whose controlled fields (``FUSION_CONTROLS``) ``fusion`` has, else ``CUSTOM``."""
-    for name in sorted(FUSION_PRESETS):
-        p = FUSION_PRESETS[name]
-        if all(math.isclose(getattr(p, field), getattr(fusion, field), abs_tol=1e-9) for field in FUSION_CONTROLS):
-            return name
-    return CUSTOM
-
-
-def safe_file_name(text: str, suffix: str) -> str:
-    """A file name made only of [A-Za-z0-9._-], never a path: names from the GUI cannot escape the folder."""
-    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(text).name).strip("._") or "export"
-    return stem[:80] + suffix
-
-
-class _LatestOnly:
-    """Calls ``fn`` for the newest arguments only, one call at a time.
-
-    GUI events arrive faster than a preview can be pushed to every client (50 per second from five tabs):
-    running each on viser's thread pool queued them without bound, so latency and memory grew with the
-    load. Here a call that arrives while ``fn`` runs only replaces the arguments waiting for the next run.
+    Every change of the controls is a request to a :class:`RecomputeScheduler`: a preview thread masks
+    the nearest cached base cloud at once, and a worker thread computes the exact cloud once the controls
+    have been still for ``EXACT_QUIET_S``; results of superseded requests are dropped.
     """
-
-    def __init__(self, fn):
-        self._fn = fn
-        self._running = threading.Lock()
-        self._swap = threading.Lock()
-        self._next: tuple | None = None
-
-    def __call__(self, *args) -> None:
-        with self._swap:
-            self._next = args
-        while True:
-            if not self._running.acquire(blocking=False):
-                return  # the running call picks our arguments up when it finishes
-            try:
-                with self._swap:
-                    args, self._next = self._next, None
-                if args is not None:
-                    self._fn(*args)
-            finally:
-                self._running.release()
-            with self._swap:
-                if self._next is None:
-                    return
-
-
-class ViewerApp:
-    """The viser server, its GUI and the worker that recomputes exact results."""
 
     def __init__(self, session: ViewerSession, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False):
         self.session = session
         self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
         self.port = self.server.get_port()
         self.host = host
-        self._pending: ViewParams | None = None
-        self._generation = 0  # bumped by every request
-        self._last_request = 0.0  # time.monotonic() of the last request
-        self._done_generation = 0  # last generation whose exact cloud and scores are shown
-        self._cond = threading.Condition()
-        self._stopping = False
         self._state_lock = threading.Lock()
         self.cloud = None
         self.cloud_params: ViewParams | None = None
         self._cloud_message_id = -1  # broadcast-buffer id of the last cloud push (see _wait_for_delivery)
         self._base_colors_cache: tuple | None = None  # (base cloud, colour mode, colours)
         self._selected_view = 0
-        self._recolor_latest = _LatestOnly(self._recolor)
-        # Previews run on their own thread, newest request wins: in viser's callback thread a preview that
-        # waits for the previous cloud to leave would hold up the next events themselves.
-        self._preview_cond = threading.Condition()
-        self._preview_args: tuple | None = None
-        self._previewing = False
+        self._recolor_latest = LatestOnly(self._recolor)
         self._exact_generation = 0  # newest generation whose exact cloud is shown: older previews must not cover it
+        # Previews run on their own thread: in viser's callback thread a preview that waits for the previous
+        # cloud to leave would hold up the next events themselves.
+        self._scheduler: RecomputeScheduler[ViewParams] = RecomputeScheduler(
+            self._preview, self._exact, self._show_error, EXACT_QUIET_S, EXACT_MAX_DELAY_S, name="deepc-viewer")
         self._build_scene()
         self._build_gui()
-        self._worker = threading.Thread(target=self._work, name="deepc-viewer-worker", daemon=True)
-        self._worker.start()
-        self._previewer = threading.Thread(target=self._preview_loop, name="deepc-viewer-preview", daemon=True)
-        self._previewer.start()
         if session.has_maps:
             self.request(self.params())
 
@@ -172,141 +117,19 @@ class ViewerApp:
                                               precision="float32")
         self.cloud_handle = None
 
-    # ---- GUI --------------------------------------------------------------------------------------
-    def _build_gui(self) -> None:
-        gui = self.server.gui
-        s = self.session
-        defaults = ViewParams()
-        gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {len(s.scene.views)} views")
-        with gui.add_folder("Pipeline"):
-            self.pipeline = gui.add_dropdown("Pipeline", options=tuple(s.pipelines or ["vanilla"]),
-                                             initial_value=(s.pipelines or ["vanilla"])[0],
-                                             disabled=len(s.pipelines) <= 1)
-            self.conf_tau = gui.add_slider("Confidence τ", min=0.0, max=1.0, step=0.01,
-                                           initial_value=defaults.conf_tau, disabled=not s.has_confidence,
-                                           hint="keep pixels with confidence ≥ τ (fast and full pipelines)")
-            self.mask_k = gui.add_slider("Mask k", min=0, max=10, step=1, initial_value=0,
-                                         disabled=not s.has_counter,
-                                         hint="keep pixels with ≥ k consistent source views (0 = off)")
-        with gui.add_folder("Fusion"):
-            f = defaults.fusion
-            self.preset = gui.add_dropdown("Preset", options=(*sorted(FUSION_PRESETS), CUSTOM),
-                                           initial_value=preset_of(f),
-                                           hint="named thresholds (pixels = what deepc run fuses with; dense = "
-                                                "one median point per cluster, lighter to tune; deepc = the "
-                                                "paper's); moving a control makes it custom")
-            self.reproj = gui.add_slider("Reprojection error (px)", min=0.25, max=4.0, step=0.25,
-                                         initial_value=f.max_reproj_error)
-            self.depth_err = gui.add_slider("Depth error (rel.)", min=0.001, max=0.05, step=0.001,
-                                            initial_value=f.max_depth_error)
-            self.normal_err = gui.add_slider("Normal angle (°)", min=1.0, max=90.0, step=1.0,
-                                             initial_value=f.max_normal_error)
-            self.min_views = gui.add_slider("Min views", min=1, max=10, step=1, initial_value=f.min_num_pixels,
-                                            hint="fewest fused pixels per point, the seed included")
-            self.per_pixel = gui.add_checkbox("Point per pixel", initial_value=f.point_per_pixel,
-                                              hint="every pixel of a kept cluster is a point (else the cluster's "
-                                                   "median is one point)")
-            self._fusion_handles = dict(zip(FUSION_CONTROLS, (self.reproj, self.depth_err, self.normal_err,
-                                                              self.min_views, self.per_pixel), strict=True))
-        with gui.add_folder("Display"):
-            self.point_size = gui.add_slider("Point size", min=self.default_point_size / 10,
-                                             max=self.default_point_size * 10, step=self.default_point_size / 10,
-                                             initial_value=self.default_point_size)
-            self.color_mode = gui.add_dropdown("Colour", options=COLOR_MODES, initial_value="rgb")
-        with gui.add_folder("Metrics"):
-            self.metrics = gui.add_markdown("computing…" if s.has_maps else
-                                            "no maps: run `deepc run` and open its output folder")
-        with gui.add_folder("Export"):
-            self.export_name = gui.add_text("File name", initial_value="cloud")
-            self.export_button = gui.add_button("Export cloud (PLY)", disabled=not s.has_maps)
-            self.rrd_button = gui.add_button("Save state (.rrd)", disabled=not s.has_maps)
-            self.export_status = gui.add_markdown("")
-        with gui.add_folder("View"):
-            self.view_title = gui.add_markdown("")
-            self.view_images: dict[str, Any] = {}
-            for kind, image in s.view_images(0).items():
-                self.view_images[kind] = gui.add_image(subsample(image, 320), label=kind, format="jpeg")
-        self.select_view(0)
-
-        self._applying_preset = False
-        for handle in (self.pipeline, self.conf_tau, self.mask_k):
-            handle.on_update(lambda _event: self.request(self.params()))
-        for handle in self._fusion_handles.values():
-            handle.on_update(lambda _event: self._fusion_slider_moved())
-        self.preset.on_update(lambda _event: self._apply_preset())
-        self.color_mode.on_update(lambda _event: self._recolor_latest())
-        self.point_size.on_update(lambda _event: self._set_point_size())
-        self.export_button.on_click(lambda _event: self.export_ply())
-        self.rrd_button.on_click(lambda _event: self.save_rrd())
-
-    def _apply_preset(self) -> None:
-        """Set the fusion controls to the chosen preset; one recomputation, not five."""
-        if self._applying_preset or self.preset.value == CUSTOM:
-            return
-        f = FUSION_PRESETS[str(self.preset.value)]
-        self._applying_preset = True
-        try:
-            for field, handle in self._fusion_handles.items():
-                handle.value = getattr(f, field)
-        finally:
-            self._applying_preset = False
-        self.request(self.params())
-
-    def _fusion_slider_moved(self) -> None:
-        if self._applying_preset:
-            return
-        name = preset_of(self.params().fusion)
-        if self.preset.value != name:
-            self._applying_preset = True  # the dropdown only names the sliders' state here
-            try:
-                self.preset.value = name
-            finally:
-                self._applying_preset = False
-        self.request(self.params())
-
-    def params(self) -> ViewParams:
-        fusion = ViewParams().fusion.replace(**{field: FUSION_CONTROLS[field](handle.value)
-                                                for field, handle in self._fusion_handles.items()})
-        return ViewParams(pipeline=str(self.pipeline.value), conf_tau=float(self.conf_tau.value),
-                          mask_k=int(self.mask_k.value), fusion=fusion)
-
     # ---- updates ----------------------------------------------------------------------------------
     def request(self, params: ViewParams) -> None:
         """Show a preview now (when the base cloud is ready) and queue the exact recomputation."""
-        if not self.session.has_maps:
-            return
-        with self._cond:
-            self._generation += 1
-            generation = self._generation
-            self._last_request = time.monotonic()
-        with self._preview_cond:
-            self._preview_args = (params, generation)
-            self._preview_cond.notify()
-        with self._cond:
-            if generation == self._generation:  # else a newer request is queued instead
-                self._pending = params
-                self._cond.notify()
+        if self.session.has_maps:
+            self._scheduler.request(params)
 
-    def _preview_loop(self) -> None:
-        while True:
-            with self._preview_cond:
-                while self._preview_args is None and not self._stopping:
-                    self._preview_cond.wait()
-                if self._stopping:
-                    return
-                args, self._preview_args = self._preview_args, None
-                self._previewing = True
-            try:
-                self._preview(*args)
-            except Exception as exc:  # the viewer must survive any one bad preview
-                self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
-            finally:
-                with self._preview_cond:
-                    self._previewing = False
+    def _show_error(self, exc: Exception) -> None:
+        """The viewer survives any one bad preview or computation: it says what went wrong instead."""
+        self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
 
     def _preview(self, params: ViewParams, generation: int) -> None:
         self._wait_for_delivery()
-        if generation != self._generation:
+        if not self._scheduler.is_current(generation):
             return  # a newer request came in: its own preview follows
         exact = self.session.cached_cloud(params)
         if exact is not None:  # computed before: show the exact result now rather than after the worker
@@ -324,7 +147,7 @@ class ViewerApp:
         self._show(base.subset(keep), params, preview=True, count=total, colors=colors, stale_fusion=not own,
                    generation=generation)
 
-    def _base_colors(self, base) -> np.ndarray:
+    def _base_colors(self, base: FusedCloud) -> np.ndarray:
         """Colours of the whole base cloud, cached: previews only index them (the error colours need a
         nearest-GT query that takes longer than a preview may)."""
         mode = str(self.color_mode.value)
@@ -348,38 +171,21 @@ class ViewerApp:
                 return
             time.sleep(0.005)
 
-    def _work(self) -> None:
-        while True:
-            with self._cond:
-                while self._pending is None and not self._stopping:
-                    self._cond.wait()
-                # While a slider is being dragged the previews answer; an exact result for a value already
-                # left behind would only take the CPU from them.
-                overdue = time.monotonic() + EXACT_MAX_DELAY_S
-                while not self._stopping:
-                    wait = min(self._last_request + EXACT_QUIET_S, overdue) - time.monotonic()
-                    if wait <= 0:
-                        break
-                    self._cond.wait(wait)
-                if self._stopping:
-                    return
-                params, generation = self._pending, self._generation
-                self._pending = None
-            try:
-                self.session.base_cloud(params)  # makes later previews possible
-                cloud = self.session.cloud(params)
-                if generation != self._generation:
-                    continue  # a newer request is queued: skip the stale push
-                if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
-                    self._show(cloud, params, preview=False, generation=generation)
-                scores = self.session.evaluate(params, cloud)
-                if generation == self._generation:
-                    self.metrics.content = self._metrics_text(cloud, scores)
-            except Exception as exc:  # the viewer must survive any one bad computation
-                self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
-            self._done_generation = generation
+    def _exact(self, params: ViewParams, generation: int) -> None:
+        """The exact cloud and scores of a request. It starts only once the controls are still (the
+        scheduler's quiet time): while a slider is being dragged the previews answer, and an exact result for
+        a value already left behind would only take the CPU from them."""
+        self.session.base_cloud(params)  # makes later previews possible
+        cloud = self.session.cloud(params)
+        if not self._scheduler.is_current(generation):
+            return  # a newer request is queued: skip the stale push
+        if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
+            self._show(cloud, params, preview=False, generation=generation)
+        scores = self.session.evaluate(params, cloud)
+        if self._scheduler.is_current(generation):
+            self.metrics.content = self._metrics_text(cloud, scores)
 
-    def _metrics_text(self, cloud, scores, preview: bool = False, count: int | None = None,
+    def _metrics_text(self, cloud: FusedCloud, scores: dict | None, preview: bool = False, count: int | None = None,
                       stale_fusion: bool = False) -> str:
         if preview:
             total = len(cloud) if count is None else count
@@ -388,7 +194,7 @@ class ViewerApp:
             return f"**{total:,} points** (preview{shown}{fusion})  \nexact result follows…"
         return f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \n{describe(scores)}"
 
-    def _show(self, cloud, params: ViewParams, preview: bool, count: int | None = None,
+    def _show(self, cloud: FusedCloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
               generation: int | None = None) -> None:
         drawn = cloud
@@ -440,7 +246,7 @@ class ViewerApp:
         self.view_title.content = f"**view {index}: {view.name}**  \nsources: {view.source_views}"
         for kind, image in self.session.view_images(index).items():
             if kind in self.view_images:
-                self.view_images[kind].image = subsample(image, 320)
+                self.view_images[kind].image = subsample(image, PANEL_IMAGE)
         for i, frustum in enumerate(self.frustums):
             frustum.color = (230, 60, 40) if i == index else (60, 60, 200)
 
@@ -454,58 +260,27 @@ class ViewerApp:
         if self.cloud is None:
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".ply")
-        c = self.cloud
-        write_ply(path, np.asarray(c.xyz), c.normal, c.rgb, extra={"num_views": c.num_views.astype(np.int32)})
-        self.export_status.content = f"wrote `{path}` ({len(c):,} points)"
+        write_cloud_ply(path, self.cloud)
+        self.export_status.content = f"wrote `{path}` ({len(self.cloud):,} points)"
         return path
 
     def save_rrd(self, name: str | None = None) -> Path | None:
         """Save cameras, the selected view's maps and the current cloud as OUT/exports/<name>.rrd."""
         if self.cloud is None:
             return None
-        import rerun as rr
-
-        from workbench.recording import Recording
-        from workbench.stream import RerunStream
-
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
-        recording = Recording(path)
-        try:
-            scene = self.session.scene
-            views = [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views]
-            stream = RerunStream(recording.rec, views)
-            stream.log_cloud(str(self.cloud_params.pipeline), np.asarray(self.cloud.xyz, np.float32), self.cloud.rgb,
-                             radius=float(self.point_size.value) / 2)
-            for kind, image in self.session.view_images(self._selected_view).items():
-                stream.log_view_map(self._selected_view, kind, image)
-            recording.rec.log("params", rr.TextDocument(str(dataclasses.asdict(self.cloud_params))), static=True)
-        except BaseException:
-            recording.abandon()
-            raise
-        recording.finish()
+        write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, float(self.point_size.value),
+                        self._selected_view, self.session.view_images(self._selected_view))
         self.export_status.content = f"wrote `{path}`"
         return path
 
     # ---- lifecycle ----------------------------------------------------------------------------------
     def wait_idle(self, timeout: float = 60.0) -> bool:
         """Block until no recomputation is pending or running (for tests and benchmarks)."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            with self._cond, self._preview_cond:
-                if (self._pending is None and self._done_generation == self._generation
-                        and self._preview_args is None and not self._previewing):
-                    return True
-            time.sleep(0.02)
-        return False
+        return self._scheduler.wait_idle(timeout)
 
     def stop(self) -> None:
-        with self._cond:
-            self._stopping = True
-            self._cond.notify_all()
-        with self._preview_cond:
-            self._preview_cond.notify_all()
-        self._worker.join(timeout=10)
-        self._previewer.join(timeout=10)
+        self._scheduler.stop(timeout=10)
         self.server.stop()
 
 

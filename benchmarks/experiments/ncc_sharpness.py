@@ -1,4 +1,4 @@
-"""Sharper NCC weights vs SPEC's single window, on the sample scenes and on held-out synthetic scenes.
+"""Sharper NCC weights vs the paper's single window, on the sample scenes and on held-out synthetic scenes.
 
     .venv/bin/python benchmarks/experiments/ncc_sharpness.py [--scenes tiny,small,synth_01000,synth_01001]
         [--configs window11,w9_s2,w5_s1.5] [--seeds 0,1] [--schedule acmm|paper]
@@ -6,8 +6,8 @@
 
 Every configuration is explicit (it does not depend on the current defaults; ``fine5_edges`` was the default
 from session 11, ``fine5_crease20_cratio10`` is since session 18; the others with a fine window name
-``fine_crease_angle`` 0). Why: on the tiny sample scene SPEC's window (11 px, step 2, sigma_spatial 5, sigma_color 0.2)
-misses the issue's 90 % within-1 % target; most misses are at depth edges (patchmatch_error_regions.py),
+``fine_crease_angle`` 0). Why: on the tiny sample scene the paper's window (11 px, step 2, sigma_spatial 5,
+sigma_color 0.2) misses the 90 % within-1 % target; most misses are at depth edges (patchmatch_error_regions.py),
 where a window that straddles the occlusion boundary matches the background. A sharper colour weight
 with a dense, smaller window reaches ~90 % there; ``fine5`` uses such a window only at pixels whose
 texture fills it (PatchMatchOptions.fine_window), ``fine5_edges`` only near depth discontinuities
@@ -29,7 +29,7 @@ from support import bench
 from support.option_sweep import sweep, sweep_summary
 
 CONFIGS: dict[str, dict[str, float]] = {
-    "window11": {"fine_window": 0},  # SPEC: the 11 px window everywhere ("default" in results before session 11)
+    "window11": {"fine_window": 0},  # the paper's 11 px window everywhere ("default" in results before session 11)
     # dense windows (every pixel) with a colour weight 4x sharper than COLMAP's default
     "w9_s2": {"window": 9, "window_step": 1, "sigma_spatial": 2.0, "sigma_color": 0.05, "fine_window": 0},
     "w5_s1.5": {"window": 5, "window_step": 1, "sigma_spatial": 1.5, "sigma_color": 0.05, "fine_window": 0},

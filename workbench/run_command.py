@@ -1,0 +1,129 @@
+"""``deepc run SCENE --out OUT``: reconstruct a scene, streaming it live or recording it, then view the result.
+
+Before anything runs, the estimated peak memory is checked against what is available (``engine/memory.py``)
+and what a killed run left in OUT is cleaned; ``--resume`` reuses the verified PatchMatch states of an
+interrupted run. SIGINT and SIGTERM stop the run at the engine's next safe point.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
+from engine.errors import DeepCError
+from engine.interrupt import deferred_interrupts
+from engine.io.atomic import remove_stale_temp_files
+from engine.memory import estimate_run_memory, largest_fitting_size, load_kernels
+from engine.pipeline import PipelineOptions, run_pipeline
+from engine.run_folder import RunMetrics
+from engine.scene import Scene, load_scene
+from workbench.progress import PassProgress
+from workbench.run_options import run_options_from_args
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    scene_options, options, stream_options = run_options_from_args(args)
+    scene = load_scene(args.scene, scene_options)
+    print(scene.summary(), file=sys.stderr)
+    _check_memory(args, scene, options)
+    checkpoint = _prepare_output(args)
+    record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
+    live = recording = None
+    progress = PassProgress()
+    try:
+        if not args.headless:
+            from workbench.replay import live_viewer  # lazy: rerun
+
+            live = live_viewer(args.host)
+            print(f"live PatchMatch stream: {live.url}", file=sys.stderr)
+        if record or live:
+            from workbench.run_recording import open_run_recording  # lazy: rerun
+
+            recording = open_run_recording(record, scene, options, stream_options, live.grpc_url if live else None)
+        try:
+            # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
+            with deferred_interrupts():
+                result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
+                                      progress=progress, checkpoint=checkpoint)
+        except BaseException:
+            if recording:
+                recording.abandon()
+            raise
+        finally:
+            progress.close()
+        if recording:
+            recording.finish()
+            if record:
+                print(f"recording: {record} ({recording.stream.logged_steps} logged iterations)", file=sys.stderr)
+        if checkpoint.stats.reused or checkpoint.stats.rejected:
+            print(f"resumed: {checkpoint.stats.reused} saved PatchMatch view states reused, "
+                  f"{checkpoint.stats.rejected} rejected and recomputed", file=sys.stderr)
+        print_run_summary(RunMetrics.from_dict(result.metrics), args.out)
+        if not args.headless:
+            from workbench.viewer import serve  # lazy: viser
+
+            serve(args.out, host=args.host, port=args.port)
+    finally:
+        if live:
+            live.stop()
+    return 0
+
+
+def _check_memory(args: argparse.Namespace, scene: Scene, options: PipelineOptions) -> None:
+    """Refuse a run whose estimated peak memory does not fit (engine/memory.py), naming a size that does."""
+    load_kernels()  # the JIT runtime's memory becomes part of the measured baseline
+    estimate = estimate_run_memory(scene, options)
+    if args.max_memory is not None:
+        limit = int(args.max_memory * (1 << 20))
+        estimate.available = limit if estimate.available is None else min(estimate.available, limit)
+    print(estimate.summary(), file=sys.stderr)
+    if estimate.fits or args.ignore_memory_check:
+        return
+    size = largest_fitting_size(scene, options, estimate)
+    hint = f"try --max-image-size {size}" if size else "no image size fits"
+    raise DeepCError(f"not enough memory: the run needs about {estimate.peak / (1 << 20):,.0f} MiB, "
+                     f"{estimate.available / (1 << 20):,.0f} MiB are available; {hint}, "
+                     "or --ignore-memory-check to run anyway", args.scene)
+
+
+def _prepare_output(args: argparse.Namespace) -> PatchMatchCheckpoint:
+    """Clean what a killed run left (temporary files) and open the PatchMatch checkpoint of OUT."""
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DeepCError("--out exists and is not a folder", out)
+    try:
+        removed = remove_stale_temp_files(out) if out.is_dir() else []
+    except OSError as exc:
+        raise DeepCError(f"cannot clean the output folder: {exc.strerror or exc}", out) from None
+    if removed:
+        print(f"removed {len(removed)} temporary file(s) left by an interrupted run", file=sys.stderr)
+    return PatchMatchCheckpoint(out / CHECKPOINT_DIR, resume=args.resume)
+
+
+def print_run_summary(metrics: RunMetrics, out: str) -> None:
+    """What ``deepc run`` prints when it is done: sizes, times, depth and cloud quality."""
+    seconds = metrics.seconds
+    print(f"{metrics.scene}: {metrics.num_images} views at {metrics.image_size[0]}x"
+          f"{metrics.image_size[1]}, pipeline {metrics.pipeline}, {seconds['total']:.1f} s "
+          f"(PatchMatch {seconds['patchmatch']:.1f} s)")
+    if metrics.depth is not None:
+        d = metrics.depth
+        print(f"depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
+              f"valid {d['valid_fraction']:.1f}%, abs rel {d['abs_rel']:.4f}")
+    if metrics.refined_depth is not None:
+        d = metrics.refined_depth
+        print(f"refined depth vs GT: within 1% {d['within_1pct']:.1f}%, within 5% {d['within_5pct']:.1f}%, "
+              f"valid {d['valid_fraction']:.1f}% ({seconds['refinement']:.1f} s)")
+    if metrics.pipeline in ("fast", "full"):
+        auc = f", ROC-AUC vs labels {metrics.confidence_auc:.2f}" if metrics.confidence_auc is not None else ""
+        print(f"confidence: {seconds['confidence']:.1f} s, {metrics.confidence_kept_pct:.1f}% of the estimates "
+              f"kept at tau {metrics.options['confidence']['tau']:g}{auc}")
+    print(f"fused cloud: {metrics.fused_points:,} points ({seconds['fusion']:.1f} s)")
+    if metrics.eval is not None:
+        e = metrics.eval
+        for t, a, c, f in zip(e["tolerances"], e["accuracy"], e["completeness"], e["f1"], strict=True):
+            if abs(t - 0.02) < 1e-9 or abs(t - 0.05) < 1e-9:
+                print(f"at {t * 100:g} cm: F1 {f:.1f}, accuracy {a:.1f}, completeness {c:.1f}")
+    print(f"outputs in {out}")

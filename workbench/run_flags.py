@@ -1,0 +1,48 @@
+"""The flags of ``deepc run`` that choose what a run computes.
+
+``deepc run`` and the entries of a regression suite (``workbench/regress/suite.py``) declare the same
+flags with :func:`add_run_option_flags`; ``workbench/run_options.py`` turns them into options, so a
+suite entry means exactly what the same flags mean on the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
+from engine.patchmatch import PatchMatchOptions
+from engine.scene import SceneOptions
+from workbench.flags import add_options_flags
+
+# PatchMatch options offered as flags; the rest are reachable with --set patchmatch.NAME=VALUE.
+RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_propagation", "ncc_weighting",
+                        "view_sampling", "levels", "geom_passes", "num_threads"]
+
+#: the stages ``--set STAGE.NAME=VALUE`` reaches
+SET_SECTIONS = ("patchmatch", "confidence", "refinement", "fusion", "stream")
+
+
+def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
+    """The flags that choose what ``deepc run`` computes (pipeline and stage options); a regression
+    suite's entries use the same names."""
+    parser.add_argument("--pipeline", choices=("vanilla", "fast", "full"), default="vanilla",
+                        help="vanilla: PatchMatch + fusion; fast: + confidence filtering; full: + refinement")
+    add_options_flags(parser.add_argument_group("scene"), SceneOptions)
+    add_options_flags(parser.add_argument_group("patchmatch"), PatchMatchOptions, only=RUN_PATCHMATCH_FLAGS)
+    fusion_group = parser.add_argument_group("fusion")
+    fusion_group.add_argument("--fusion-preset", choices=sorted(FUSION_PRESETS), default=None,
+                              help=f"fusion thresholds (default: {DEFAULT_PRESET} = 1 px, 1%%, 20°, 2 pixels, "
+                                   "every kept pixel its own point, every pipeline; dense = 0.5 px, one median "
+                                   "point per cluster; the paper's (Kuhn et al. 2020, §5): deepc = 1 px, 1%%, 20°, "
+                                   "3 pixels, refined_paper = its 5° for refined maps, colmap, acmm, deepc_lowres); "
+                                   "the flags below override single values")
+    add_options_flags(fusion_group, FusionOptions, only=["max_reproj_error", "max_depth_error", "max_normal_error",
+                                                         "min_num_pixels", "point_per_pixel"])
+    parser.add_argument("--weights", metavar="FILE", default=None,
+                        help="confidence-network weights for --pipeline fast and full (default: the shipped "
+                             "engine/confidence/weights/deepc_middle.pt); the filter threshold is "
+                             "--set confidence.tau=0.1")
+    parser.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
+                        help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
+                             "--set fusion.check_num_images=20, "
+                             "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
