@@ -129,18 +129,21 @@ def _under(path: str, root: str) -> str | None:
 
 
 def scrub_path(path: str) -> str:
-    """A machine-independent stand-in for absolute ``path``: relative to the repository, ``../x`` beside the
-    checkout (where ../shared/data lives), ``<tmp>/name`` for temporary files, else the last component."""
+    """A machine-independent stand-in for absolute ``path``: relative to the repository, ``../shared/...`` for the
+    data beside the checkout, ``<tmp>/name`` for temporary files, ``../x`` for anything else beside the checkout
+    (checked after the temporary folders, since a checkout may itself live in one), else the last component."""
     trimmed = path.rstrip("/") or path
     rest = _under(trimmed, str(REPO_ROOT))
     if rest is not None:
         return rest or "."
-    rest = _under(trimmed, str(REPO_ROOT.parent))
-    if rest and REPO_ROOT.parent != Path("/"):
-        return "../" + rest
+    beside = _under(trimmed, str(REPO_ROOT.parent)) if REPO_ROOT.parent != Path("/") else None
+    if beside and (beside == "shared" or beside.startswith("shared/")):
+        return "../" + beside
     for root in _TMP_ROOTS:
         if _under(trimmed, root) is not None:
             return "<tmp>/" + Path(trimmed).name
+    if beside:
+        return "../" + beside
     return Path(trimmed).name
 
 
