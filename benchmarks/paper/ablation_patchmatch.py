@@ -1,7 +1,7 @@
 """Table-1-style PatchMatch ablation: ours, ours with the ACMM pattern, ours without plane propagation.
 
     .venv/bin/python benchmarks/paper/ablation_patchmatch.py [--scene DIR --max-image-size 384]
-        [--schedule acmm|paper] [--num-source-views 5] [--json benchmarks/results/ablation_patchmatch.json]
+        [--schedule acmm|paper] [--num-source-views 5] [--json benchmarks/results/ablation_patchmatch_small.json]
 
 Without ``--scene`` the analytic synthetic scene of ``support/pm_synthetic.py`` (4 views, 160x120) is
 used. With a scene that has GT depth maps (e.g. /work/shared/data/fountain_p11) the scene is loaded

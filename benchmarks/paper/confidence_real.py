@@ -275,7 +275,7 @@ def main() -> None:
                              "these weights score the refined maps")
     parser.add_argument("--exclude-ground", action="append", default=[], metavar="SCENE",
                         help="also score SCENE without its GT ground plane (fountain_p11: that GT lies 2-3 %% "
-                             "too far, benchmarks/gt_photo_consistency.py)")
+                             "too far, benchmarks/experiments/gt_photo_consistency.py)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--model-card", type=Path, default=None, metavar="CARD.md",
                         help="also write the first variant's table into this model card (replacing an earlier one)")

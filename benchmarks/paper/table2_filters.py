@@ -1,6 +1,7 @@
 """Filtering before fusion, with the structure of the paper's Table 2 (ours; mask1; mask2; conf τ).
 
-    .venv/bin/python benchmarks/paper/table2_filters.py RUN_DIR [RUN_DIR ...] [--out benchmarks/results/table2.json]
+    .venv/bin/python benchmarks/paper/table2_filters.py RUN_DIR [RUN_DIR ...]
+        [--out benchmarks/results/table2_filters.json]
         [--weights engine/confidence/weights/deepc_middle.pt] [--preset deepc]
 
 Each RUN_DIR is the output folder of ``deepc run`` (stereo depth/normal/counter maps and metrics.json,

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Build the official ETH3D multi-view evaluation program from a source checkout.
 #
-#   benchmarks/build_eth3d_evaluator.sh SRC_DIR BUILD_DIR
+#   benchmarks/performance/build_eth3d_evaluator.sh SRC_DIR BUILD_DIR
 #
 # SRC_DIR: a checkout of https://github.com/ETH3D/multi-view-evaluation (not part of this repository;
 # never commit its code). BUILD_DIR receives the build; the binary is BUILD_DIR/ETH3DMultiViewEvaluation.
