@@ -34,6 +34,7 @@ from engine.fusion import (
 )
 from engine.interrupt import check_interrupt
 from engine.io.ply import read_points
+from engine.meshing import MeshOptions, evaluate_mesh, mesh_run, write_mesh_ply
 from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
@@ -89,11 +90,12 @@ def patchmatch_views(scene: Scene) -> list[PatchMatchView]:
 
 def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | None = None,
                  observer: Any = None, progress: Callable[[str, int, int], None] | None = None,
-                 checkpoint: Any = None) -> PipelineResult:
+                 checkpoint: Any = None, mesh: MeshOptions | None = None) -> PipelineResult:
     """Run ``options.pipeline`` on ``scene`` and write the outputs into ``out_dir``.
 
     ``checkpoint`` (an :class:`engine.checkpoint.PatchMatchCheckpoint`) saves PatchMatch states as it
-    goes and reuses those of an interrupted run; it is cleared once metrics.json is written.
+    goes and reuses those of an interrupted run; it is cleared once metrics.json is written. ``mesh``, unless
+    its method is ``none``, adds ``mesh.ply`` made from the fused cloud or the maps fusion used.
     """
     options = (options or PipelineOptions()).validate()
     out_dir = Path(out_dir)
@@ -179,6 +181,14 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     seconds["fusion"] = time.perf_counter() - t
     if notify:
         notify("fusion", cloud=cloud, pipeline=options.pipeline)
+    surface = mesh_info = None
+    if mesh is not None and mesh.method != "none":
+        check_interrupt()
+        surface, mesh_info = mesh_run(scene, cloud, depths, mesh)
+        write_mesh_ply(out_dir / "mesh.ply", surface)
+        seconds["mesh"] = mesh_info["seconds"]
+        if notify:
+            notify("mesh", mesh=surface, pipeline=options.pipeline)
 
     seconds["total"] = time.perf_counter() - start
     metrics: dict[str, Any] = {
@@ -192,6 +202,10 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     }
     if scene.has_gt_points:
         metrics["eval"] = evaluate_cloud(scene, cloud, options.evaluation).to_dict()
+        if surface is not None:
+            mesh_info["eval"] = evaluate_mesh(scene, surface, options.evaluation).to_dict()
+    if mesh_info is not None:
+        metrics["mesh"] = mesh_info
     if scene.has_gt_depth:
         metrics["depth"], metrics["depth_per_view"] = _depth_block(scene, maps)
         if confidence is not None:

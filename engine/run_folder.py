@@ -98,6 +98,8 @@ class RunMetrics:
             the PatchMatch, refined and fused-in maps against GT depth (percent; abs_rel a ratio).
         confidence_auc, refined_confidence_auc: ROC-AUC x 100 of the confidence maps against the labels.
         confidence_kept_pct: percent of the estimates the confidence filter kept.
+        mesh: the mesh of ``RUN/mesh.ply`` (method, vertices, triangles, seconds, notes, options, ``eval``) when
+            the run was meshed (``deepc run --mesh``, ``deepc mesh``).
         options: ``PipelineOptions.to_dict()`` plus ``scene``: the options the run used.
         version: the engine version that wrote the run.
         extra: every other key (per-view lists, ``seconds_cpu`` of the regression mode, ...).
@@ -117,6 +119,7 @@ class RunMetrics:
     confidence_auc: float | None = None
     refined_confidence_auc: float | None = None
     confidence_kept_pct: float | None = None
+    mesh: dict[str, Any] | None = None
     options: dict[str, Any] = dataclasses.field(default_factory=dict)
     version: str = ""
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)

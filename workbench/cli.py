@@ -1,4 +1,4 @@
-"""The ``deepc`` command line: one subcommand per module (run, info, eval, view, replay, regress, train).
+"""The ``deepc`` command line: one subcommand per module (run, mesh, info, eval, view, replay, regress, train).
 
 Every user-facing problem ends in one line on stderr and exit status 2; success is 0 and, for
 ``regress``, "something regressed" is 1.
@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from engine import __version__
 from engine.errors import DeepCError
 from engine.interrupt import deferred_interrupts
+from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions, load_scene
 from workbench.flags import add_options_flags, options_from_args
 from workbench.run_flags import add_run_option_flags
@@ -42,6 +43,12 @@ def _train(args: argparse.Namespace) -> int:
     from workbench.train_command import cmd_train  # lazy: the engine pipeline (torch once training starts)
 
     return cmd_train(args)
+
+
+def _mesh(args: argparse.Namespace) -> int:
+    from workbench.mesh_command import cmd_mesh  # lazy: the engine pipeline (open3d when meshing)
+
+    return cmd_mesh(args)
 
 
 def _view(args: argparse.Namespace) -> int:
@@ -81,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scene", help="COLMAP workspace folder")
     run.add_argument("--out", required=True, help="output folder (stereo maps, fused.ply, metrics.json)")
     add_run_option_flags(run)
+    run.add_argument("--mesh", choices=MESH_METHODS, default="none",
+                     help="also write OUT/mesh.ply: 'poisson' on the fused cloud, 'tsdf' of the maps fusion used "
+                          "(default: none; settings with --set mesh.NAME=VALUE)")
     run.add_argument("--record", metavar="FILE.rrd", nargs="?", const="", default=None,
                      help="write a rerun recording (default path: OUT/recording.rrd)")
     run.add_argument("--headless", action="store_true",
@@ -96,6 +106,16 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--host", default="127.0.0.1", help="address the viewers bind (default: 127.0.0.1)")
     run.add_argument("--port", type=int, default=8080, help="port of the browser viewer (default: 8080)")
     run.set_defaults(handler=_run)
+
+    mesh = sub.add_parser("mesh", help="a surface (mesh.ply) from a finished run, scored when the scene has GT",
+                          description="Mesh the run in RUN_DIR: screened Poisson on its fused cloud, or TSDF "
+                                      "integration of the maps its pipeline fused; writes RUN_DIR/mesh.ply and "
+                                      "adds a 'mesh' block to its metrics.json.")
+    mesh.add_argument("run_dir", metavar="RUN_DIR")
+    mesh.add_argument("--method", choices=MESH_METHODS[1:], default="poisson", help="default: poisson")
+    mesh.add_argument("--set", action="append", default=[], metavar="mesh.NAME=VALUE",
+                      help="mesh options, e.g. --set mesh.poisson_depth=10, --set mesh.tsdf_voxel_px=1")
+    mesh.set_defaults(handler=_mesh)
 
     info = sub.add_parser("info", help="load a scene and print its views, depth ranges and source views")
     info.add_argument("scene", help="COLMAP workspace folder")

@@ -1,6 +1,8 @@
 """``deepc eval RECON.ply GT.ply|GT.mlp [--tolerances ...] [--json OUT.json]``.
 
-Prints the ETH3D-style table (percent). GT may be a PLY of surface points or an ETH3D
+Prints the ETH3D-style table (percent). RECON may be a cloud or a mesh (a PLY with faces, OBJ, OFF, STL): a
+mesh is sampled uniformly at half the GT points' spacing (the smallest tolerance's half against an ETH3D project) and
+scored as a cloud, so meshes and clouds compare on one scale. GT may be a PLY of surface points or an ETH3D
 ``scan_alignment.mlp``. When the GT PLY is ``SCENE/ground_truth/points.ply`` of a scene with GT depth
 maps, the unobserved-space rule uses those maps (Schöps et al. 2017).
 """
@@ -13,8 +15,18 @@ import sys
 from pathlib import Path
 
 from engine.errors import DeepCError
-from engine.evaluation import EvaluationOptions, EvaluationResult, evaluate_file, parse_tolerances
+from engine.evaluation import (
+    EvaluationOptions,
+    EvaluationResult,
+    evaluate_eth3d,
+    evaluate_file,
+    evaluate_points,
+    parse_tolerances,
+)
 from engine.io.atomic import atomic_write_text
+from engine.io.ply import ply_element_counts, read_points
+from engine.meshing import read_mesh
+from engine.meshing.sampling import OVERSAMPLING, point_spacing, sample_surface
 from engine.scene import SceneOptions, load_scene
 
 
@@ -33,10 +45,34 @@ def _gt_views_for(gt_path: Path):
     return scene.gt_views() or None
 
 
+MESH_SUFFIXES = (".obj", ".off", ".stl")
+
+
+def is_mesh_file(path: str | Path) -> bool:
+    """Whether ``path`` holds triangles: a PLY whose header declares faces, or a mesh-only format."""
+    path = Path(path)
+    if path.suffix.lower() in MESH_SUFFIXES:
+        return True
+    return path.suffix.lower() == ".ply" and ply_element_counts(path).get("face", 0) > 0
+
+
 def run_eval(recon: str | Path, gt: str | Path, options: EvaluationOptions) -> EvaluationResult:
     gt = Path(gt)
     gt_views = None if gt.suffix.lower() == ".mlp" else _gt_views_for(gt)
-    return evaluate_file(recon, gt, options, gt_views)
+    if not is_mesh_file(recon):
+        return evaluate_file(recon, gt, options, gt_views)
+    mesh = read_mesh(recon)
+    if gt.suffix.lower() == ".mlp":
+        spacing = float(min(options.tolerances)) / 2
+        points = sample_surface(mesh, spacing)
+        result = evaluate_eth3d(points, gt, options)
+    else:
+        gt_points = read_points(gt)
+        spacing = point_spacing(gt_points) / OVERSAMPLING
+        points = sample_surface(mesh, spacing)
+        result = evaluate_points(points, gt_points, options, gt_views)
+    result.notes.append(f"mesh of {len(mesh):,} triangles sampled as {len(points):,} points, {spacing:.3g} apart")
+    return result
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

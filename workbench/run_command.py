@@ -20,11 +20,12 @@ from engine.pipeline import PipelineOptions, run_pipeline
 from engine.run_folder import RunMetrics
 from engine.scene import Scene, load_scene
 from workbench.progress import PassProgress
-from workbench.run_options import run_options_from_args
+from workbench.run_options import mesh_options_from_args, run_options_from_args
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     scene_options, options, stream_options = run_options_from_args(args)
+    mesh = mesh_options_from_args(args)
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
     _check_memory(args, scene, options)
@@ -46,7 +47,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
             with deferred_interrupts():
                 result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                      progress=progress, checkpoint=checkpoint)
+                                      progress=progress, checkpoint=checkpoint, mesh=mesh)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -126,4 +127,20 @@ def print_run_summary(metrics: RunMetrics, out: str) -> None:
         for t, a, c, f in zip(e["tolerances"], e["accuracy"], e["completeness"], e["f1"], strict=True):
             if abs(t - 0.02) < 1e-9 or abs(t - 0.05) < 1e-9:
                 print(f"at {t * 100:g} cm: F1 {f:.1f}, accuracy {a:.1f}, completeness {c:.1f}")
+    if metrics.mesh is not None:
+        print_mesh_summary(metrics.mesh)
     print(f"outputs in {out}")
+
+
+def print_mesh_summary(mesh: dict) -> None:
+    """One line for the mesh, its notes, and its F1 at 2 and 5 cm when it was scored."""
+    voxel = f", voxel {mesh['voxel']:.3g}" if mesh.get("voxel") else ""
+    print(f"mesh ({mesh['method']}{voxel}): {mesh['vertices']:,} vertices, {mesh['triangles']:,} triangles "
+          f"({mesh['seconds']:.1f} s)")
+    for note in mesh.get("notes", []):
+        print(f"mesh: {note}")
+    e = mesh.get("eval")
+    if e is not None:
+        for t, a, c, f in zip(e["tolerances"], e["accuracy"], e["completeness"], e["f1"], strict=True):
+            if abs(t - 0.02) < 1e-9 or abs(t - 0.05) < 1e-9:
+                print(f"mesh at {t * 100:g} cm: F1 {f:.1f}, accuracy {a:.1f}, completeness {c:.1f}")

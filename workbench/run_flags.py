@@ -19,7 +19,7 @@ RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_prop
                         "view_sampling", "levels", "geom_passes", "num_threads"]
 
 #: the stages ``--set STAGE.NAME=VALUE`` reaches
-SET_SECTIONS = ("patchmatch", "confidence", "refinement", "fusion", "stream")
+SET_SECTIONS = ("patchmatch", "confidence", "refinement", "fusion", "mesh", "stream")
 
 
 def add_run_option_flags(parser: argparse.ArgumentParser) -> None:

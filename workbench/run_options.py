@@ -11,6 +11,7 @@ from pathlib import Path
 from engine.confidence.options import ConfidenceOptions
 from engine.errors import DeepCError
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
+from engine.meshing.options import MeshOptions
 from engine.patchmatch import PatchMatchOptions
 from engine.pipeline import PipelineOptions
 from engine.refinement.options import RefinementOptions
@@ -43,6 +44,12 @@ def run_options_from_args(args: argparse.Namespace) -> tuple[SceneOptions, Pipel
     if options.pipeline in ("fast", "full"):
         check_pipeline_weights(options)
     return scene_options, options, stream_options
+
+
+def mesh_options_from_args(args: argparse.Namespace) -> MeshOptions:
+    """MeshOptions from ``--mesh METHOD`` and ``--set mesh.NAME=VALUE`` (``deepc run``, ``deepc mesh``)."""
+    method = getattr(args, "mesh", None) or "none"
+    return MeshOptions(**{"method": method, **section_overrides(args.set, "mesh", MeshOptions)}).validate()
 
 
 def check_pipeline_weights(options: PipelineOptions) -> None:

@@ -74,6 +74,18 @@ def _parse_header(data: bytes, path) -> tuple[str, list[_Element], int]:
     return fmt, elements, body_start
 
 
+def ply_element_counts(path: str | Path) -> dict[str, int]:
+    """``{element name: count}`` from a PLY header (e.g. ``{"vertex": 1200, "face": 2300}`` for a mesh)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(_MAX_HEADER)
+    except FileNotFoundError:
+        raise DeepCError("file not found", path) from None
+    _, elements, _ = _parse_header(head, path)
+    return {e.name: e.count for e in elements}
+
+
 def read_ply(path: str | Path) -> dict[str, np.ndarray]:
     """Read the ``vertex`` element of a PLY file: ``{property name: (N,) array}``.
 
