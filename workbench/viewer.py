@@ -26,7 +26,8 @@ from workbench.map_images import subsample
 from workbench.scheduler import LatestOnly, RecomputeScheduler
 from workbench.session import ViewerSession, ViewParams, describe
 from workbench.viewer_export import safe_file_name, write_cloud_ply, write_state_rrd
-from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of
+from workbench.viewer_legends import metrics_html
+from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of, view_label
 
 # preset_of is imported from here by benchmarks/bench_viewer.py
 __all__ = ["DISPLAY_MAX_POINTS", "ViewerApp", "preset_of", "serve"]
@@ -71,6 +72,9 @@ class ViewerApp(ControlPanel):
         self._selected_view = 0
         self._recolor_latest = LatestOnly(self._recolor)
         self._exact_generation = 0  # newest generation whose exact cloud is shown: older previews must not cover it
+        self._scored: tuple | None = None  # (params, scores) of the newest exact result shown with its scores
+        self._previous_scored: tuple | None = None  # ...and of the setting before it (the "previous" column)
+        self._refresh_view_latest = LatestOnly(self._refresh_view)
         # Previews run on their own thread: in viser's callback thread a preview that waits for the previous
         # cloud to leave would hold up the next events themselves.
         self._scheduler: RecomputeScheduler[ViewParams] = RecomputeScheduler(
@@ -128,6 +132,7 @@ class ViewerApp(ControlPanel):
         self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
 
     def _preview(self, params: ViewParams, generation: int) -> None:
+        self.histograms.content = "".join(self.session.histograms(params))  # the thresholds move at once
         self._wait_for_delivery()
         if not self._scheduler.is_current(generation):
             return  # a newer request came in: its own preview follows
@@ -138,6 +143,7 @@ class ViewerApp(ControlPanel):
         base, own = self.session.nearest_base_cloud(params)
         if base is None:  # nothing to mask yet: say what is coming
             self.metrics.content = "**fusing…**  \nexact result follows"
+            self.metrics_table.content = ""
             return
         keep = np.flatnonzero(ViewerSession.preview_mask(base, params))
         total = len(keep)
@@ -181,18 +187,34 @@ class ViewerApp(ControlPanel):
             return  # a newer request is queued: skip the stale push
         if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
             self._show(cloud, params, preview=False, generation=generation)
+        self._refresh_view_latest()
         scores = self.session.evaluate(params, cloud)
         if self._scheduler.is_current(generation):
-            self.metrics.content = self._metrics_text(cloud, scores)
+            self._show_scores(cloud, params, scores)
+
+    def _show_scores(self, cloud: FusedCloud, params: ViewParams, scores: dict | None) -> None:
+        """The exact result's headline and its table: every tolerance, against the run and the previous setting."""
+        with self._state_lock:
+            current = {**(scores or {}), "_points": len(cloud)}
+            if self._scored is None or self._scored[0] != params:
+                self._previous_scored, self._scored = self._scored, (params, current)
+            previous = self._previous_scored
+        self.metrics.content = self._metrics_text(cloud, scores)
+        run = self.session.run
+        self.metrics_table.content = metrics_html(scores, self.session.run_scores(),
+                                                  previous[1] if previous else None, len(cloud),
+                                                  run.fused_points if run is not None else None)
 
     def _metrics_text(self, cloud: FusedCloud, scores: dict | None, preview: bool = False, count: int | None = None,
                       stale_fusion: bool = False) -> str:
         if preview:
             total = len(cloud) if count is None else count
             shown = "" if total == len(cloud) else f", {len(cloud):,} shown"
-            fusion = ", previous fusion thresholds" if stale_fusion else ""
-            return f"**{total:,} points** (preview{shown}{fusion})  \nexact result follows…"
-        return f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \n{describe(scores)}"
+            how = ("masks the cloud of the previous fusion thresholds: this fusion change is not in it yet"
+                   if stale_fusion else "the unfiltered cloud masked by per-point confidence and views")
+            return (f"**{total:,} points** (preview, approximate{shown})  \n*{how}*  \n"
+                    "exact result follows…")
+        return f"**{len(cloud):,} points**{_shown_note(len(cloud))} · exact  \n{describe(scores)}"
 
     def _show(self, cloud: FusedCloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
@@ -222,6 +244,7 @@ class ViewerApp(ControlPanel):
                 if preview:
                     self.metrics.content = self._metrics_text(cloud, None, preview=True, count=count,
                                                               stale_fusion=stale_fusion)
+                    self.metrics_table.content = ""
                 elif scores is not None or not self.session.has_gt:
                     self.metrics.content = self._metrics_text(cloud, scores)
                 else:
@@ -233,22 +256,43 @@ class ViewerApp(ControlPanel):
         if self.cloud is not None:
             self._show(self.cloud, self.cloud_params, preview=False)
             scores = self.session.evaluate(self.cloud_params, self.cloud) if self.cloud_params else None
-            self.metrics.content = self._metrics_text(self.cloud, scores)
+            self._show_scores(self.cloud, self.cloud_params, scores)
 
     def _set_point_size(self) -> None:
         if self.cloud_handle is not None:
             self.cloud_handle.point_size = float(self.point_size.value)
 
     def select_view(self, index: int) -> None:
-        """Show view ``index``'s image and maps in the side panel (also on a frustum click)."""
+        """Show view ``index``'s image and maps in the side panel (also on a frustum click, the view
+        dropdown and the previous / next buttons)."""
         self._selected_view = index
         view = self.session.scene.views[index]
+        label = view_label(index, view.name)
+        if self.view_dropdown.value != label:
+            self.view_dropdown.value = label
         self.view_title.content = f"**view {index}: {view.name}**  \nsources: {view.source_views}"
-        for kind, image in self.session.view_images(index).items():
-            if kind in self.view_images:
-                self.view_images[kind].image = subsample(image, PANEL_IMAGE)
+        self._refresh_view()
         for i, frustum in enumerate(self.frustums):
             frustum.color = (230, 60, 40) if i == index else (60, 60, 200)
+
+    def _refresh_view(self) -> None:
+        """The selected view's maps, legends and numbers under the current controls."""
+        index = self._selected_view
+        params = self.params() if hasattr(self, "_fusion_handles") else self.run_params
+        try:
+            maps = self.session.view_maps(index, params)
+            numbers = self.session.view_metrics(index, params) if self.session.has_maps else ""
+        except Exception as exc:  # noqa: BLE001 - the panel says what went wrong, the viewer stays up
+            self.view_metrics.content = f"**error:** {' '.join(str(exc).split())}"
+            return
+        self.view_metrics.content = f"*{params.pipeline}, as the controls filter it:*  \n{numbers}" if numbers else ""
+        for kind, handle in self.view_images.items():
+            shown = kind in maps
+            handle.visible = shown
+            self.view_legends[kind].visible = shown
+            if shown:
+                handle.image = subsample(maps[kind][0], PANEL_IMAGE)
+                self.view_legends[kind].content = maps[kind][1]
 
     # ---- exports ----------------------------------------------------------------------------------
     def _export_dir(self) -> Path:
@@ -270,7 +314,9 @@ class ViewerApp(ControlPanel):
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
         write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, float(self.point_size.value),
-                        self._selected_view, self.session.view_images(self._selected_view))
+                        self._selected_view,
+                        {k.replace(" ", "_"): image for k, (image, _) in
+                         self.session.view_maps(self._selected_view, self.cloud_params).items()})
         self.export_status.content = f"wrote `{path}`"
         return path
 
