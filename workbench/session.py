@@ -127,6 +127,8 @@ class ViewerSession:
     def open(cls, path: str | Path, scene_options: SceneOptions | None = None) -> ViewerSession:
         """Open the output folder of ``deepc run`` (metrics.json + stereo maps) or a bare scene."""
         path = Path(path)
+        if not path.exists():
+            raise DeepCError("does not exist", path)
         if (path / "metrics.json").is_file():
             metrics = read_run_metrics(path)
             scene_path = Path(metrics.scene_path)

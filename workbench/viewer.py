@@ -13,6 +13,8 @@ and recomputations is ``workbench/scheduler.py``, and the Export panel's files `
 
 from __future__ import annotations
 
+import contextlib
+import io
 import threading
 import time
 from pathlib import Path
@@ -21,6 +23,7 @@ import numpy as np
 import viser
 from viser.transforms import SO3
 
+from engine.errors import DeepCError
 from engine.fusion import FusedCloud
 from workbench.map_images import subsample
 from workbench.scheduler import LatestOnly, RecomputeScheduler
@@ -331,9 +334,18 @@ class ViewerApp(ControlPanel):
 
 
 def serve(path: str, host: str = "127.0.0.1", port: int = 8080) -> None:
-    """Open a session and serve until interrupted (``deepc view``)."""
+    """Open a session and serve until interrupted (``deepc view``). viser's own banner and log lines are
+    kept off the terminal: a busy port is announced in one line with the port used instead, and a port that
+    cannot be bound at all is a one-line DeepCError."""
     session = ViewerSession.open(path)
-    app = ViewerApp(session, host=host, port=port, verbose=False)
+    quiet = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            app = ViewerApp(session, host=host, port=port, verbose=False)
+    except OSError as exc:
+        raise DeepCError(f"cannot serve the viewer on {host}:{port}: {exc.strerror or exc}") from None
+    if port and app.port != port:
+        print(f"viewer: port {port} is in use; serving on port {app.port} instead", flush=True)
     print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
     try:
         while True:
@@ -341,4 +353,5 @@ def serve(path: str, host: str = "127.0.0.1", port: int = 8080) -> None:
     except KeyboardInterrupt:
         pass
     finally:
-        app.stop()
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            app.stop()
