@@ -344,10 +344,10 @@ def serve(path: str, host: str = "127.0.0.1", port: int = 8080) -> None:
             app = ViewerApp(session, host=host, port=port, verbose=False)
     except OSError as exc:
         raise DeepCError(f"cannot serve the viewer on {host}:{port}: {exc.strerror or exc}") from None
-    if port and app.port != port:
-        print(f"viewer: port {port} is in use; serving on port {app.port} instead", flush=True)
-    print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
-    try:
+    try:  # (a Ctrl+C right after the start stops the server as well)
+        if port and app.port != port:
+            print(f"viewer: port {port} is in use; serving on port {app.port} instead", flush=True)
+        print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
