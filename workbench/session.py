@@ -474,7 +474,8 @@ class ViewerSession:
         if "counter" in counts:
             out.append(histogram_html("counter: consistent source views per estimate", *counts["counter"],
                                       params.mask_k - 0.5 if params.mask_k > 0 else None,
-                                      threshold_name="mask k", below="below k (removed)", shown=str(params.mask_k)))
+                                      threshold_name="mask k", below="below k (removed)", shown=str(params.mask_k),
+                                      axis=("0", f"{len(counts['counter'][0]) - 1} views")))
         return out
 
     def view_images(self, i: int) -> dict[str, np.ndarray]:

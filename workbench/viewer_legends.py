@@ -79,16 +79,19 @@ def note_html(text: str) -> str:
 
 
 def histogram_html(title: str, counts: np.ndarray, edges: np.ndarray, threshold: float | None, unit: str = "",
-                   threshold_name: str = "threshold", below: str = "removed", shown: str | None = None) -> str:
-    """An SVG histogram (bars per bin) with the threshold as a vertical line, and the share of values below it
-    (``shown`` names the threshold in the text, else its value)."""
+                   threshold_name: str = "threshold", below: str = "removed", shown: str | None = None,
+                   axis: tuple[str, str] | None = None) -> str:
+    """An SVG histogram (bar heights ∝ √count, so the small bins near a threshold stay visible) with the threshold
+    as a vertical line and the share of values below it (``shown`` names the threshold in the text, else its
+    value; ``axis`` labels both ends, else the outer bin edges)."""
     width, height = 280, 70
     counts = np.asarray(counts, np.float64)
     lo, hi = float(edges[0]), float(edges[-1])
     span = max(hi - lo, 1e-12)
-    peak = max(float(counts.max()) if len(counts) else 0.0, 1.0)
+    heights = np.sqrt(counts)
+    peak = max(float(heights.max()) if len(heights) else 0.0, 1.0)
     bars = []
-    for c, a, b in zip(counts, edges[:-1], edges[1:], strict=True):
+    for c, a, b in zip(heights, edges[:-1], edges[1:], strict=True):
         x = (float(a) - lo) / span * width
         w = max((float(b) - float(a)) / span * width - 1, 1)
         h = c / peak * height
@@ -103,13 +106,13 @@ def histogram_html(title: str, counts: np.ndarray, edges: np.ndarray, threshold:
         text = (f'<div><span style="color:{THRESHOLD}">▍</span>{html.escape(threshold_name)} '
                 f"{html.escape(shown or _number(threshold, 2) + unit)}: {share:.1f} % {html.escape(below)}</div>")
     unit_text = f" {unit}" if unit else ""
+    left, right = axis or (_number(lo, 2) + unit_text, _number(hi, 2) + unit_text)
     return (f'<div class="deepc-histogram" style="font-size:0.8em;margin:0.2em 0"><div><b>{html.escape(title)}</b>'
             f"</div>"
             f'<svg viewBox="0 0 {width} {height}" width="100%" height="{height}" preserveAspectRatio="none">'
             f'{"".join(bars)}</svg>'
-            f'<div style="display:flex;justify-content:space-between"><span>{html.escape(_number(lo, 2))}'
-            f"{html.escape(unit_text)}</span><span>{html.escape(_number(hi, 2))}{html.escape(unit_text)}</span></div>"
-            f"{text}</div>")
+            f'<div style="display:flex;justify-content:space-between"><span>{html.escape(left)}</span>'
+            f"<span>√count</span><span>{html.escape(right)}</span></div>{text}</div>")
 
 
 def _delta(value: float, reference: float | None, digits: int = 1) -> str:
