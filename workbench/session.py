@@ -414,8 +414,12 @@ class ViewerSession:
         mask[kept] = KEPT
         mask[by_tau] = REMOVED_TAU
         mask[missing] = NO_DATA
-        entries = [(KEPT, "kept (fused)"), (REMOVED_TAU, f"removed by τ {params.conf_tau:g}"),
-                   (REMOVED_K, f"removed by mask k {params.mask_k}"), (NO_DATA, "no estimate")]
+        entries = [(KEPT, "kept (fused)")]
+        if by_tau.any() or (params.pipeline != "vanilla" and params.conf_tau > 0):
+            entries.append((REMOVED_TAU, f"removed by τ {params.conf_tau:g}"))
+        if params.mask_k > 0:
+            entries.append((REMOVED_K, f"removed by mask k {params.mask_k}"))
+        entries.append((NO_DATA, "no estimate"))
         out["kept"] = (mask, categories_html("kept mask (pipeline filters)", entries))
         gt = self.scene.gt_depth(i) if self.scene.has_gt_depth else None
         if gt is not None:
