@@ -79,6 +79,10 @@ def test_previews_say_they_are_approximate(app):
     text = app._metrics_text(app.cloud, None, preview=True, count=10, stale_fusion=True)
     assert "approximate" in text and "previous fusion thresholds" in text
     assert "· exact" in app._metrics_text(app.cloud, None)
+    # once the exact result is in, it says how far the preview was from it
+    app._last_preview = (app.cloud_params, len(app.cloud) + 7)
+    assert "approximate preview showed" in app._metrics_text(app.cloud, None, params=app.cloud_params)
+    assert "(+7)" in app._metrics_text(app.cloud, None, params=app.cloud_params)
 
 
 def test_every_colour_mode_has_a_legend_with_its_unit_and_the_no_data_colour(app):

@@ -78,6 +78,7 @@ class ViewerApp(ControlPanel):
         self._scored: tuple | None = None  # (params, scores) of the newest exact result shown with its scores
         self._previous_scored: tuple | None = None  # ...and of the setting before it (the "previous" column)
         self._refresh_view_latest = LatestOnly(self._refresh_view)
+        self._last_preview: tuple | None = None  # (params, point count) of the newest preview shown
         # Previews run on their own thread: in viser's callback thread a preview that waits for the previous
         # cloud to leave would hold up the next events themselves.
         self._scheduler: RecomputeScheduler[ViewParams] = RecomputeScheduler(
@@ -202,14 +203,14 @@ class ViewerApp(ControlPanel):
             if self._scored is None or self._scored[0] != params:
                 self._previous_scored, self._scored = self._scored, (params, current)
             previous = self._previous_scored
-        self.metrics.content = self._metrics_text(cloud, scores)
+        self.metrics.content = self._metrics_text(cloud, scores, params=params)
         run = self.session.run
         self.metrics_table.content = metrics_html(scores, self.session.run_scores(),
                                                   previous[1] if previous else None, len(cloud),
                                                   run.fused_points if run is not None else None)
 
     def _metrics_text(self, cloud: FusedCloud, scores: dict | None, preview: bool = False, count: int | None = None,
-                      stale_fusion: bool = False) -> str:
+                      stale_fusion: bool = False, params: ViewParams | None = None) -> str:
         if preview:
             total = len(cloud) if count is None else count
             shown = "" if total == len(cloud) else f", {len(cloud):,} shown"
@@ -217,7 +218,11 @@ class ViewerApp(ControlPanel):
                    if stale_fusion else "the unfiltered cloud masked by per-point confidence and views")
             return (f"**{total:,} points** (preview, approximate{shown})  \n*{how}*  \n"
                     "exact result follows…")
-        return f"**{len(cloud):,} points**{_shown_note(len(cloud))} · exact  \n{describe(scores)}"
+        text = f"**{len(cloud):,} points**{_shown_note(len(cloud))} · exact  \n{describe(scores)}"
+        last = self._last_preview
+        if last is not None and params is not None and last[0] == params and last[1] != len(cloud):
+            text += f"  \n*the approximate preview showed {last[1]:,} points ({last[1] - len(cloud):+,})*"
+        return text
 
     def _show(self, cloud: FusedCloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
@@ -248,8 +253,9 @@ class ViewerApp(ControlPanel):
                     self.metrics.content = self._metrics_text(cloud, None, preview=True, count=count,
                                                               stale_fusion=stale_fusion)
                     self.metrics_table.content = ""
+                    self._last_preview = (params, len(cloud) if count is None else count)
                 elif scores is not None or not self.session.has_gt:
-                    self.metrics.content = self._metrics_text(cloud, scores)
+                    self.metrics.content = self._metrics_text(cloud, scores, params=params)
                 else:
                     self.metrics.content = f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \nscoring…"
                 self._cloud_message_id = self.server._websock_server.get_message_buffer().message_counter - 1
