@@ -135,3 +135,28 @@ def test_a_vanilla_run_without_gt_or_confidence_offers_only_what_it_has(fake_run
         assert "confidence" not in viewer.color_mode.options
         assert "no confidence maps" in viewer.color_notes.content
         assert "fast needs confidence maps" in viewer.control_notes.content
+
+
+def test_a_full_run_opens_with_its_refined_threshold_and_sky_filter(fake_run, tmp_path):
+    from engine.refinement.views import sky_filter_views
+    from engine.run_folder import read_map, write_map
+
+    run = _with_options(fake_run, tmp_path, "full", pipeline="full",
+                        options={"pipeline": "full", "refinement": {"refined_conf_tau": 0.2, "sky_filter": True}})
+    for v in ViewerSession.open(run).scene.views:  # refined maps: the PatchMatch ones, trusted by network 2
+        write_map(run, "refined_depth", v.name, read_map(run, "depth", v.name))
+        write_map(run, "refined_normal", v.name, read_map(run, "normal", v.name))
+        write_map(run, "refined_confidence", v.name, read_map(run, "confidence", v.name))
+    session = ViewerSession.open(run)
+    params = session.run_params()
+    assert (params.pipeline, params.conf_tau, session.sky_filter) == ("full", 0.2, True)
+    maps = session.filtered_maps(params)
+    unfiltered = [d.maps("full") for d in session.data]
+    by_tau = [(np.where(c >= 0.2, dd, 0), np.where((c >= 0.2)[..., None], n, 0)) for dd, n, c, _ in unfiltered]
+    expected, _, _ = sky_filter_views(session.scene, [d for d, _ in by_tau], [n for _, n in by_tau],
+                                      [d.depth for d in session.data], [d.confidence for d in session.data])
+    for (depth, _), want in zip(maps, expected, strict=True):
+        np.testing.assert_array_equal(depth, want)
+    with running_viewer(run) as viewer:
+        assert "run: full · pixels · τ 0.2 · sky filter" in viewer.run_text.content
+        assert viewer.view_images["refined depth"].visible

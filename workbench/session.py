@@ -25,6 +25,7 @@ from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.ply import read_points
 from engine.refinement.options import RefinementOptions
+from engine.refinement.views import sky_filter_views
 from engine.run_folder import RunMetrics, read_run_metrics
 from engine.scene import Scene, SceneOptions, load_scene
 from workbench.map_images import colorize, normal_to_rgb, view_images
@@ -111,6 +112,10 @@ class ViewerSession:
         self.data = data
         self.out_dir = out_dir
         self.run = run  # metrics.json of the run, when a run folder was opened
+        # `full` drops sky and far-plane pixels of the refined maps when the run did (refinement.sky_filter);
+        # the viewer has no control for it, so it follows the run
+        refinement = (run.options.get("refinement") or {}) if run is not None else {}
+        self.sky_filter = bool(refinement.get("sky_filter", RefinementOptions().sky_filter))
         self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
@@ -232,6 +237,10 @@ class ViewerSession:
             if params.mask_k > 0 and counter is not None:
                 depth, normal = filter_by_counter(depth, normal, counter, params.mask_k)
             out.append((depth, normal))
+        if params.pipeline == "full" and self.sky_filter:
+            depths, normals, _ = sky_filter_views(self.scene, [d for d, _ in out], [n for _, n in out],
+                                                  [d.depth for d in self.data], [d.confidence for d in self.data])
+            out = list(zip(depths, normals, strict=True))
         return out
 
     def cloud(self, params: ViewParams, _cache: _LRU | None = None) -> FusedCloud:

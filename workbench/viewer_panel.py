@@ -37,13 +37,15 @@ def preset_of(fusion: FusionOptions) -> str:
     return CUSTOM
 
 
-def run_label(params: ViewParams, has_run: bool) -> str:
+def run_label(params: ViewParams, has_run: bool, sky_filter: bool = False) -> str:
     """The settings a run used, in one line: "run: fast · pixels · τ 0.1"."""
     parts = [params.pipeline, preset_of(params.fusion)]
     if params.pipeline != "vanilla":
         parts.append(f"τ {params.conf_tau:g}")
     if params.mask_k:
         parts.append(f"mask k {params.mask_k}")
+    if params.pipeline == "full" and sky_filter:
+        parts.append("sky filter")
     return ("run: " if has_run else "no run: defaults · ") + " · ".join(parts)
 
 
@@ -68,7 +70,7 @@ class ControlPanel:
         self._last_tau = start.conf_tau
         modes = s.color_modes()
         gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {len(s.scene.views)} views")
-        self.run_text = gui.add_markdown(f"**{run_label(start, s.run is not None)}**")
+        self.run_text = gui.add_markdown(f"**{run_label(start, s.run is not None, s.sky_filter)}**")
         self.reset_button = gui.add_button("Reset to the run's settings", disabled=s.run is None,
                                            hint="pipeline, τ, mask k and fusion thresholds as the run used them")
         with gui.add_folder("Pipeline"):
