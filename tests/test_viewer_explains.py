@@ -160,3 +160,19 @@ def test_a_full_run_opens_with_its_refined_threshold_and_sky_filter(fake_run, tm
     with running_viewer(run) as viewer:
         assert "run: full · pixels · τ 0.2 · sky filter" in viewer.run_text.content
         assert viewer.view_images["refined depth"].visible
+
+
+def test_a_bare_scene_says_there_is_no_run_to_tune():
+    from conftest import SAMPLES
+
+    from workbench.viewer import ViewerApp
+
+    app = ViewerApp(ViewerSession.open(SAMPLES / "tiny"), port=0)
+    try:
+        assert "no run" in app.run_text.content and app.reset_button.disabled
+        assert "open the output folder of deepc run" in app.control_notes.content
+        assert [k for k, h in app.view_images.items() if h.visible] == ["image"]
+        app.step_view(+1)
+        assert "view 1:" in app.view_title.content
+    finally:
+        app.stop()

@@ -70,7 +70,8 @@ class ControlPanel:
         self._last_tau = start.conf_tau
         modes = s.color_modes()
         gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {len(s.scene.views)} views")
-        self.run_text = gui.add_markdown(f"**{run_label(start, s.run is not None, s.sky_filter)}**")
+        self.run_text = gui.add_markdown(f"**{run_label(start, s.run is not None, s.sky_filter)}**" if s.has_maps
+                                         else "**no run:** a COLMAP workspace, its sparse points only")
         self.reset_button = gui.add_button("Reset to the run's settings", disabled=s.run is None,
                                            hint="pipeline, τ, mask k and fusion thresholds as the run used them")
         with gui.add_folder("Pipeline"):
@@ -168,6 +169,8 @@ class ControlPanel:
     def _control_notes(self, pipeline: str) -> str:
         """Why a control is disabled, one line each (shown under the controls)."""
         s = self.session
+        if not s.has_maps:
+            return "*Pipeline, τ, mask k and fusion* act on the maps of a run: open the output folder of deepc run"
         notes = []
         if len(s.pipelines) <= 1:
             notes.append(f"*Pipeline* fixed: {self._pipeline_reason()}")
