@@ -7,6 +7,12 @@ attributes) and the exact recomputation follows from a worker thread; only stage
 change are recomputed (``workbench/session.py``). The GUI thread never computes. All browser tabs
 share one session. Binds 127.0.0.1 unless told otherwise.
 
+A run opens on its own pipeline, thresholds and fusion options (from its metrics.json), named at the top
+with a button back to them; the metrics compare every tolerance with the run's and with the previous
+setting. Controls that cannot act are disabled and say why, previews say they are approximate, every
+colour mode and map has a legend with its unit (``workbench/viewer_legends.py``), and the View folder shows
+the selected view's maps as the current pipeline and filters use them.
+
 The controls are declared in ``workbench/viewer_panel.py``, the newest-request-wins scheduling of previews
 and recomputations is ``workbench/scheduler.py``, and the Export panel's files ``workbench/viewer_export.py``.
 """
