@@ -30,6 +30,7 @@ class ViewData:
     refined_normal: np.ndarray | None
     refined_counter: np.ndarray | None = None  # counter maps of the refined maps (older full runs: None)
     refined_confidence: np.ndarray | None = None  # confidence of the refined maps (second network)
+    cost: np.ndarray | None = None  # PatchMatch's matching cost (1 - NCC, 0..2)
 
     def maps(self, pipeline: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """(depth, normal, confidence, counter) that ``pipeline`` filters and fuses: ``full`` takes the refined
@@ -60,5 +61,5 @@ def read_view_data(out_dir: str | Path, scene: Scene) -> list[ViewData]:
         data.append(ViewData(depth, normal, read_map(out_dir, "counter", v.name),
                              read_map(out_dir, "confidence", v.name), read_map(out_dir, "refined_depth", v.name),
                              read_map(out_dir, "refined_normal", v.name), read_map(out_dir, "refined_counter", v.name),
-                             read_map(out_dir, "refined_confidence", v.name)))
+                             read_map(out_dir, "refined_confidence", v.name), read_map(out_dir, "cost", v.name)))
     return data

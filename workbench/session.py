@@ -22,21 +22,34 @@ from engine.confidence.options import ConfidenceOptions
 from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.filtering import filter_by_confidence, filter_by_counter
-from engine.fusion import FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
+from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.ply import read_points
-from engine.run_folder import read_run_metrics
+from engine.refinement.options import RefinementOptions
+from engine.refinement.views import sky_filter_views
+from engine.run_folder import RunMetrics, read_run_metrics
 from engine.scene import Scene, SceneOptions, load_scene
-from workbench.map_images import colorize, view_images
+from workbench.map_images import colorize, normal_to_rgb, view_images
 from workbench.run_maps import ViewData, read_view_data
+from workbench.viewer_legends import NO_DATA, Scale, categories_html, histogram_html, note_html, scale_html
 
 COLOR_MODES = ("rgb", "confidence", "views", "error")
 REPORT_TOLERANCE = 0.02  # the paper's and ETH3D's headline tolerance (model units: metres)
+ERROR_SATURATION = 2 * REPORT_TOLERANCE  # the error colouring saturates here (4 cm)
+DEPTH_ERROR_PCT = 5.0  # the per-view GT depth error map saturates here (percent of the GT depth)
+# The kept-mask colours: what the pipeline's filters did to each pixel of a view.
+KEPT, REMOVED_TAU, REMOVED_K = (235, 235, 235), (230, 120, 30), (60, 110, 220)
 
 
-# The viewer starts in `dense` (one median point per cluster), not in the pipelines' per-pixel default:
+def _no_data(rgb: np.ndarray, invalid: np.ndarray) -> np.ndarray:
+    rgb[invalid] = NO_DATA
+    return rgb
+
+
+# Without a run (tests, benchmarks) ViewParams() starts in `dense` (one median point per cluster), not in the
+# pipelines' per-pixel default:
 # per-pixel clouds are 3-4x larger, and under five tabs at 50 events per second they doubled the preview
 # latency (p50 45 -> 113 ms) and pushed the last exact result past 2 s (benchmarks/bench_viewer_load.py).
-# The preset dropdown switches to `pixels`, the cloud `deepc run` wrote.
+# A run opens on its own options instead (ViewerSession.run_params).
 VIEWER_DEFAULT_PRESET = "dense"
 
 
@@ -93,10 +106,16 @@ class _LRU(OrderedDict):
 class ViewerSession:
     """Scene + maps + stage caches. Thread-safe: stage computations are serialised by a lock."""
 
-    def __init__(self, scene: Scene, data: list[ViewData] | None, out_dir: Path | None = None):
+    def __init__(self, scene: Scene, data: list[ViewData] | None, out_dir: Path | None = None,
+                 run: RunMetrics | None = None):
         self.scene = scene
         self.data = data
         self.out_dir = out_dir
+        self.run = run  # metrics.json of the run, when a run folder was opened
+        # `full` drops sky and far-plane pixels of the refined maps when the run did (refinement.sky_filter);
+        # the viewer has no control for it, so it follows the run
+        refinement = (run.options.get("refinement") or {}) if run is not None else {}
+        self.sky_filter = bool(refinement.get("sky_filter", RefinementOptions().sky_filter))
         self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
@@ -113,6 +132,8 @@ class ViewerSession:
     def open(cls, path: str | Path, scene_options: SceneOptions | None = None) -> ViewerSession:
         """Open the output folder of ``deepc run`` (metrics.json + stereo maps) or a bare scene."""
         path = Path(path)
+        if not path.exists():
+            raise DeepCError("does not exist", path)
         if (path / "metrics.json").is_file():
             metrics = read_run_metrics(path)
             scene_path = Path(metrics.scene_path)
@@ -120,7 +141,7 @@ class ViewerSession:
                 raise DeepCError(f"the scene this run was made from is gone ({scene_path})", path / "metrics.json")
             options = scene_options or SceneOptions.from_dict(metrics.scene_options())
             scene = load_scene(scene_path, options)
-            return cls(scene, read_view_data(path, scene), path)
+            return cls(scene, read_view_data(path, scene), path, metrics)
         if (path / "sparse").is_dir() or (path / "sparse" / "0").is_dir():
             return cls(load_scene(path, scene_options or SceneOptions()), None, None)
         raise DeepCError("neither an output folder of deepc run (no metrics.json) nor a COLMAP workspace", path)
@@ -153,6 +174,38 @@ class ViewerSession:
     def has_gt(self) -> bool:
         return self.scene.has_gt_points
 
+    def run_params(self) -> ViewParams:
+        """The settings the run itself used (its metrics.json options): pipeline, its confidence threshold and
+        fusion thresholds. Keys an older run did not write take ``deepc run``'s defaults; without a run, or for
+        a pipeline whose maps are missing, the first available pipeline with ``ViewParams()``'s values."""
+        if self.run is None:
+            return ViewParams(pipeline=(self.pipelines or ["vanilla"])[0])
+        options = self.run.options or {}
+        fusion = FUSION_PRESETS[DEFAULT_PRESET]
+        if isinstance(options.get("fusion"), dict):
+            fusion = FusionOptions.from_dict(options["fusion"])
+        pipeline = self.run.pipeline if self.run.pipeline in self.pipelines else (self.pipelines or ["vanilla"])[0]
+        if pipeline == "full":
+            tau = float((options.get("refinement") or {}).get("refined_conf_tau", RefinementOptions().refined_conf_tau))
+        else:
+            tau = float((options.get("confidence") or {}).get("tau", ConfidenceOptions().tau))
+        return ViewParams(pipeline=pipeline, conf_tau=tau, mask_k=0, fusion=fusion)
+
+    def run_scores(self) -> dict[float, dict[str, float]] | None:
+        """The run's own scores per tolerance (its metrics.json ``eval``), None without them."""
+        evaluation = self.run.eval if self.run is not None else None
+        if not evaluation or not evaluation.get("tolerances"):
+            return None
+        return {float(t): {"accuracy": a, "completeness": c, "f1": f} for t, a, c, f in zip(
+            evaluation["tolerances"], evaluation["accuracy"], evaluation["completeness"], evaluation["f1"],
+            strict=True)}
+
+    @property
+    def tolerances(self) -> tuple[float, ...]:
+        """The tolerances the viewer scores at: the run's, else the evaluation's defaults."""
+        scores = self.run_scores()
+        return tuple(sorted(scores)) if scores else EvaluationOptions().tolerances
+
     # ---- stages -----------------------------------------------------------------------------------
     def _cached(self, cache: _LRU, key, compute):
         with self._cache_lock:
@@ -184,6 +237,10 @@ class ViewerSession:
             if params.mask_k > 0 and counter is not None:
                 depth, normal = filter_by_counter(depth, normal, counter, params.mask_k)
             out.append((depth, normal))
+        if params.pipeline == "full" and self.sky_filter:
+            depths, normals, _ = sky_filter_views(self.scene, [d for d, _ in out], [n for _, n in out],
+                                                  [d.depth for d in self.data], [d.confidence for d in self.data])
+            out = list(zip(depths, normals, strict=True))
         return out
 
     def cloud(self, params: ViewParams, _cache: _LRU | None = None) -> FusedCloud:
@@ -246,16 +303,18 @@ class ViewerSession:
             keep &= base.num_views >= params.mask_k + 1
         return keep
 
-    def evaluate(self, params: ViewParams, cloud: FusedCloud | None = None) -> dict[str, float] | None:
-        """Accuracy, completeness, F1 (percent) at 2 cm against the GT points; None without GT."""
+    def evaluate(self, params: ViewParams, cloud: FusedCloud | None = None) -> dict[str, Any] | None:
+        """Accuracy, completeness, F1 (percent) at 2 cm against the GT points, and under ``by_tolerance``
+        the same at every tolerance of :attr:`tolerances`; None without GT."""
         if not self.has_gt:
             return None
         def compute() -> dict[str, float]:
             points = self.cloud(params) if cloud is None else cloud
             _, gt_views = self._ground_truth()
+            tolerances = tuple(sorted({*self.tolerances, REPORT_TOLERANCE}))
             result = evaluate_points(np.asarray(points.xyz, np.float64), self._gt_index(),
-                                     EvaluationOptions(tolerances=(REPORT_TOLERANCE,)), gt_views)
-            return result.at(REPORT_TOLERANCE)
+                                     EvaluationOptions(tolerances=tolerances), gt_views)
+            return {**result.at(REPORT_TOLERANCE), "by_tolerance": {t: result.at(t) for t in tolerances}}
         return self._cached(self._evals, params.fusion_key(), compute)
 
     def _ground_truth(self) -> tuple[np.ndarray, list | None]:
@@ -273,25 +332,164 @@ class ViewerSession:
             return self._gt_point_index
 
     # ---- colours and per-view images ----------------------------------------------------------------
+    def color_modes(self) -> dict[str, str | None]:
+        """Every colour mode with the reason it is unavailable here (None: available)."""
+        return {"rgb": None,
+                "confidence": None if self.has_confidence else "unavailable: the run wrote no confidence maps",
+                "views": None,
+                "error": None if self.has_gt else "unavailable: the scene has no GT points"}
+
+    def cloud_scale(self, mode: str) -> Scale | None:
+        """The colour scale of a cloud colour mode (None for the images' own colours)."""
+        if mode == "confidence":
+            return Scale("mean confidence of the fused pixels", 0.0, 1.0, "viridis",
+                         no_data="no confidence (fused without)")
+        if mode == "views":
+            return Scale("views supporting the point", 1, max(2, len(self.scene.views)), "plasma", "views", digits=0)
+        if mode == "error":
+            return Scale("distance to the nearest GT point", 0.0, 100 * ERROR_SATURATION, "RdYlGn_r", "cm",
+                         saturates=True, digits=1)
+        return None
+
+    def cloud_legend(self, mode: str) -> str:
+        """HTML legend of a colour mode, or the reason it is unavailable."""
+        reason = self.color_modes().get(mode)
+        if reason:
+            return note_html(f"{mode}: {reason}")
+        scale = self.cloud_scale(mode)
+        return scale_html(scale) if scale else note_html("colours of the images the points were fused from")
+
     def colors(self, cloud: FusedCloud, mode: str) -> np.ndarray:
-        """(N, 3) uint8 colours of the cloud for a colour mode."""
+        """(N, 3) uint8 colours of the cloud for a colour mode (:meth:`cloud_scale`); a mode without its data
+        (:meth:`color_modes`) is a DeepCError."""
+        if mode not in COLOR_MODES:
+            raise DeepCError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")
+        reason = self.color_modes()[mode]
+        if reason:
+            raise DeepCError(f"colour mode {mode}: {reason}")
         if mode == "rgb" or len(cloud) == 0:
             return cloud.rgb
+        scale = self.cloud_scale(mode)
         if mode == "confidence":
-            values = np.nan_to_num(cloud.mean_confidence, nan=0.0)
-            return colorize(values[None, :], 0.0, 1.0, "viridis")[0]
+            values = cloud.mean_confidence
+            missing = ~np.isfinite(values)
+            return _no_data(colorize(np.nan_to_num(values, nan=0.0)[None, :], 0.0, 1.0, scale.cmap)[0], missing)
         if mode == "views":
-            return colorize(cloud.num_views[None, :].astype(np.float32), 1.0, max(2, len(self.scene.views)),
-                            "plasma")[0]
-        if mode == "error":
-            if not self.has_gt:
-                return cloud.rgb
-            # workers=-1 also releases the GIL, so the viewer's websocket thread keeps sending meanwhile
-            dist, _ = self._gt_index().tree.query(np.asarray(cloud.xyz, np.float64), k=1,
-                                                  distance_upper_bound=4 * REPORT_TOLERANCE, workers=-1)
-            return colorize(np.minimum(dist, 4 * REPORT_TOLERANCE)[None, :], 0.0, 2 * REPORT_TOLERANCE,
-                            "inferno")[0]
-        raise DeepCError(f"unknown colour mode {mode!r} (one of {', '.join(COLOR_MODES)})")
+            return colorize(cloud.num_views[None, :].astype(np.float32), scale.vmin, scale.vmax, scale.cmap)[0]
+        # workers=-1 also releases the GIL, so the viewer's websocket thread keeps sending meanwhile
+        dist, _ = self._gt_index().tree.query(np.asarray(cloud.xyz, np.float64), k=1,
+                                              distance_upper_bound=2 * ERROR_SATURATION, workers=-1)
+        return colorize(np.minimum(dist, ERROR_SATURATION)[None, :], 0.0, ERROR_SATURATION, scale.cmap)[0]
+
+    def view_maps(self, i: int, params: ViewParams) -> dict[str, tuple[np.ndarray, str]]:
+        """View ``i``'s maps as the pipeline and filters of ``params`` use them, each an (image, HTML legend):
+        image, depth, refined depth (full), normal, cost, counter, confidence, kept mask, GT depth error."""
+        view = self.scene.views[i]
+        out = {"image": ((np.asarray(self.scene.image(i)) * 255 + 0.5).astype(np.uint8),
+                         note_html("the view's image"))}
+        if not self.data:
+            return out
+        d = self.data[i]
+        lo, hi = view.depth_range
+        depth, normal, confidence, counter = d.maps(params.pipeline)
+        missing = ~(depth > 0)
+
+        def scalar(key: str, values: np.ndarray, scale: Scale, invalid: np.ndarray) -> None:
+            rgb = colorize(np.minimum(values, scale.vmax), scale.vmin, scale.vmax, scale.cmap)
+            out[key] = (_no_data(rgb, invalid), scale_html(scale))
+
+        scalar("depth", d.depth, Scale("depth (PatchMatch)", lo, hi, "turbo", "m", no_data="no estimate"),
+               ~(d.depth > 0))
+        if params.pipeline == "full" and d.refined_depth is not None:
+            scalar("refined depth", depth, Scale("depth fused by full (refined where network 1 doubts)", lo, hi,
+                                                 "turbo", "m", no_data="no estimate"), missing)
+        out["normal"] = (_no_data(normal_to_rgb(normal), ~normal.any(axis=2)),
+                         note_html("normal: RGB = (n + 1) / 2 of its x, y, z in the camera frame; grey: no estimate"))
+        if d.cost is not None:
+            scalar("cost", d.cost, Scale("matching cost (1 − NCC)", 0.0, 2.0, "magma", no_data="no estimate"),
+                   ~(d.depth > 0))
+        if counter is not None:
+            scalar("counter", counter.astype(np.float32),
+                   Scale("counter: consistent source views", 0, max(1, len(view.source_views)), "viridis", "views",
+                         no_data="no estimate", digits=0), missing)
+        if confidence is not None:
+            scalar("confidence", confidence, Scale("confidence", 0.0, 1.0, "viridis", no_data="no estimate"), missing)
+        kept = self.filtered_maps(params)[i][0] > 0
+        by_tau = np.zeros_like(missing)
+        if params.pipeline != "vanilla" and params.conf_tau > 0 and confidence is not None:
+            by_tau = ~missing & (confidence < params.conf_tau)
+        mask = np.empty(depth.shape + (3,), np.uint8)
+        mask[:] = REMOVED_K
+        mask[kept] = KEPT
+        mask[by_tau] = REMOVED_TAU
+        mask[missing] = NO_DATA
+        entries = [(KEPT, "kept (fused)")]
+        if by_tau.any() or (params.pipeline != "vanilla" and params.conf_tau > 0):
+            entries.append((REMOVED_TAU, f"removed by τ {params.conf_tau:g}"))
+        if params.mask_k > 0:
+            entries.append((REMOVED_K, f"removed by mask k {params.mask_k}"))
+        entries.append((NO_DATA, "no estimate"))
+        out["kept"] = (mask, categories_html("kept mask (pipeline filters)", entries))
+        gt = self.scene.gt_depth(i) if self.scene.has_gt_depth else None
+        if gt is not None:
+            valid = kept & (gt > 0)
+            rel = np.where(valid, np.abs(depth - gt) / np.where(gt > 0, gt, 1.0), 0.0) * 100
+            scalar("GT error", rel.astype(np.float32),
+                   Scale("depth error of the kept pixels vs GT", 0.0, DEPTH_ERROR_PCT, "RdYlGn_r", "%",
+                         no_data="not kept, or no GT depth", saturates=True, digits=1), ~valid)
+        return out
+
+    def view_metrics(self, i: int, params: ViewParams) -> str:
+        """One view's numbers under ``params``: estimates, kept pixels, and their error against GT depth."""
+        depth = self.data[i].maps(params.pipeline)[0] if self.data else None
+        if depth is None:
+            return "no maps"
+        kept = self.filtered_maps(params)[i][0] > 0
+        pixels = depth.size
+        lines = [f"estimates {100 * (depth > 0).sum() / pixels:.1f} % · kept {100 * kept.sum() / pixels:.1f} % "
+                 f"of {pixels:,} pixels"]
+        gt = self.scene.gt_depth(i) if self.scene.has_gt_depth else None
+        if gt is not None:
+            valid = kept & (gt > 0)
+            if valid.any():
+                rel = np.abs(depth[valid] - gt[valid]) / gt[valid]
+                lines.append(f"kept vs GT depth: abs rel {rel.mean():.4f} · within 1 % {100 * (rel < 0.01).mean():.1f} "
+                             f"% · within 5 % {100 * (rel < 0.05).mean():.1f} %")
+        else:
+            lines.append("no GT depth for this view")
+        return "  \n".join(lines)
+
+    def histograms(self, params: ViewParams) -> list[str]:
+        """HTML histograms of the pipeline's confidence (with τ) and counter (with mask k) over every view's
+        estimates: where a threshold cuts."""
+        if not self.data:
+            return []
+        key = ("hist", params.pipeline)
+        with self._cache_lock:
+            counts = self._evals.get(key)
+        if counts is None:
+            maps = [d.maps(params.pipeline) for d in self.data]
+            counts = {}
+            if all(m[2] is not None for m in maps):
+                values = np.concatenate([m[2][m[0] > 0] for m in maps])
+                counts["confidence"] = np.histogram(values, bins=40, range=(0.0, 1.0))
+            if all(m[3] is not None for m in maps):
+                values = np.concatenate([m[3][m[0] > 0] for m in maps])
+                top = max(1, int(values.max()) if len(values) else 1)
+                counts["counter"] = np.histogram(values, bins=np.arange(top + 2) - 0.5)
+            with self._cache_lock:
+                self._evals.put(key, counts)
+        out = []
+        if "confidence" in counts:
+            tau = params.conf_tau if params.pipeline != "vanilla" else None
+            out.append(histogram_html(f"confidence of the {params.pipeline} estimates", *counts["confidence"], tau,
+                                      threshold_name="τ", below="below τ (removed)" if tau else ""))
+        if "counter" in counts:
+            out.append(histogram_html("counter: consistent source views per estimate", *counts["counter"],
+                                      params.mask_k - 0.5 if params.mask_k > 0 else None,
+                                      threshold_name="mask k", below="below k (removed)", shown=str(params.mask_k),
+                                      axis=("0", f"{len(counts['counter'][0]) - 1} views")))
+        return out
 
     def view_images(self, i: int) -> dict[str, np.ndarray]:
         """uint8 RGB images of view ``i``'s maps for the side panel: image, depth, normal, counter, confidence."""

@@ -7,12 +7,20 @@ attributes) and the exact recomputation follows from a worker thread; only stage
 change are recomputed (``workbench/session.py``). The GUI thread never computes. All browser tabs
 share one session. Binds 127.0.0.1 unless told otherwise.
 
+A run opens on its own pipeline, thresholds and fusion options (from its metrics.json), named at the top
+with a button back to them; the metrics compare every tolerance with the run's and with the previous
+setting. Controls that cannot act are disabled and say why, previews say they are approximate, every
+colour mode and map has a legend with its unit (``workbench/viewer_legends.py``), and the View folder shows
+the selected view's maps as the current pipeline and filters use them.
+
 The controls are declared in ``workbench/viewer_panel.py``, the newest-request-wins scheduling of previews
 and recomputations is ``workbench/scheduler.py``, and the Export panel's files ``workbench/viewer_export.py``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import threading
 import time
 from pathlib import Path
@@ -21,12 +29,14 @@ import numpy as np
 import viser
 from viser.transforms import SO3
 
+from engine.errors import DeepCError
 from engine.fusion import FusedCloud
 from workbench.map_images import subsample
 from workbench.scheduler import LatestOnly, RecomputeScheduler
 from workbench.session import ViewerSession, ViewParams, describe
 from workbench.viewer_export import safe_file_name, write_cloud_ply, write_state_rrd
-from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of
+from workbench.viewer_legends import metrics_html
+from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of, view_label
 
 # preset_of is imported from here by benchmarks/bench_viewer.py
 __all__ = ["DISPLAY_MAX_POINTS", "ViewerApp", "preset_of", "serve"]
@@ -71,6 +81,10 @@ class ViewerApp(ControlPanel):
         self._selected_view = 0
         self._recolor_latest = LatestOnly(self._recolor)
         self._exact_generation = 0  # newest generation whose exact cloud is shown: older previews must not cover it
+        self._scored: tuple | None = None  # (params, scores) of the newest exact result shown with its scores
+        self._previous_scored: tuple | None = None  # ...and of the setting before it (the "previous" column)
+        self._refresh_view_latest = LatestOnly(self._refresh_view)
+        self._last_preview: tuple | None = None  # (params, point count) of the newest preview shown
         # Previews run on their own thread: in viser's callback thread a preview that waits for the previous
         # cloud to leave would hold up the next events themselves.
         self._scheduler: RecomputeScheduler[ViewParams] = RecomputeScheduler(
@@ -128,6 +142,7 @@ class ViewerApp(ControlPanel):
         self.metrics.content = f"**error:** {' '.join(str(exc).split())}"
 
     def _preview(self, params: ViewParams, generation: int) -> None:
+        self.histograms.content = "".join(self.session.histograms(params))  # the thresholds move at once
         self._wait_for_delivery()
         if not self._scheduler.is_current(generation):
             return  # a newer request came in: its own preview follows
@@ -138,6 +153,7 @@ class ViewerApp(ControlPanel):
         base, own = self.session.nearest_base_cloud(params)
         if base is None:  # nothing to mask yet: say what is coming
             self.metrics.content = "**fusing…**  \nexact result follows"
+            self.metrics_table.content = ""
             return
         keep = np.flatnonzero(ViewerSession.preview_mask(base, params))
         total = len(keep)
@@ -181,18 +197,38 @@ class ViewerApp(ControlPanel):
             return  # a newer request is queued: skip the stale push
         if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
             self._show(cloud, params, preview=False, generation=generation)
+        self._refresh_view_latest()
         scores = self.session.evaluate(params, cloud)
         if self._scheduler.is_current(generation):
-            self.metrics.content = self._metrics_text(cloud, scores)
+            self._show_scores(cloud, params, scores)
+
+    def _show_scores(self, cloud: FusedCloud, params: ViewParams, scores: dict | None) -> None:
+        """The exact result's headline and its table: every tolerance, against the run and the previous setting."""
+        with self._state_lock:
+            current = {**(scores or {}), "_points": len(cloud)}
+            if self._scored is None or self._scored[0] != params:
+                self._previous_scored, self._scored = self._scored, (params, current)
+            previous = self._previous_scored
+        self.metrics.content = self._metrics_text(cloud, scores, params=params)
+        run = self.session.run
+        self.metrics_table.content = metrics_html(scores, self.session.run_scores(),
+                                                  previous[1] if previous else None, len(cloud),
+                                                  run.fused_points if run is not None else None)
 
     def _metrics_text(self, cloud: FusedCloud, scores: dict | None, preview: bool = False, count: int | None = None,
-                      stale_fusion: bool = False) -> str:
+                      stale_fusion: bool = False, params: ViewParams | None = None) -> str:
         if preview:
             total = len(cloud) if count is None else count
             shown = "" if total == len(cloud) else f", {len(cloud):,} shown"
-            fusion = ", previous fusion thresholds" if stale_fusion else ""
-            return f"**{total:,} points** (preview{shown}{fusion})  \nexact result follows…"
-        return f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \n{describe(scores)}"
+            how = ("masks the cloud of the previous fusion thresholds: this fusion change is not in it yet"
+                   if stale_fusion else "the unfiltered cloud masked by per-point confidence and views")
+            return (f"**{total:,} points** (preview, approximate{shown})  \n*{how}*  \n"
+                    "exact result follows…")
+        text = f"**{len(cloud):,} points**{_shown_note(len(cloud))} · exact  \n{describe(scores)}"
+        last = self._last_preview
+        if last is not None and params is not None and last[0] == params and last[1] != len(cloud):
+            text += f"  \n*the approximate preview showed {last[1]:,} points ({last[1] - len(cloud):+,})*"
+        return text
 
     def _show(self, cloud: FusedCloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
@@ -222,8 +258,10 @@ class ViewerApp(ControlPanel):
                 if preview:
                     self.metrics.content = self._metrics_text(cloud, None, preview=True, count=count,
                                                               stale_fusion=stale_fusion)
+                    self.metrics_table.content = ""
+                    self._last_preview = (params, len(cloud) if count is None else count)
                 elif scores is not None or not self.session.has_gt:
-                    self.metrics.content = self._metrics_text(cloud, scores)
+                    self.metrics.content = self._metrics_text(cloud, scores, params=params)
                 else:
                     self.metrics.content = f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \nscoring…"
                 self._cloud_message_id = self.server._websock_server.get_message_buffer().message_counter - 1
@@ -233,22 +271,43 @@ class ViewerApp(ControlPanel):
         if self.cloud is not None:
             self._show(self.cloud, self.cloud_params, preview=False)
             scores = self.session.evaluate(self.cloud_params, self.cloud) if self.cloud_params else None
-            self.metrics.content = self._metrics_text(self.cloud, scores)
+            self._show_scores(self.cloud, self.cloud_params, scores)
 
     def _set_point_size(self) -> None:
         if self.cloud_handle is not None:
             self.cloud_handle.point_size = float(self.point_size.value)
 
     def select_view(self, index: int) -> None:
-        """Show view ``index``'s image and maps in the side panel (also on a frustum click)."""
+        """Show view ``index``'s image and maps in the side panel (also on a frustum click, the view
+        dropdown and the previous / next buttons)."""
         self._selected_view = index
         view = self.session.scene.views[index]
+        label = view_label(index, view.name)
+        if self.view_dropdown.value != label:
+            self.view_dropdown.value = label
         self.view_title.content = f"**view {index}: {view.name}**  \nsources: {view.source_views}"
-        for kind, image in self.session.view_images(index).items():
-            if kind in self.view_images:
-                self.view_images[kind].image = subsample(image, PANEL_IMAGE)
+        self._refresh_view()
         for i, frustum in enumerate(self.frustums):
             frustum.color = (230, 60, 40) if i == index else (60, 60, 200)
+
+    def _refresh_view(self) -> None:
+        """The selected view's maps, legends and numbers under the current controls."""
+        index = self._selected_view
+        params = self.params() if hasattr(self, "_fusion_handles") else self.run_params
+        try:
+            maps = self.session.view_maps(index, params)
+            numbers = self.session.view_metrics(index, params) if self.session.has_maps else ""
+        except Exception as exc:  # noqa: BLE001 - the panel says what went wrong, the viewer stays up
+            self.view_metrics.content = f"**error:** {' '.join(str(exc).split())}"
+            return
+        self.view_metrics.content = f"*{params.pipeline}, as the controls filter it:*  \n{numbers}" if numbers else ""
+        for kind, handle in self.view_images.items():
+            shown = kind in maps
+            handle.visible = shown
+            self.view_legends[kind].visible = shown
+            if shown:
+                handle.image = subsample(maps[kind][0], PANEL_IMAGE)
+                self.view_legends[kind].content = maps[kind][1]
 
     # ---- exports ----------------------------------------------------------------------------------
     def _export_dir(self) -> Path:
@@ -270,7 +329,9 @@ class ViewerApp(ControlPanel):
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
         write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, float(self.point_size.value),
-                        self._selected_view, self.session.view_images(self._selected_view))
+                        self._selected_view,
+                        {k.replace(" ", "_"): image for k, (image, _) in
+                         self.session.view_maps(self._selected_view, self.cloud_params).items()})
         self.export_status.content = f"wrote `{path}`"
         return path
 
@@ -285,14 +346,24 @@ class ViewerApp(ControlPanel):
 
 
 def serve(path: str, host: str = "127.0.0.1", port: int = 8080) -> None:
-    """Open a session and serve until interrupted (``deepc view``)."""
+    """Open a session and serve until interrupted (``deepc view``). viser's own banner and log lines are
+    kept off the terminal: a busy port is announced in one line with the port used instead, and a port that
+    cannot be bound at all is a one-line DeepCError."""
     session = ViewerSession.open(path)
-    app = ViewerApp(session, host=host, port=port, verbose=False)
-    print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
+    quiet = io.StringIO()
     try:
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            app = ViewerApp(session, host=host, port=port, verbose=False)
+    except OSError as exc:
+        raise DeepCError(f"cannot serve the viewer on {host}:{port}: {exc.strerror or exc}") from None
+    try:  # (a Ctrl+C right after the start stops the server as well)
+        if port and app.port != port:
+            print(f"viewer: port {port} is in use; serving on port {app.port} instead", flush=True)
+        print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         pass
     finally:
-        app.stop()
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            app.stop()
