@@ -88,8 +88,9 @@ CONTEXTS = {"error": error_context, "confidence": confidence_context, "counter":
 LEGENDS: dict[str, str] = {
     "depth": "**depth** — camera-frame z in model units (the scene's units), colour scale *turbo* from the view's "
              "depth range minimum (blue) to maximum (red). Hover: the depth. No data: transparent (0 = no estimate).",
-    "normal": "**normal** — unit normal in the camera frame, RGB = (n + 1) / 2 (x right = red, y down = green, "
-              "z forward = blue; a surface facing the camera is bluish-purple). No data: black.",
+    "normal": "**normal** — unit normal in the camera frame (x right, y down, z forward), RGB = (n + 1) / 2: a "
+              "surface facing the camera, n = (0, 0, -1), is olive; tilting right adds red, down adds green. "
+              "No data: black.",
     "cost": "**cost** — aggregated matching cost of the stored hypothesis, 1 − NCC, unitless, 0 (perfect, dark) to 2 "
             "(no match, bright), colour scale *magma*. Hover reads 'Depth' but is the cost.",
     "selected_count": "**selected views** — number of source views PatchMatch selected for the pixel, 0 to the view's "
