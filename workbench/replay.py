@@ -32,6 +32,7 @@ from rerun.chunk import RrdReader
 from engine.errors import DeepCError
 from layouts import LAYOUTS, MAP_LABELS, PIPELINES, Contents, view_title
 from workbench.recording import APP_ID
+from workbench.stream_legends import legend_markdown
 
 _URL = re.compile(r"(http://[^\s]+\?url=[^\s]+)")
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
@@ -145,8 +146,6 @@ def notes_file(path: str | Path, info: RecordingInfo, view: str, layout: str, fo
     """A small recording with ``info``'s recording id holding ``about``, ``missing/...`` and (if the recording has
     none) ``legend`` text documents; None when the recording id is unknown."""
     import rerun as rr  # lazy: rerun
-
-    from workbench.stream_legends import legend_markdown
 
     if info.recording_id is None:
         return None
