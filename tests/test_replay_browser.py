@@ -52,7 +52,8 @@ def notes(path) -> dict[str, str]:
     """The text documents of a notes recording, by entity path."""
     from rerun.chunk import RrdReader
 
-    store = RrdReader(str(path)).stream().collect()
+    reader = RrdReader(str(path))
+    store = reader.stream(store=reader.recordings()[0]).collect()
     table = store.reader(index=None, contents="/**").to_arrow_table()
     return {column.split(":")[0]: table[column][0].as_py()[0] for column in table.column_names
             if column.endswith(":TextDocument:text")}
@@ -145,3 +146,23 @@ def test_replay_view_shows_that_view(browser_context, recording):
             shots.append(_shot(browser_context, viewer))
     assert all(shot.std() > 10 for shot in shots)
     assert np.abs(shots[0] - shots[1]).mean() > 1
+
+
+def test_a_run_recording_says_what_it_will_not_record(tmp_path):
+    """A run thinned to view 1 (--set stream.view=1) embeds a layout of view 1, and its recording says that the
+    other views' maps and the vanilla pipeline's confidence are not recorded, instead of empty panels."""
+    from engine.pipeline import PipelineOptions
+    from engine.scene import load_scene
+    from workbench.run_recording import open_run_recording
+    from workbench.stream_options import StreamOptions
+
+    scene = load_scene("sample_scenes/tiny")
+    recording = open_run_recording(str(tmp_path / "run.rrd"), scene, PipelineOptions(), StreamOptions(view=1))
+    recording.finish()
+    first, second = (entity_name(v.index, v.name) for v in scene.views[:2])
+    docs = notes(tmp_path / "run.rrd")
+    assert "no PatchMatch iterations of this view" in docs[f"/missing/{first}/depth"]
+    assert "fast and full pipelines" in docs[f"/missing/{second}/confidence"]
+    assert f"/missing/{second}/depth" not in docs
+    titles = blueprint_titles(tmp_path / "run.rrd")
+    assert f"depth · {scene.views[1].name} (view 1)" in titles

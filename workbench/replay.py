@@ -30,31 +30,14 @@ import rerun_cli
 from rerun.chunk import RrdReader
 
 from engine.errors import DeepCError
-from layouts import LAYOUTS, MAP_LABELS, PIPELINES, Contents, view_title
+from layouts import LAYOUTS, Contents, view_title
 from workbench.recording import APP_ID
-from workbench.stream_legends import legend_markdown
+from workbench.recording_notes import log_notes
 
 _URL = re.compile(r"(http://[^\s]+\?url=[^\s]+)")
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 # one line of ChunkStore.summary(): "/path rows=N static=B timelines=[...] cols=[...]" (escaped parts keep '\ ')
 _ENTITY = re.compile(r"^(/(?:\\.|\S)+) rows=\d+ static=\w+ timelines=\[([^\]]*)\] cols=\[(.*)\]", re.MULTILINE)
-
-# why a map may be absent, per kind (shown in the text panel that replaces it)
-MISSING_REASONS = {
-    "depth": "no PatchMatch iterations of this view were recorded (the run was thinned to another view with "
-             "--set stream.view=N, or the file holds an exported state only)",
-    "normal": "no PatchMatch iterations of this view were recorded",
-    "cost": "no PatchMatch iterations of this view were recorded",
-    "selected_count": "no PatchMatch iterations of this view were recorded",
-    "error": "no GT depth for this view: the error against GT needs the scene's GT depth maps",
-    "counter": "the counter is computed once PatchMatch has finished: the run stopped before, or this view was "
-               "not recorded",
-    "confidence": "only the fast and full pipelines run the confidence network (this run did not, or stopped "
-                  "before it)",
-    "label": "GT labels need GT depth for this view and the confidence stage (fast/full pipeline); recordings "
-             "made before labels were logged have none",
-    "refined_depth": "refined depth maps are not part of run recordings",
-}
 
 
 def rerun_binary() -> Path:
@@ -120,28 +103,6 @@ def choose_view(contents: Contents, name: str | None) -> str:
     raise DeepCError(f"no view {name!r} in the recording (it holds {shown})")
 
 
-def _about(info: RecordingInfo, view: str, layout: str) -> str:
-    contents = info.contents
-    lines = [f"# {layout} layout · {view_title(view)}", ""]
-    if contents.timeline == "view_iteration":
-        lines.append("Scrub **view_iteration** to watch one view converge (every view's n-th iteration sits at n); "
-                     "**pass** jumps pass by pass over all levels, coarse to fine; **iteration** is the engine's "
-                     "global step, all views interleaved.")
-    else:
-        lines.append("Recorded before per-view timelines: **iteration** is the engine's global step with all views "
-                     "interleaved, so a view's maps change only every few steps.")
-    lines += ["", f"**Views** ({len(contents.views)}): " + ", ".join(view_title(v) for v in contents.views), ""]
-    for v in contents.views:
-        have = [MAP_LABELS.get(k, k) for k in MAP_LABELS if contents.has(f"/maps/{v}/{k}")]
-        lacks = [MAP_LABELS.get(k, k) for k in MAP_LABELS
-                 if k != "refined_depth" and not contents.has(f"/maps/{v}/{k}")]
-        lines.append(f"- {view_title(v)}: " + (", ".join(have) or "no maps")
-                     + (f"; **lacks** {', '.join(lacks)}" if lacks else ""))
-    clouds = [p for p in PIPELINES if contents.has(f"/world/fused/{p}")]
-    lines += ["", "**Fused clouds**: " + (", ".join(clouds) if clouds else "none (no fusion stage recorded)")]
-    return "\n".join(lines) + "\n"
-
-
 def notes_file(path: str | Path, info: RecordingInfo, view: str, layout: str, folder: Path) -> Path | None:
     """A small recording with ``info``'s recording id holding ``about``, ``missing/...`` and (if the recording has
     none) ``legend`` text documents; None when the recording id is unknown."""
@@ -152,18 +113,8 @@ def notes_file(path: str | Path, info: RecordingInfo, view: str, layout: str, fo
     target = folder / "notes.rrd"
     rec = rr.RecordingStream(info.application_id, recording_id=info.recording_id)
     rec.save(str(target))
-    markdown = rr.MediaType.MARKDOWN
     try:
-        rec.log("about", rr.TextDocument(_about(info, view, layout), media_type=markdown), static=True)
-        if not info.contents.has("/legend"):
-            rec.log("legend", rr.TextDocument(legend_markdown(), media_type=markdown), static=True)
-        for v in info.contents.views or [view]:
-            for kind, reason in MISSING_REASONS.items():
-                if not info.contents.has(f"/maps/{v}/{kind}"):
-                    text = f"**{MAP_LABELS.get(kind, kind)} · {view_title(v)}** is not in this recording: {reason}."
-                    rec.log(f"missing/{v}/{kind}", rr.TextDocument(text, media_type=markdown), static=True)
-        rec.log("missing/fused", rr.TextDocument("No fused cloud in this recording: the run stopped before fusion.",
-                                                 media_type=markdown), static=True)
+        log_notes(rec, info.contents, view, layout, legend=not info.contents.has("/legend"))
     finally:
         rec.flush()
         rec.disconnect()
