@@ -70,7 +70,9 @@ def _text_panels() -> rrb.Tabs:
 
 
 def _panels(contents: Contents, state: str = "expanded") -> list:
-    return [rrb.TimePanel(state=state, timeline=contents.timeline), rrb.SelectionPanel(state="collapsed"),
+    # following: the viewer opens at the end of the recording (final maps, counter, confidence, labels)
+    return [rrb.TimePanel(state=state, timeline=contents.timeline, play_state="following"),
+            rrb.SelectionPanel(state="collapsed"),
             rrb.BlueprintPanel(state="collapsed")]
 
 
