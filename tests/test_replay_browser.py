@@ -166,3 +166,23 @@ def test_a_run_recording_says_what_it_will_not_record(tmp_path):
     assert f"/missing/{second}/depth" not in docs
     titles = blueprint_titles(tmp_path / "run.rrd")
     assert f"depth · {scene.views[1].name} (view 1)" in titles
+
+
+def test_a_recording_from_before_per_view_timelines_still_replays(tmp_path):
+    """Recordings made before this change (one global `iteration` timeline, no legend) get a layout on that
+    timeline, an about panel saying so, and the legend from the notes recording."""
+    import rerun as rr
+
+    path = tmp_path / "old.rrd"
+    recording = Recording(path)
+    view = entity_name(0, "a.png")
+    for step in range(3):
+        recording.rec.set_time("iteration", sequence=step)
+        recording.rec.log(f"maps/{view}/depth", rr.DepthImage(np.ones((4, 6), np.float16), meter=1.0))
+    recording.finish()
+    contents = recording_contents(path).contents
+    assert contents.timelines == {"iteration"} and contents.timeline == "iteration"
+    rbl, notes_rrd = layout_files(path, "iterations", tmp_path)
+    assert "depth · a.png (view 0)" in blueprint_titles(rbl)
+    docs = notes(notes_rrd)
+    assert "Recorded before per-view timelines" in docs["/about"] and "Colour legends" in docs["/legend"]
