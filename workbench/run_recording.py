@@ -25,7 +25,7 @@ def expected_contents(scene: Scene, options: PipelineOptions, stream_options: St
     for view, name in zip(scene.views, names, strict=True):
         if stream_options.view is not None and view.index != stream_options.view:
             continue
-        gt = scene.gt_depth(view.index) is not None
+        gt = scene.gt_depth_paths[view.index] is not None  # without reading the map
         kinds = [*ITERATION_MAPS, *(["error"] if gt else []), *(["confidence"] if confidence else []),
                  *(["label"] if gt and confidence else [])]
         entities |= {f"/maps/{name}/{kind}" for kind in kinds}
