@@ -56,6 +56,10 @@ def test_recording_holds_maps_stats_and_every_iteration(tmp_path):
     assert len(raw) == 2 * 12 * 16  # logged as float16 to keep recordings small
     depth = np.frombuffer(raw, np.float16).reshape(fmt["height"], fmt["width"])
     assert depth[0].max() == 0 and 1 <= depth[1:].min() <= depth.max() <= 2
+    # cost hovers as "matching cost 0.37 ..." (class-coded in 0.01 steps), no depth = class 0
+    cost = np.frombuffer(bytes(table[f"/maps/{base}/cost:SegmentationImage:buffer"][2].as_py()[0]), np.uint8)
+    cost = cost.reshape(12, 16)
+    assert cost[0].max() == 0 and 1 <= cost[1:].min() and cost.max() <= 201
     summary = str(store.summary())
     for kind in ("normal", "cost", "selected_count", "selected_views", "error"):
         assert f"/maps/{base}/{kind}" in summary

@@ -5,8 +5,8 @@ Entity tree (one per recording; the same code writes to a live viewer or an ``.r
     world/cameras/<view>            Transform3D (camera -> world) + Pinhole + rgb image
     maps/<view>/depth               DepthImage in model units (colormapped)
     maps/<view>/normal              normals colour-coded as RGB = (n + 1) / 2
-    maps/<view>/cost                matching cost, colormapped (0 = perfect, 2 = no match)
-    maps/<view>/selected_count      number of selected source views per pixel
+    maps/<view>/cost                matching cost, class-coded in 0.01 steps (0 = perfect, 2 = no match)
+    maps/<view>/selected_count      number of selected source views per pixel, class-coded
     maps/<view>/selected_views      uint32 bitmask over the view's source list (see selected_views_list)
     maps/<view>/error               |z - z_gt| / z_gt in %, class-coded (hover names it), when GT exists
     maps/<view>/counter             consistent source views after PatchMatch, class-coded
@@ -40,10 +40,13 @@ from workbench.stream_legends import (
     CONTEXTS,
     LEGENDS,
     confidence_classes,
+    cost_classes,
+    count_classes,
     counter_classes,
     error_classes,
     label_classes,
     legend_markdown,
+    selected_count_context,
 )
 from workbench.stream_options import StreamOptions
 
@@ -58,12 +61,7 @@ def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
     return [view for bit, view in enumerate(source_views) if mask >> bit & 1]
 
 
-COST_METER = 127.5  # uint8 cost map: value / 127.5 = matching cost in [0, 2]
 TIMELINES = ("view_iteration", "pass", "iteration")  # the first is the one layouts show
-
-
-def _to_u8(values: np.ndarray, scale: float) -> np.ndarray:
-    return np.clip(np.rint(values * scale), 0, 255).astype(np.uint8)
 
 
 def _popcount(mask: np.ndarray) -> np.ndarray:
@@ -145,10 +143,10 @@ class RerunStream(NullObserver):
             self._gt_cache[key] = resample_depth(gt, (shape[1], shape[0]))
         return self._gt_cache[key]
 
-    def _log_classes(self, path: str, kind: str, ids: np.ndarray) -> None:
+    def _log_classes(self, path: str, kind: str, ids: np.ndarray, context: Callable[[], Any] | None = None) -> None:
         """Log a class-coded map, with its AnnotationContext (static, once per entity) naming each class."""
         if path not in self._contexts:
-            self.rec.log(path, CONTEXTS[kind](), static=True)
+            self.rec.log(path, (context or CONTEXTS[kind])(), static=True)
             self._contexts.add(path)
         self.rec.log(path, rr.SegmentationImage(ids, opacity=1.0))
 
@@ -180,18 +178,16 @@ class RerunStream(NullObserver):
         base = entity_name(view, name)
         small = self.options.max_size
         dmin, dmax = self._depth_range[view]
-        # Scalar maps are logged compactly as colormapped depth images (float16 or uint8 with a
-        # ``meter`` scale, so hovering shows the real value); ~0.6 MB per view and iteration at 320x240.
+        # Compact: depth as a float16 depth image (hovering shows the depth), the other scalar maps as uint8 class
+        # ids whose AnnotationContext names value and unit on hover; ~0.6 MB per view and iteration at 320x240.
         rec.log(f"maps/{base}/depth", rr.DepthImage(subsample(depth, small).astype(np.float16), meter=1.0,
                                                     colormap="turbo", depth_range=[dmin, dmax]))
         rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(subsample(event.normal, small))))
-        cost = subsample(event.cost, small)
-        rec.log(f"maps/{base}/cost", rr.DepthImage(_to_u8(cost, COST_METER), meter=COST_METER, colormap="magma",
-                                                   depth_range=[0, 255]))
+        self._log_classes(f"maps/{base}/cost", "cost", cost_classes(subsample(event.cost, small),
+                                                                     subsample(~valid, small)))
         mask = subsample(event.selected_views, small)
-        count = _popcount(mask)
-        rec.log(f"maps/{base}/selected_count", rr.DepthImage(count, meter=1.0, colormap="viridis",
-                                                             depth_range=[0, max(1, len(sources))]))
+        self._log_classes(f"maps/{base}/selected_count", "selected_count", count_classes(_popcount(mask)),
+                          lambda: selected_count_context(len(sources)))
         if self.options.selected_views_mask and self._last_of_pass(event):
             rec.log(f"maps/{base}/selected_views", rr.Image(np.ascontiguousarray(mask), color_model="L"))
         stats = f"stats/{base}"

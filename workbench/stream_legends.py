@@ -18,6 +18,8 @@ ERROR_STEP = 0.25  # percent per class of the error map
 ERROR_CLASSES = 200  # 200 classes of 0.25 % cover 0-50 %; class 201 is "50 % or more"
 CONFIDENCE_CLASSES = 101  # confidence 0.00 .. 1.00 in steps of 0.01
 COUNTER_MAX = 20
+COST_STEP = 0.01  # cost per class of the cost map: 201 classes cover 0-2
+COST_CLASSES = 201
 
 
 def error_classes(rel_percent: np.ndarray) -> np.ndarray:
@@ -41,6 +43,19 @@ def counter_classes(counter: np.ndarray, invalid: np.ndarray | None) -> np.ndarr
     if invalid is not None:
         ids[invalid] = NO_DATA
     return ids
+
+
+def cost_classes(cost: np.ndarray, invalid: np.ndarray | None) -> np.ndarray:
+    """Matching cost in [0, 2] -> uint8 class ids 1..201 in steps of 0.01 (0 = no depth)."""
+    ids = np.rint(np.clip(np.nan_to_num(cost, nan=2.0), 0, 2) / COST_STEP).astype(np.uint8) + 1
+    if invalid is not None:
+        ids[invalid] = NO_DATA
+    return ids
+
+
+def count_classes(count: np.ndarray) -> np.ndarray:
+    """Number of selected source views -> uint8 class ids count + 1 (no class 0: every pixel has a count)."""
+    return (np.minimum(count, 254) + 1).astype(np.uint8)
 
 
 def label_classes(labels: np.ndarray) -> np.ndarray:
@@ -76,6 +91,19 @@ def counter_context():
                     "no data (no depth estimate)")
 
 
+def cost_context():
+    lut = colormap_lut("magma", COST_CLASSES)
+    return _context([(k + 1, f"matching cost {k * COST_STEP:.2f} (1 - NCC; 0 perfect, 2 no match)",
+                      tuple(int(c) for c in lut[k])) for k in range(COST_CLASSES)], "no data (no depth estimate)")
+
+
+def selected_count_context(n_sources: int):
+    n = max(n_sources, 1)
+    lut = colormap_lut("viridis", n + 1)
+    return _context([(k + 1, f"{k} of {n_sources} source views selected", tuple(int(c) for c in lut[min(k, n)]))
+                     for k in range(33)], "no data")  # a uint32 mask selects at most 32
+
+
 def label_context():
     return _context([(1, "outlier (reprojection error >= 2 px in every counted source view)", (220, 50, 47)),
                      (2, "inlier (reprojection error < 2 px in a source view)", (60, 180, 75))],
@@ -83,7 +111,7 @@ def label_context():
 
 
 CONTEXTS = {"error": error_context, "confidence": confidence_context, "counter": counter_context,
-            "label": label_context}
+            "label": label_context, "cost": cost_context}
 
 LEGENDS: dict[str, str] = {
     "depth": "**depth** — camera-frame z in model units (the scene's units), colour scale *turbo* from the view's "
@@ -92,9 +120,9 @@ LEGENDS: dict[str, str] = {
               "surface facing the camera, n = (0, 0, -1), is olive; tilting right adds red, down adds green. "
               "No data: black.",
     "cost": "**cost** — aggregated matching cost of the stored hypothesis, 1 − NCC, unitless, 0 (perfect, dark) to 2 "
-            "(no match, bright), colour scale *magma*. Hover reads 'Depth' but is the cost.",
+            "(no match, bright), colour scale *magma*, in 0.01 classes; hover names the value. No data: black.",
     "selected_count": "**selected views** — number of source views PatchMatch selected for the pixel, 0 to the view's "
-                      "number of source views, colour scale *viridis*. Hover reads 'Depth' but is the count.",
+                      "number of source views, colour scale *viridis*; hover names the count.",
     "error": "**error vs GT** — relative depth error |z − z_GT| / z_GT in percent, colour scale *inferno* from 0 % "
              "(black-purple) to 50 % or more (yellow), in 0.25 % classes; hover names the class. Logged with the maps "
              "at every logged iteration of every level. No data (no estimate or no GT): black.",
