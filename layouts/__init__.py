@@ -1,83 +1,136 @@
 """Rerun blueprints, one per debugging task. Change what you see here, not in engine code.
 
-Each layout is a function of the view entity names present in a recording (``maps/<view>/...``)
-returning an ``rrb.Blueprint``:
+Each layout is a function of a recording's :class:`Contents` (which views and entities it holds, which
+timelines) and the view to show, returning an ``rrb.Blueprint``. Panel titles name the view. A map the
+recording lacks gets a text panel saying so (``missing/<view>/<kind>``, written by ``deepc replay`` next
+to the recording) instead of an empty "No data available" panel.
 
 - ``iterations``: PatchMatch iterations of one view — depth, normals, cost, selected views, error
-  against GT, and the per-iteration scalars, with the cameras in 3-D.
+  against GT, counter, and the per-iteration scalars, with the cameras in 3-D, the colour legends and
+  what the recording holds.
 - ``pipelines``: the fused clouds of the pipelines side by side with one view's maps.
-- ``confidence``: confidence against label maps and depth error, per view.
+- ``confidence``: confidence against GT labels, the image and the depth error: one tab per view (the
+  chosen view's tab open).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import rerun.blueprint as rrb
 
+# the maps of a view the layouts show, with their panel labels
+MAP_LABELS = {"depth": "depth", "normal": "normal", "cost": "cost", "selected_count": "selected views",
+              "error": "error vs GT", "counter": "counter", "confidence": "confidence", "label": "GT labels",
+              "refined_depth": "refined depth"}
+STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT"}
+PIPELINES = ("vanilla", "fast", "full")
+SCRUB_TIMELINE = "view_iteration"  # one view's iterations (workbench/stream.py); older recordings: "iteration"
 
-def iterations(views: list[str], focus: int = 0) -> rrb.Blueprint:
-    view = views[min(focus, len(views) - 1)]
-    maps = f"/maps/{view}"
+
+@dataclasses.dataclass
+class Contents:
+    """What a recording holds: view entity names (``maps/<view>/...``), the entity paths with data (``None``:
+    everything the stream logs, e.g. for a run that is about to record) and the timelines."""
+
+    views: list[str]
+    entities: set[str] | None = None
+    timelines: set[str] = dataclasses.field(default_factory=lambda: {SCRUB_TIMELINE, "pass", "iteration"})
+
+    def has(self, path: str) -> bool:
+        return self.entities is None or path in self.entities
+
+    @property
+    def timeline(self) -> str:
+        """The timeline to scrub one view's iterations on."""
+        return SCRUB_TIMELINE if SCRUB_TIMELINE in self.timelines or not self.timelines else "iteration"
+
+
+def view_title(view: str) -> str:
+    """Human name of a view entity ``012_img\\/a.png`` -> ``img/a.png (view 12)``."""
+    raw = view.replace("\\", "")
+    index, _, name = raw.partition("_")
+    return f"{name} (view {int(index)})" if index.isdigit() and name else raw
+
+
+def map_panel(contents: Contents, view: str, kind: str):
+    """A 2-D panel of ``maps/<view>/<kind>`` titled with the view, or a text panel saying it is not recorded."""
+    label = f"{MAP_LABELS.get(kind, kind)} · {view_title(view)}"
+    path = f"/maps/{view}/{kind}"
+    if contents.has(path):
+        return rrb.Spatial2DView(name=label, origin=path)
+    return rrb.TextDocumentView(name=f"{label}: not recorded", origin=f"/missing/{view}/{kind}")
+
+
+def _text_panels() -> rrb.Tabs:
+    # contents: the document at the origin only (legend/<kind> below it are one map's legend each)
+    return rrb.Tabs(rrb.TextDocumentView(name="legend", origin="/legend", contents="$origin"),
+                    rrb.TextDocumentView(name="about this recording", origin="/about", contents="$origin"))
+
+
+def _panels(contents: Contents, state: str = "expanded") -> list:
+    # following: the viewer opens at the end of the recording (final maps, counter, confidence, labels)
+    return [rrb.TimePanel(state=state, timeline=contents.timeline, play_state="following"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.BlueprintPanel(state="collapsed")]
+
+
+def iterations(contents: Contents, view: str) -> rrb.Blueprint:
+    title = view_title(view)
+    stats = [rrb.TimeSeriesView(name=f"{label} · {title}", origin=f"/stats/{view}/{stat}")
+             for stat, label in STATS_LABELS.items() if contents.has(f"/stats/{view}/{stat}")]
+    kinds = ("depth", "normal", "cost", "selected_count", "error", "counter")
+    rows = [rrb.Grid(*[map_panel(contents, view, kind) for kind in kinds])]
+    if stats:
+        rows.append(rrb.Horizontal(*stats))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Grid(
-                    rrb.Spatial2DView(name="depth", origin=f"{maps}/depth"),
-                    rrb.Spatial2DView(name="normal", origin=f"{maps}/normal"),
-                    rrb.Spatial2DView(name="cost", origin=f"{maps}/cost"),
-                    rrb.Spatial2DView(name="selected views", origin=f"{maps}/selected_count"),
-                    rrb.Spatial2DView(name="error vs GT", origin=f"{maps}/error"),
-                    rrb.Spatial2DView(name="counter", origin=f"{maps}/counter"),
-                ),
-                rrb.Horizontal(
-                    rrb.TimeSeriesView(name="mean cost", origin=f"/stats/{view}/mean_cost"),
-                    rrb.TimeSeriesView(name="changed %", origin=f"/stats/{view}/changed_pct"),
-                    rrb.TimeSeriesView(name="within 1 % of GT", origin=f"/stats/{view}/within_1pct"),
-                ),
-                row_shares=[3, 1],
-            ),
-            rrb.Vertical(rrb.Spatial3DView(name="scene", origin="/world"), rrb.TextLogView(name="log", origin="/log"),
-                         row_shares=[3, 1]),
+            rrb.Vertical(*rows, row_shares=[3, 1][:len(rows)]),
+            rrb.Vertical(rrb.Spatial3DView(name="scene", origin="/world"), _text_panels(),
+                         rrb.TextLogView(name="log", origin="/log"), row_shares=[3, 2, 1]),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(state="expanded"),
-        rrb.SelectionPanel(state="collapsed"),
+        *_panels(contents),
     )
 
 
-def pipelines(views: list[str], focus: int = 0) -> rrb.Blueprint:
-    view = views[min(focus, len(views) - 1)]
-    clouds = [rrb.Spatial3DView(name=name, origin="/world", contents=["/world/cameras/**", f"/world/fused/{name}"])
-              for name in ("vanilla", "fast", "full")]
+def pipelines(contents: Contents, view: str) -> rrb.Blueprint:
+    clouds = [rrb.Spatial3DView(name=f"fused cloud · {name}", origin="/world",
+                                contents=["/world/cameras/**", f"/world/fused/{name}"])
+              for name in PIPELINES if contents.has(f"/world/fused/{name}")]
+    if not clouds:
+        clouds = [rrb.TextDocumentView(name="fused clouds: not recorded", origin="/missing/fused")]
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(*clouds),
-            rrb.Horizontal(
-                rrb.Spatial2DView(name="depth", origin=f"/maps/{view}/depth"),
-                rrb.Spatial2DView(name="confidence", origin=f"/maps/{view}/confidence"),
-                rrb.Spatial2DView(name="refined depth", origin=f"/maps/{view}/refined_depth"),
-                rrb.Spatial2DView(name="error vs GT", origin=f"/maps/{view}/error"),
-            ),
+            rrb.Horizontal(*clouds, _text_panels()),
+            rrb.Horizontal(*[map_panel(contents, view, kind) for kind in ("depth", "confidence", "error")]),
             row_shares=[2, 1],
         ),
-        rrb.TimePanel(state="collapsed"),
+        *_panels(contents, "collapsed"),
     )
 
 
-def confidence(views: list[str], focus: int = 0) -> rrb.Blueprint:
-    rows = []
-    for view in views[:4]:
-        rows.append(rrb.Horizontal(
-            rrb.Spatial2DView(name=f"{view} image", origin=f"/world/cameras/{view}/rgb"),
-            rrb.Spatial2DView(name="confidence", origin=f"/maps/{view}/confidence"),
-            rrb.Spatial2DView(name="labels", origin=f"/maps/{view}/label"),
-            rrb.Spatial2DView(name="error vs GT", origin=f"/maps/{view}/error"),
-        ))
-    return rrb.Blueprint(rrb.Vertical(*rows), rrb.TimePanel(state="collapsed"))
+def _confidence_tab(contents: Contents, view: str):
+    return rrb.Grid(
+        rrb.Spatial2DView(name=f"image · {view_title(view)}", origin=f"/world/cameras/{view}/rgb"),
+        map_panel(contents, view, "confidence"),
+        map_panel(contents, view, "label"),
+        map_panel(contents, view, "error"),
+        name=view_title(view),
+    )
 
 
-LAYOUTS: dict[str, Callable[..., rrb.Blueprint]] = {
+def confidence(contents: Contents, view: str) -> rrb.Blueprint:
+    tabs = [_confidence_tab(contents, v) for v in contents.views]
+    active = contents.views.index(view) if view in contents.views else 0
+    return rrb.Blueprint(
+        rrb.Horizontal(rrb.Tabs(*tabs, active_tab=active), _text_panels(), column_shares=[3, 1]),
+        *_panels(contents, "collapsed"),
+    )
+
+
+LAYOUTS: dict[str, Callable[[Contents, str], rrb.Blueprint]] = {
     "iterations": iterations,
     "pipelines": pipelines,
     "confidence": confidence,

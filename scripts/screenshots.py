@@ -4,7 +4,7 @@
 
 RUN_DIR is the output folder of ``deepc run ... --record`` (it needs recording.rrd for the rerun
 shot). Writes ``viewer.png`` (the viser viewer) and ``rerun.png`` (the recording replayed in the
-rerun web viewer with the PatchMatch-iterations layout).
+rerun web viewer with the PatchMatch-iterations layout of the first view).
 """
 
 from __future__ import annotations
@@ -43,7 +43,9 @@ def rerun_shot(recording: Path, out: Path) -> None:
         page = context.new_page()
         page.goto(viewer.url + "&renderer=webgl")
         page.wait_for_selector("canvas", state="attached")
-        page.wait_for_timeout(60_000)  # the recording plays from the start: let it reach the finest level
+        # the web viewer (software rendering) takes minutes to load a 50 MB recording; the layout follows the latest
+        # data, so once loaded it shows the final maps, the counter included
+        page.wait_for_timeout(180_000)
         if rerun_crashed(page):
             raise RuntimeError("the rerun web viewer crashed")
         page.screenshot(path=str(out), timeout=90_000)

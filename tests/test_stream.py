@@ -56,6 +56,10 @@ def test_recording_holds_maps_stats_and_every_iteration(tmp_path):
     assert len(raw) == 2 * 12 * 16  # logged as float16 to keep recordings small
     depth = np.frombuffer(raw, np.float16).reshape(fmt["height"], fmt["width"])
     assert depth[0].max() == 0 and 1 <= depth[1:].min() <= depth.max() <= 2
+    # cost hovers as "matching cost 0.37 ..." (class-coded in 0.01 steps), no depth = class 0
+    cost = np.frombuffer(bytes(table[f"/maps/{base}/cost:SegmentationImage:buffer"][2].as_py()[0]), np.uint8)
+    cost = cost.reshape(12, 16)
+    assert cost[0].max() == 0 and 1 <= cost[1:].min() and cost.max() <= 201
     summary = str(store.summary())
     for kind in ("normal", "cost", "selected_count", "selected_views", "error"):
         assert f"/maps/{base}/{kind}" in summary
@@ -80,6 +84,75 @@ def test_thinning_keeps_the_last_iteration_of_each_pass_and_one_view(tmp_path):
     fmt = table[f"/maps/{base}/depth:DepthImage:format"][0].as_py()[0]
     assert max(fmt["width"], fmt["height"]) <= 8
     assert f"/maps/{entity_name(0, 'img/0.png')}/depth" not in str(store.summary())
+
+
+def test_one_view_scrubs_on_its_own_timeline_with_gt_error_at_every_level(tmp_path):
+    """view_iteration counts one view's iterations (views interleave on the global step); a coarser pyramid level
+    still gets an error map (GT resampled); the error map hovers as a relative error class, not as 'Depth'."""
+    path = tmp_path / "levels.rrd"
+    recording = Recording(path)
+    gt = [np.full((12, 16), 1.5, np.float32), None]
+    stream = _stream(recording.rec, gt=gt)
+    rng = np.random.default_rng(1)
+    step = 0
+    for level, shape in ((1, (6, 8)), (0, (12, 16))):
+        for it in range(2):
+            for v in range(2):
+                depth = np.full(shape, 1.5345, np.float32)  # 2.3 % too far
+                normal = np.zeros(shape + (3,), np.float32)
+                stream.on_iteration(IterationEvent(v, f"img/{v}.png", level, "photometric", 0, it, step, depth, normal,
+                                                   rng.uniform(0, 2, shape).astype(np.float32),
+                                                   np.zeros(shape, np.uint32), 0.01))
+                step += 1
+    recording.finish()
+    store = _read(path)
+    base = entity_name(0, "img/0.png")
+    table = store.reader(index="view_iteration", contents=f"/maps/{base}/depth").to_arrow_table()
+    assert table["view_iteration"].to_pylist() == [0, 1, 2, 3]
+    assert table["iteration"].to_pylist() == [0, 2, 4, 6]  # the global step interleaves the views
+    assert table["pass"].to_pylist() == [0, 0, 1, 1]  # level 1's pass, then level 0's
+    error = store.reader(index="view_iteration", contents=f"/maps/{base}/error").to_arrow_table()
+    assert error.num_rows == 4  # the coarse level too
+    fmt = error[f"/maps/{base}/error:SegmentationImage:format"][0].as_py()[0]
+    ids = np.frombuffer(bytes(error[f"/maps/{base}/error:SegmentationImage:buffer"][0].as_py()[0]), np.uint8)
+    assert (fmt["width"], fmt["height"]) == (8, 6) and set(ids) == {10}  # class 10 = 2.25-2.50 %
+    summary = str(store.summary())
+    assert any(line.startswith(f"/maps/{base}/error ") and "AnnotationContext" in line for line in summary.splitlines())
+    from workbench.stream_legends import error_context
+    labels = {c["class_id"]: c["class_description"]["info"]["label"]
+              for c in error_context().context.as_arrow_array().to_pylist()[0]}
+    assert labels[10] == "relative error 2.25-2.50 %" and labels[0].startswith("no data")
+
+
+def test_stage_maps_sit_at_each_views_last_iteration_with_labels(tmp_path):
+    """Counter after PatchMatch and confidence + GT labels after the confidence stage, at the view's end."""
+    path = tmp_path / "stages.rrd"
+    recording = Recording(path)
+    gt = [np.full((12, 16), 1.5, np.float32), None]
+    cams = [Camera.from_params(16, 12, 20.0, 20.0, 8.0, 6.0, t=np.array([0.3 * v, 0.0, 0.0])) for v in range(2)]
+    views = [(f"img/{v}.png", cams[v], np.zeros((12, 16, 3), np.float32), [1 - v]) for v in range(2)]
+    stream = RerunStream(recording.rec, views, gt, pass_iterations=lambda p: 4)
+    stream.set_depth_ranges([(1.0, 10.0), (1.0, 10.0)])
+    for event in _events(2, 4):
+        stream.on_iteration(event)
+    depth = np.full((12, 16), 1.5, np.float32)  # the GT depth: inliers
+    depth[:, :4] = 6.0  # 3 px off in the other view: outliers
+    depth[0, 0] = 0
+    stream.on_stage("patchmatch", counter=[np.full((12, 16), 3.0, np.float32)] * 2)
+    stream.on_stage("confidence", confidence=[np.full((12, 16), 0.25, np.float32)] * 2, depth=[depth, depth])
+    recording.finish()
+    store = _read(path)
+    summary = str(store.summary())
+    base, other = entity_name(0, "img/0.png"), entity_name(1, "img/1.png")
+    for kind in ("counter", "confidence", "label"):
+        table = store.reader(index="view_iteration", contents=f"/maps/{base}/{kind}").to_arrow_table()
+        assert table["view_iteration"].to_pylist() == [3], kind  # the view's last iteration
+    assert f"/maps/{other}/confidence" in summary and f"/maps/{other}/label" not in summary  # no GT for view 1
+    table = store.reader(index="view_iteration", contents=f"/maps/{base}/label").to_arrow_table()
+    ids = np.frombuffer(bytes(table[f"/maps/{base}/label:SegmentationImage:buffer"][0].as_py()[0]), np.uint8)
+    ids = ids.reshape(12, 16)
+    assert ids[0, 0] == 0 and ids[5, 0] == 1 and ids[5, 10] == 2  # unlabeled, outlier, inlier
+    assert "/legend/error" in summary and "\n/legend rows" in summary
 
 
 def test_abandoned_recording_leaves_nothing(tmp_path):

@@ -68,7 +68,7 @@ def _regress(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     from workbench.replay import replay  # lazy: rerun
 
-    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port)
+    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port, view=args.view)
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -138,11 +138,15 @@ def build_parser() -> argparse.ArgumentParser:
     replay = sub.add_parser("replay", help="replay a .rrd recording in the rerun viewer")
     replay.add_argument("recording", metavar="FILE.rrd")
     replay.add_argument("--layout", default=None,
-                        help="blueprint from layouts/: iterations, pipelines or confidence (default: the one "
-                             "embedded in the recording)")
+                        help="blueprint from layouts/: iterations, pipelines or confidence, built from what the "
+                             "recording holds (default: iterations, or pipelines for a recording of results only)")
+    replay.add_argument("--view", metavar="NAME", default=None,
+                        help="the view to show: its image name (e.g. view_003.png), its index or its entity name "
+                             "(default: the first view)")
     replay.add_argument("--web", action="store_true", help="serve the web viewer even when there is a display")
     replay.add_argument("--host", default="127.0.0.1", help="address of the web viewer (default: 127.0.0.1)")
-    replay.add_argument("--port", type=int, default=9090, help="port of the web viewer")
+    replay.add_argument("--port", type=int, default=9090,
+                        help="port of the web viewer (default: 9090; 0 = any free port)")
     replay.set_defaults(handler=_replay)
 
     regress = sub.add_parser("regress", help="headless regression runs against committed baselines",

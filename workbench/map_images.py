@@ -55,3 +55,10 @@ def view_images(scene: Scene, i: int, data: ViewData | None) -> dict[str, np.nda
     if data.confidence is not None:
         images["confidence"] = colorize(data.confidence, 0.0, 1.0, "viridis", data.depth <= 0)
     return images
+
+
+def colormap_lut(cmap: str, n: int) -> np.ndarray:
+    """(n, 3) uint8 colours sampled evenly along a matplotlib colormap (for class-coded maps and legends)."""
+    from matplotlib import colormaps  # lazy: matplotlib
+
+    return (colormaps[cmap](np.linspace(0.0, 1.0, max(n, 2)))[:n, :3] * 255).astype(np.uint8)

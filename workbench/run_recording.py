@@ -8,20 +8,45 @@ from __future__ import annotations
 
 from engine.pipeline import PipelineOptions
 from engine.scene import Scene
-from layouts import DEFAULT, LAYOUTS
+from layouts import DEFAULT, LAYOUTS, Contents
 from workbench.recording import Recording
+from workbench.recording_notes import log_notes
 from workbench.stream import RerunStream, StreamOptions, entity_name
+
+ITERATION_MAPS = ("depth", "normal", "cost", "selected_count", "counter")
+ITERATION_STATS = ("mean_cost", "changed_pct", "seconds", "level", "pass")
+
+
+def expected_contents(scene: Scene, options: PipelineOptions, stream_options: StreamOptions) -> Contents:
+    """The entities a run with these options is going to record (for its layout before any data exists)."""
+    names = [entity_name(v.index, v.name) for v in scene.views]
+    entities = {"/legend", f"/world/fused/{options.pipeline}"}
+    confidence = options.pipeline in ("fast", "full")
+    for view, name in zip(scene.views, names, strict=True):
+        if stream_options.view is not None and view.index != stream_options.view:
+            continue
+        gt = scene.gt_depth_paths[view.index] is not None  # without reading the map
+        kinds = [*ITERATION_MAPS, *(["error"] if gt else []), *(["confidence"] if confidence else []),
+                 *(["label"] if gt and confidence else [])]
+        entities |= {f"/maps/{name}/{kind}" for kind in kinds}
+        entities |= {f"/stats/{name}/{stat}" for stat in (*ITERATION_STATS, *(["within_1pct"] if gt else []))}
+    return Contents(names, entities)
 
 
 def open_run_recording(path: str | None, scene: Scene, options: PipelineOptions, stream_options: StreamOptions,
                        live_url: str | None = None) -> Recording:
     """A :class:`Recording` to ``path`` (and/or the live viewer at ``live_url``) whose ``stream`` is the
-    :class:`RerunStream` observer to hand to ``run_pipeline``."""
-    blueprint = LAYOUTS[DEFAULT]([entity_name(v.index, v.name) for v in scene.views])
-    recording = Recording(path, blueprint, live_url)
+    :class:`RerunStream` observer to hand to ``run_pipeline``. Its layout shows the view the stream is thinned
+    to (else the first), with a text panel in place of each map the run will not record."""
+    contents = expected_contents(scene, options, stream_options)
+    names = contents.views
+    focus = names[stream_options.view] if stream_options.view is not None and stream_options.view < len(names) \
+        else names[0]
+    recording = Recording(path, LAYOUTS[DEFAULT](contents, focus), live_url)
     views = [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views]
     gt = [scene.gt_depth(v.index) for v in scene.views]
     recording.stream = RerunStream(recording.rec, views, gt, stream_options,
                                    pass_iterations=options.patchmatch.pass_iterations)
     recording.stream.set_depth_ranges([v.depth_range for v in scene.views])
+    log_notes(recording.rec, contents, focus, DEFAULT, live=True)
     return recording

@@ -5,15 +5,22 @@ Entity tree (one per recording; the same code writes to a live viewer or an ``.r
     world/cameras/<view>            Transform3D (camera -> world) + Pinhole + rgb image
     maps/<view>/depth               DepthImage in model units (colormapped)
     maps/<view>/normal              normals colour-coded as RGB = (n + 1) / 2
-    maps/<view>/cost                matching cost, colormapped (0 = perfect, 2 = no match)
-    maps/<view>/selected_count      number of selected source views per pixel
+    maps/<view>/cost                matching cost, class-coded in 0.01 steps (0 = perfect, 2 = no match)
+    maps/<view>/selected_count      number of selected source views per pixel, class-coded
     maps/<view>/selected_views      uint32 bitmask over the view's source list (see selected_views_list)
-    maps/<view>/error               |z - z_gt| / z_gt colormapped, when GT exists
+    maps/<view>/error               |z - z_gt| / z_gt in %, class-coded (hover names it), when GT exists
+    maps/<view>/counter             consistent source views after PatchMatch, class-coded
+    maps/<view>/confidence          DeepC confidence (fast/full pipelines), class-coded
+    maps/<view>/label               GT inlier/outlier labels of the depth the confidence scored, when GT exists
     stats/<view>/{mean_cost,changed_pct,within_1pct,seconds,level,pass}   scalars
+    legend, legend/<kind>           markdown: colour scale, unit and 'no data' of every map (stream_legends)
     world/fused/<pipeline>          fused cloud, when a fusion stage reports one
 
-Timeline ``iteration`` is the engine's global step; level and pass are logged as scalars with every
-step. Logging can be thinned (every k-th iteration, one view, reduced resolution).
+Timelines: ``view_iteration`` counts one view's red-black iterations over the whole run (scrub it to watch one
+view converge: every view's n-th iteration sits at n); ``pass`` numbers the passes over all levels, coarse to
+fine (0, 1, 2 at the coarsest level, then 3, ...); ``iteration`` is the engine's global step, all views
+interleaved (view 0 at steps 0-2, 24-26, ... with 8 views). Logging can be thinned (every k-th iteration, one
+view, reduced resolution); GT error is logged with the maps at every logged iteration of every level.
 """
 
 from __future__ import annotations
@@ -25,8 +32,22 @@ import numpy as np
 import rerun as rr
 
 from engine.camera import Camera
+from engine.confidence.labels import label_map
 from engine.observer import IterationEvent, NullObserver
-from workbench.map_images import colorize, normal_to_rgb, subsample
+from engine.resample import resample_depth
+from workbench.map_images import normal_to_rgb, subsample
+from workbench.stream_legends import (
+    CONTEXTS,
+    LEGENDS,
+    confidence_classes,
+    cost_classes,
+    count_classes,
+    counter_classes,
+    error_classes,
+    label_classes,
+    legend_markdown,
+    selected_count_context,
+)
 from workbench.stream_options import StreamOptions
 
 
@@ -40,12 +61,7 @@ def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
     return [view for bit, view in enumerate(source_views) if mask >> bit & 1]
 
 
-COST_METER = 127.5  # uint8 cost map: value / 127.5 = matching cost in [0, 2]
-ERROR_METER = 10.0  # uint8 error map: value / 10 = relative depth error in percent (0 = none or no GT)
-
-
-def _to_u8(values: np.ndarray, scale: float) -> np.ndarray:
-    return np.clip(np.rint(values * scale), 0, 255).astype(np.uint8)
+TIMELINES = ("view_iteration", "pass", "iteration")  # the first is the one layouts show
 
 
 def _popcount(mask: np.ndarray) -> np.ndarray:
@@ -77,6 +93,11 @@ class RerunStream(NullObserver):
         self.gt_depths = gt_depths or [None] * len(views)
         self.options = (options or StreamOptions()).validate()
         self._previous_depth: dict[int, np.ndarray] = {}
+        self._view_iterations: dict[int, int] = {}  # per view: iterations seen so far
+        self._passes: list[tuple[int, int]] = []  # (level, pass_index) in the order they ran
+        self._last_time: dict[int, tuple[int, int, int]] = {}  # per view: (view_iteration, pass, step) last logged
+        self._gt_cache: dict[tuple[int, tuple[int, int]], np.ndarray] = {}
+        self._contexts: set[str] = set()  # class-coded entities whose AnnotationContext is logged
         self._depth_range = [(0.0, 1.0)] * len(views)
         self._point_radius = 0.01  # model units; set_depth_ranges derives one from the scene
         self.logged_steps = 0
@@ -92,6 +113,9 @@ class RerunStream(NullObserver):
             rec.log(path, rr.Pinhole(image_from_camera=camera.K, width=camera.width, height=camera.height,
                                      camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3), static=True)
             rec.log(f"{path}/rgb", rr.Image((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)), static=True)
+        rec.log("legend", rr.TextDocument(legend_markdown(), media_type=rr.MediaType.MARKDOWN), static=True)
+        for kind, text in LEGENDS.items():
+            rec.log(f"legend/{kind}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
 
     def set_depth_ranges(self, ranges: list[tuple[float, float]]) -> None:
         """Fix the colormap range of each view's depth (e.g. its PatchMatch depth range)."""
@@ -109,8 +133,35 @@ class RerunStream(NullObserver):
             return False
         return self._last_of_pass(event) or event.iteration % self.options.every == 0
 
+    def _gt_at(self, view: int, shape: tuple[int, int]) -> np.ndarray | None:
+        """The view's GT depth at ``shape`` (coarser pyramid levels get a resampled copy, cached)."""
+        gt = self.gt_depths[view]
+        if gt is None or gt.shape == shape:
+            return gt
+        key = (view, shape)
+        if key not in self._gt_cache:
+            self._gt_cache[key] = resample_depth(gt, (shape[1], shape[0]))
+        return self._gt_cache[key]
+
+    def _log_classes(self, path: str, kind: str, ids: np.ndarray, context: Callable[[], Any] | None = None) -> None:
+        """Log a class-coded map, with its AnnotationContext (static, once per entity) naming each class."""
+        if path not in self._contexts:
+            self.rec.log(path, (context or CONTEXTS[kind])(), static=True)
+            self._contexts.add(path)
+        self.rec.log(path, rr.SegmentationImage(ids, opacity=1.0))
+
+    def _set_time(self, view_iteration: int, pass_number: int, step: int) -> None:
+        self.rec.set_time("view_iteration", sequence=view_iteration)
+        self.rec.set_time("pass", sequence=pass_number)
+        self.rec.set_time("iteration", sequence=step)
+
     def on_iteration(self, event: IterationEvent) -> None:
         view = event.view
+        view_iteration = self._view_iterations.get(view, 0)
+        self._view_iterations[view] = view_iteration + 1
+        if (event.level, event.pass_index) not in self._passes:
+            self._passes.append((event.level, event.pass_index))
+        pass_number = self._passes.index((event.level, event.pass_index))
         depth = event.depth
         valid = depth > 0
         previous = self._previous_depth.get(view)
@@ -121,23 +172,22 @@ class RerunStream(NullObserver):
         if not self._wanted(event):
             return
         rec = self.rec
-        rec.set_time("iteration", sequence=event.step)
+        self._set_time(view_iteration, pass_number, event.step)
+        self._last_time[view] = (view_iteration, pass_number, event.step)
         name, _camera, _rgb, sources = self.views[view]
         base = entity_name(view, name)
         small = self.options.max_size
         dmin, dmax = self._depth_range[view]
-        # Scalar maps are logged compactly as colormapped depth images (float16 or uint8 with a
-        # ``meter`` scale, so hovering shows the real value); ~0.6 MB per view and iteration at 320x240.
+        # Compact: depth as a float16 depth image (hovering shows the depth), the other scalar maps as uint8 class
+        # ids whose AnnotationContext names value and unit on hover; ~0.6 MB per view and iteration at 320x240.
         rec.log(f"maps/{base}/depth", rr.DepthImage(subsample(depth, small).astype(np.float16), meter=1.0,
                                                     colormap="turbo", depth_range=[dmin, dmax]))
         rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(subsample(event.normal, small))))
-        cost = subsample(event.cost, small)
-        rec.log(f"maps/{base}/cost", rr.DepthImage(_to_u8(cost, COST_METER), meter=COST_METER, colormap="magma",
-                                                   depth_range=[0, 255]))
+        self._log_classes(f"maps/{base}/cost", "cost", cost_classes(subsample(event.cost, small),
+                                                                     subsample(~valid, small)))
         mask = subsample(event.selected_views, small)
-        count = _popcount(mask)
-        rec.log(f"maps/{base}/selected_count", rr.DepthImage(count, meter=1.0, colormap="viridis",
-                                                             depth_range=[0, max(1, len(sources))]))
+        self._log_classes(f"maps/{base}/selected_count", "selected_count", count_classes(_popcount(mask)),
+                          lambda: selected_count_context(len(sources)))
         if self.options.selected_views_mask and self._last_of_pass(event):
             rec.log(f"maps/{base}/selected_views", rr.Image(np.ascontiguousarray(mask), color_model="L"))
         stats = f"stats/{base}"
@@ -147,15 +197,14 @@ class RerunStream(NullObserver):
         rec.log(f"{stats}/seconds", rr.Scalars(event.seconds))
         rec.log(f"{stats}/level", rr.Scalars(event.level))
         rec.log(f"{stats}/pass", rr.Scalars(event.pass_index))
-        gt = self.gt_depths[view]
-        if gt is not None and gt.shape == depth.shape:
+        gt = self._gt_at(view, depth.shape)
+        if gt is not None:
             has_gt = gt > 0
-            rel = np.where(has_gt & valid, np.abs(depth - gt) / np.where(has_gt, gt, 1.0), np.nan)
             both = has_gt & valid
+            rel = np.where(both, np.abs(depth - gt) / np.where(has_gt, gt, 1.0), np.nan)
             within = 100.0 * float((rel[both] < 0.01).sum()) / max(1, int(has_gt.sum()))
             rec.log(f"{stats}/within_1pct", rr.Scalars(within))
-            rec.log(f"maps/{base}/error", rr.DepthImage(_to_u8(np.nan_to_num(subsample(rel, small) * 100), ERROR_METER),
-                                                        meter=ERROR_METER, colormap="inferno", depth_range=[0, 50]))
+            self._log_classes(f"maps/{base}/error", "error", error_classes(subsample(rel, small) * 100))
         self.logged_steps += 1
 
     # ---- later stages ---------------------------------------------------------------------------
@@ -170,16 +219,42 @@ class RerunStream(NullObserver):
         """Log a fused cloud under ``world/fused/<pipeline>``."""
         self.rec.log(f"world/fused/{pipeline}", rr.Points3D(xyz, colors=rgb, radii=radius), static=True)
 
+    def _log_stage_map(self, view: int, kind: str, ids: np.ndarray) -> None:
+        """Log a map of a later stage at the view's last logged iteration (so scrubbing a view to its end
+        shows it next to the final depth)."""
+        if self.options.view is not None and view != self.options.view:
+            return
+        self._set_time(*self._last_time.get(view, (0, 0, 0)))
+        self._log_classes(f"maps/{entity_name(view, self.views[view][0])}/{kind}", kind, ids)
+
+    def _labels(self, view: int, depth: np.ndarray) -> np.ndarray | None:
+        """GT label map of ``depth`` (Kuhn et al. 2020, §3.2); None without GT depth."""
+        gt = self._gt_at(view, depth.shape)
+        if gt is None:
+            return None
+        _name, camera, _rgb, sources = self.views[view]
+        h, w = depth.shape
+        cam = camera if (camera.width, camera.height) == (w, h) else camera.rescaled(w, h)
+        return label_map(depth, gt, cam, [self.views[j][1] for j in sources if j < len(self.views)],
+                         max_depth=self._depth_range[view][1])
+
     def on_stage(self, name: str, **info: Any) -> None:
-        """Log what a finished stage produced: counter maps after PatchMatch, confidence maps after the
-        confidence stage, the fused cloud after fusion."""
+        """Log what a finished stage produced: counter maps after PatchMatch, confidence maps (and GT labels of
+        the depth they score) after the confidence stage, the fused cloud after fusion."""
         self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
+        small = self.options.max_size
+        maps = info.get("maps") or []
         for view, counter in enumerate(info.get("counter") or []):
-            self.log_view_map(view, "counter", colorize(counter, 0, 5, "coolwarm", counter <= 0))
+            invalid = maps[view].depth <= 0 if view < len(maps) else counter <= 0
+            self._log_stage_map(view, "counter", counter_classes(subsample(counter, small), subsample(invalid, small)))
         depths = info.get("depth") or []
         for view, conf in enumerate(info.get("confidence") or []):
-            invalid = depths[view] <= 0 if view < len(depths) else None
-            self.log_view_map(view, "confidence", colorize(conf, 0, 1, "viridis", invalid))
+            depth = depths[view] if view < len(depths) else None
+            invalid = None if depth is None else subsample(depth <= 0, small)
+            self._log_stage_map(view, "confidence", confidence_classes(subsample(conf, small), invalid))
+            labels = None if depth is None else self._labels(view, depth)
+            if labels is not None:
+                self._log_stage_map(view, "label", label_classes(subsample(labels, small)))
         cloud = info.get("cloud")
         if cloud is not None:
             self.log_cloud(str(info.get("pipeline", "vanilla")), np.asarray(cloud.xyz, np.float32), cloud.rgb,
