@@ -16,7 +16,10 @@ class MeshOptions(Options):
     method: str = option("none", "'poisson': the fused cloud; 'tsdf': the maps fusion used; 'none': no mesh",
                          source="ours", choices=MESH_METHODS)
     # --- screened Poisson (Kazhdan & Hoppe 2013) on the fused, oriented cloud
-    poisson_depth: int = option(9, "octree depth of the Poisson solve", source="ours", low=5, high=12)
+    poisson_depth: int = option(0, "octree depth of the Poisson solve; 0 = auto, cells about one point spacing",
+                                source="ours", off=0, low=5, high=12)
+    poisson_outlier_pct: float = option(0.5, "solve within the box of the 0.5-99.5 percentiles of every axis",
+                                        unit="%", source="ours", low=0, below=10)
     poisson_trim_quantile: float = option(0.05, "drop vertices whose Poisson density is below this quantile",
                                           source="ours", low=0, below=1)
     # --- TSDF integration (Curless & Levoy 1996) of the depth maps
