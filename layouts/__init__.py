@@ -99,6 +99,9 @@ def pipelines(contents: Contents, view: str) -> rrb.Blueprint:
     clouds = [rrb.Spatial3DView(name=f"fused cloud · {name}", origin="/world",
                                 contents=["/world/cameras/**", f"/world/fused/{name}"])
               for name in PIPELINES if contents.has(f"/world/fused/{name}")]
+    clouds += [rrb.Spatial3DView(name=f"mesh · {name}", origin="/world",
+                                 contents=["/world/cameras/**", f"/world/mesh/{name}"])
+               for name in PIPELINES if contents.entities is not None and contents.has(f"/world/mesh/{name}")]
     if not clouds:
         clouds = [rrb.TextDocumentView(name="fused clouds: not recorded", origin="/missing/fused")]
     return rrb.Blueprint(

@@ -154,3 +154,44 @@ def test_deepc_mesh_and_deepc_eval_on_a_run(tmp_path, capsys):
     assert main(["mesh", str(tmp_path / "missing")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(["mesh", str(run), "--set", "mesh.tsdf_voxel_px=-1", "--method", "tsdf"]) == 2
+
+
+def test_viewer_shows_the_runs_mesh_and_meshes_the_tuned_cloud_on_request(tmp_path):
+    from conftest import running_viewer, wait_for
+
+    run = make_fake_run(SAMPLES / "tiny", tmp_path / "run")
+    with running_viewer(run) as app:
+        panel = app.mesh_panel
+        assert panel.show.disabled and panel.handle is None  # nothing to show before a mesh exists
+        panel.method.value = "tsdf"
+        panel.request("tsdf")
+        wait_for(lambda: panel.mesh is not None, timeout=120)
+        assert panel.show.value == "cloud + mesh" and panel.handle.visible and app.cloud_handle.visible
+        assert "triangles" in panel.status.content and "tsdf of the current cloud" in panel.status.content
+        panel.show.value = "mesh"
+        assert panel.handle.visible and not app.cloud_handle.visible
+    write_mesh_ply(run / "mesh.ply", panel.mesh)
+    with running_viewer(run) as app:  # a run meshed before opens with its mesh available
+        assert app.mesh_panel.mesh is not None and "the run's mesh.ply" in app.mesh_panel.status.content
+        assert not app.mesh_panel.show.disabled and app.mesh_panel.show.value == "cloud"
+
+
+@pytest.mark.browser
+@pytest.mark.timeout(300)
+def test_viewer_mesh_toggle_in_the_browser(tmp_path, browser_context):
+    from conftest import running_viewer, wait_for
+
+    run = make_fake_run(SAMPLES / "tiny", tmp_path / "run")
+    with running_viewer(run) as app:
+        page = browser_context.new_page()
+        try:
+            page.goto(f"http://127.0.0.1:{app.port}/")
+            wait_for(lambda: len(app.server.get_clients()) > 0)
+            page.get_by_text("Connected").wait_for()
+            page.get_by_text("Mesh", exact=True).first.click()  # open the folder
+            page.get_by_role("button", name="Mesh the current cloud").click()
+            page.get_by_text("of the current cloud").wait_for(timeout=120_000)
+            wait_for(lambda: app.mesh_panel.handle is not None and app.mesh_panel.handle.visible)
+            assert app.mesh_panel.show.value == "cloud + mesh"
+        finally:
+            page.close()

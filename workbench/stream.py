@@ -219,6 +219,12 @@ class RerunStream(NullObserver):
         """Log a fused cloud under ``world/fused/<pipeline>``."""
         self.rec.log(f"world/fused/{pipeline}", rr.Points3D(xyz, colors=rgb, radii=radius), static=True)
 
+    def log_mesh(self, pipeline: str, mesh: Any) -> None:
+        """Log a :class:`engine.meshing.TriangleMesh` under ``world/mesh/<pipeline>`` (shown beside the cloud)."""
+        self.rec.log(f"world/mesh/{pipeline}", rr.Mesh3D(
+            vertex_positions=np.asarray(mesh.vertices, np.float32), triangle_indices=mesh.triangles,
+            vertex_normals=mesh.vertex_normals, vertex_colors=mesh.vertex_colors), static=True)
+
     def _log_stage_map(self, view: int, kind: str, ids: np.ndarray) -> None:
         """Log a map of a later stage at the view's last logged iteration (so scrubbing a view to its end
         shows it next to the final depth)."""
@@ -240,7 +246,7 @@ class RerunStream(NullObserver):
 
     def on_stage(self, name: str, **info: Any) -> None:
         """Log what a finished stage produced: counter maps after PatchMatch, confidence maps (and GT labels of
-        the depth they score) after the confidence stage, the fused cloud after fusion."""
+        the depth they score) after the confidence stage, the fused cloud after fusion, the mesh after meshing."""
         self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
         small = self.options.max_size
         maps = info.get("maps") or []
@@ -259,3 +265,6 @@ class RerunStream(NullObserver):
         if cloud is not None:
             self.log_cloud(str(info.get("pipeline", "vanilla")), np.asarray(cloud.xyz, np.float32), cloud.rgb,
                            radius=self._point_radius)
+        mesh = info.get("mesh")
+        if mesh is not None:
+            self.log_mesh(str(info.get("pipeline", "vanilla")), mesh)

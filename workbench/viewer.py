@@ -36,6 +36,7 @@ from workbench.scheduler import LatestOnly, RecomputeScheduler
 from workbench.session import ViewerSession, ViewParams, describe
 from workbench.viewer_export import safe_file_name, write_cloud_ply, write_state_rrd
 from workbench.viewer_legends import metrics_html
+from workbench.viewer_mesh import MeshPanel
 from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of, view_label
 
 # preset_of is imported from here by benchmarks/bench_viewer.py
@@ -91,6 +92,7 @@ class ViewerApp(ControlPanel):
             self._preview, self._exact, self._show_error, EXACT_QUIET_S, EXACT_MAX_DELAY_S, name="deepc-viewer")
         self._build_scene()
         self._build_gui()
+        self.mesh_panel = MeshPanel(self)
         if session.has_maps:
             self.request(self.params())
 
@@ -252,6 +254,8 @@ class ViewerApp(ControlPanel):
                     self.cloud_handle = self.server.scene.add_point_cloud(
                         "/fused", points, colors=colors, point_size=float(self.point_size.value),
                         precision="float32")
+                    if getattr(self, "mesh_panel", None) is not None:
+                        self.mesh_panel.apply_visibility()
                 else:
                     self.cloud_handle.points = points
                     self.cloud_handle.colors = colors
@@ -341,6 +345,7 @@ class ViewerApp(ControlPanel):
         return self._scheduler.wait_idle(timeout)
 
     def stop(self) -> None:
+        self.mesh_panel.stop()
         self._scheduler.stop(timeout=10)
         self.server.stop()
 
