@@ -136,12 +136,6 @@ class RunMetrics:
             known["image_size"] = tuple(known["image_size"])
         return cls(**known, extra={k: v for k, v in data.items() if k not in names})
 
-    def to_dict(self) -> dict[str, Any]:
-        """The metrics.json dict (keys that are None are left out, as the pipeline writes them)."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"}
-        out["image_size"] = list(self.image_size)
-        return {**{k: v for k, v in out.items() if v is not None}, **self.extra}
-
     def scene_options(self) -> dict[str, Any]:
         """The scene options the run used (``SceneOptions.from_dict`` input)."""
         return dict(self.options.get("scene") or {})

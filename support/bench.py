@@ -68,6 +68,28 @@ def peak_rss_mb(children: bool = False) -> float:
     return resource.getrusage(who).ru_maxrss / 1024  # Linux reports KiB
 
 
+def reset_peak_rss() -> bool:
+    """Reset this process's peak resident memory (VmHWM) to its current size, so that the next
+    :func:`peak_rss_mb_now` measures one step; False where the kernel does not allow it (not Linux)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss_mb_now() -> float:
+    """Peak resident memory (MiB) of this process since start or the last :func:`reset_peak_rss` (getrusage's
+    peak ignores the reset)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return peak_rss_mb()
+
+
 # ---- provenance ----------------------------------------------------------------------------------
 
 def _cpu_model() -> str | None:

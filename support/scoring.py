@@ -21,6 +21,7 @@ from engine.fusion import fuse, views_from_scene
 from engine.patchmatch import ViewMaps
 from engine.pipeline import PipelineOptions, confidence_stage, evaluate_cloud
 from engine.refinement.guard import keep_confident
+from engine.refinement.options import RefinementOptions
 from engine.refinement.views import sky_filter_views
 from engine.run_folder import read_map
 
@@ -62,27 +63,13 @@ def network_confidence(scene, depths: list, normals: list, counter: list, weight
 
 
 def pipeline_maps(scene, run_dir: Path, full_tau: float = TAU) -> dict[str, tuple[list, list]]:
-    """{pipeline: (depth maps, normal maps)} as the pipelines hand them to fusion - vanilla: PatchMatch maps;
-    fast: network 1 at τ 0.05; full (only when the run has refined maps): network 2 at ``full_tau``, sky
-    filter - with the shipped weights."""
-    names = [v.name for v in scene.views]
-    depth = [read_map(run_dir, "depth", n) for n in names]
-    normal = [read_map(run_dir, "normal", n) for n in names]
-    counter = [read_map(run_dir, "counter", n) for n in names]
-    if any(m is None for m in depth + normal + counter):
-        raise SystemExit(f"{run_dir}: depth, normal or counter maps missing")
-    conf = network_confidence(scene, depth, normal, counter, DEFAULT_WEIGHTS)
-    fast = [filter_by_confidence(d, n, c, TAU) for d, n, c in zip(depth, normal, conf, strict=True)]
-    out = {"vanilla": (depth, normal), "fast": ([f[0] for f in fast], [f[1] for f in fast])}
-    refined = [[read_map(run_dir, kind, n) for n in names]
-               for kind in ("refined_depth", "refined_normal", "refined_counter")]
-    if all(m is not None for maps in refined for m in maps):
-        conf2 = network_confidence(scene, *refined, DEFAULT_REFINED_WEIGHTS)
-        kept = [filter_by_confidence(d, n, c, full_tau)
-                for d, n, c in zip(refined[0], refined[1], conf2, strict=True)]
-        full_d, full_n, _ = sky_filter_views(scene, [k[0] for k in kept], [k[1] for k in kept], depth, conf)
-        out["full"] = (full_d, full_n)
-    return out
+    """{pipeline: (depth maps, normal maps)} as the pipelines handed them to fusion when the fusion-preset and
+    refined-fusion results were made: fast at τ 0.05; full (only when the run has refined maps) network 2 at
+    ``full_tau`` on every refined pixel (no ``keep_confident``) and the sky filter; shipped weights."""
+    options = PipelineOptions(confidence=ConfidenceOptions(tau=TAU),
+                              refinement=RefinementOptions(refined_conf_tau=full_tau, keep_confident=None))
+    maps = shipped_pipeline_maps(scene, run_dir, options)
+    return {name: (depth, normal) for name, (depth, normal, _) in maps.items()}
 
 
 def shipped_pipeline_maps(scene, run_dir: Path, options: PipelineOptions | None = None

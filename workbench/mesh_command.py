@@ -19,7 +19,7 @@ from engine.meshing import evaluate_mesh, mesh_run, write_mesh_ply
 from engine.run_folder import read_metrics, read_run_metrics, run_scene, write_metrics
 from workbench.run_command import print_mesh_summary
 from workbench.run_maps import read_view_data
-from workbench.run_options import mesh_options_from_args
+from workbench.run_options import mesh_options
 
 
 def cmd_mesh(args: argparse.Namespace) -> int:
@@ -28,8 +28,7 @@ def cmd_mesh(args: argparse.Namespace) -> int:
     if not run_dir.is_dir():
         raise DeepCError("run folder does not exist", run_dir)
     metrics = read_run_metrics(run_dir)
-    args.mesh = args.method
-    options = mesh_options_from_args(args)
+    options = mesh_options(args.method, args.set)
     scene = run_scene(run_dir)
     cloud, depths = FusedCloud.empty(), []
     if options.method == "poisson":

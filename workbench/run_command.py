@@ -20,12 +20,12 @@ from engine.pipeline import PipelineOptions, run_pipeline
 from engine.run_folder import RunMetrics
 from engine.scene import Scene, load_scene
 from workbench.progress import PassProgress
-from workbench.run_options import mesh_options_from_args, run_options_from_args
+from workbench.run_options import mesh_options, run_options_from_args
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     scene_options, options, stream_options = run_options_from_args(args)
-    mesh = mesh_options_from_args(args)
+    mesh = mesh_options(args.mesh, args.set)
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
     _check_memory(args, scene, options)

@@ -46,10 +46,10 @@ def run_options_from_args(args: argparse.Namespace) -> tuple[SceneOptions, Pipel
     return scene_options, options, stream_options
 
 
-def mesh_options_from_args(args: argparse.Namespace) -> MeshOptions:
-    """MeshOptions from ``--mesh METHOD`` and ``--set mesh.NAME=VALUE`` (``deepc run``, ``deepc mesh``)."""
-    method = getattr(args, "mesh", None) or "none"
-    return MeshOptions(**{"method": method, **section_overrides(args.set, "mesh", MeshOptions)}).validate()
+def mesh_options(method: str | None, set_items: list[str]) -> MeshOptions:
+    """MeshOptions from a method (``deepc run --mesh``, ``deepc mesh --method``; None = none) and
+    ``--set mesh.NAME=VALUE`` items."""
+    return MeshOptions(**{"method": method or "none", **section_overrides(set_items, "mesh", MeshOptions)}).validate()
 
 
 def check_pipeline_weights(options: PipelineOptions) -> None:

@@ -28,23 +28,6 @@ from support.scoring import shipped_pipeline_maps
 TOLERANCES = (0.01, 0.02, 0.05)
 
 
-def reset_peak_rss() -> bool:
-    """Reset this process's peak resident memory (VmHWM) to its current size; False where Linux does not allow it."""
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-        return True
-    except OSError:
-        return False
-
-
-def peak_rss_mb_now() -> float:
-    """VmHWM of this process (MiB): unlike getrusage, it honours the reset."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    return bench.peak_rss_mb()
-
-
 def summary(result: dict) -> list[dict]:
     """F1 at 1/2/5 cm of the cloud and of each mesh, the mesh's seconds and peak memory."""
     return [{"scene": r["scene"], "pipeline": r["pipeline"], "surface": r["surface"],
@@ -75,12 +58,12 @@ def main(argv: list[str] | None = None) -> int:
             rows.append({"scene": scene.name, "pipeline": pipeline, "surface": "cloud", "points": len(cloud),
                          "f1": score.f1, "accuracy": score.accuracy, "completeness": score.completeness})
             for method in args.methods:
-                reset_peak_rss()
-                before = peak_rss_mb_now()
+                bench.reset_peak_rss()
+                before = bench.peak_rss_mb_now()
                 start = time.perf_counter()
                 mesh, info = mesh_run(scene, cloud, depths, MeshOptions(method=method))
                 seconds = time.perf_counter() - start
-                peak = peak_rss_mb_now()
+                peak = bench.peak_rss_mb_now()
                 score = evaluate_mesh(scene, mesh, evaluation)
                 rows.append({"scene": scene.name, "pipeline": pipeline, "surface": method, "seconds": seconds,
                              "peak_mb": peak, "peak_above_start_mb": peak - before, "triangles": len(mesh),

@@ -1,4 +1,4 @@
-"""TSDF integration (Curless & Levoy, SIGGRAPH 1996) of depth maps into a surface, with open3d's scalable volume."""
+"""TSDF integration (Curless & Levoy, SIGGRAPH 1996) of depth maps into a surface, in open3d's voxel-block grid."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from engine.errors import DeepCError
 from engine.meshing.mesh import TriangleMesh
 from engine.meshing.options import MeshOptions
 
-BYTES_PER_VOXEL = 20  # open3d's TSDF voxel: float distance, float weight, three float colours
+BYTES_PER_VOXEL = 20  # a voxel of the grid: float distance, float weight, three float colours
 BLOCK_OVERHEAD = 4  # voxel blocks (16³) are allocated whole around the truncation band
 BLOCK = 16  # voxels per block edge
 
