@@ -254,8 +254,7 @@ class ViewerApp(ControlPanel):
                     self.cloud_handle = self.server.scene.add_point_cloud(
                         "/fused", points, colors=colors, point_size=float(self.point_size.value),
                         precision="float32")
-                    if getattr(self, "mesh_panel", None) is not None:
-                        self.mesh_panel.apply_visibility()
+                    self.mesh_panel.apply_visibility()  # a new cloud handle starts visible
                 else:
                     self.cloud_handle.points = points
                     self.cloud_handle.colors = colors
