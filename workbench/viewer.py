@@ -14,7 +14,8 @@ colour mode and map has a legend with its unit (``workbench/viewer_legends.py``)
 the selected view's maps as the current pipeline and filters use them.
 
 The controls are declared in ``workbench/viewer_panel.py``, the newest-request-wins scheduling of previews
-and recomputations is ``workbench/scheduler.py``, and the Export panel's files ``workbench/viewer_export.py``.
+and recomputations is ``workbench/scheduler.py``, the Export panel's files ``workbench/viewer_export.py`` and
+the pixel inspector with its region re-run ``workbench/viewer_inspector.py``.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from workbench.map_images import subsample
 from workbench.scheduler import LatestOnly, RecomputeScheduler
 from workbench.session import ViewerSession, ViewParams, describe
 from workbench.viewer_export import safe_file_name, write_cloud_ply, write_state_rrd
+from workbench.viewer_inspector import InspectorPanel
 from workbench.viewer_legends import metrics_html
 from workbench.viewer_mesh import MeshPanel
 from workbench.viewer_panel import PANEL_IMAGE, ControlPanel, preset_of, view_label
@@ -93,6 +95,7 @@ class ViewerApp(ControlPanel):
         self._build_scene()
         self._build_gui()
         self.mesh_panel = MeshPanel(self)
+        self.inspector = InspectorPanel(self)  # click a point or a pixel: its PatchMatch trace
         if session.has_maps:
             self.request(self.params())
 
@@ -344,6 +347,7 @@ class ViewerApp(ControlPanel):
         return self._scheduler.wait_idle(timeout)
 
     def stop(self) -> None:
+        self.inspector.stop()
         self.mesh_panel.stop()
         self._scheduler.stop(timeout=10)
         self.server.stop()

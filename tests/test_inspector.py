@@ -1,0 +1,163 @@
+"""The viewer's pixel inspector without a browser: requests, picking, the map plane, the region re-run and bad
+input, driven by hand-made traces (support/probe_traces.py) in place of the engine's probe."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import SAMPLES, make_noisy_run, wait_for
+
+from support.probe_traces import HandProbe, make_trace
+from workbench.probe_figures import candidate_table_html, summary_markdown, trace_figure
+from workbench.probe_windows import window_corners, window_thumbnails
+
+pytestmark = pytest.mark.timeout(300)
+
+
+@pytest.fixture(scope="module")
+def noisy_run(tmp_path_factory):
+    return make_noisy_run(SAMPLES / "tiny", tmp_path_factory.mktemp("noisy_run"))
+
+
+@pytest.fixture
+def app(noisy_run):
+    from workbench.session import ViewerSession
+    from workbench.viewer import ViewerApp
+
+    viewer = ViewerApp(ViewerSession.open(noisy_run), port=0)
+    hand = HandProbe(viewer.session.scene, noisy_run)
+    viewer.inspector.probe_fn, viewer.inspector.region_fn = hand.probe, hand.rerun
+    viewer.hand = hand
+    try:
+        assert viewer.wait_idle(120)
+        yield viewer
+    finally:
+        viewer.stop()
+
+
+def test_figures_of_a_trace(noisy_run):
+    from engine.scene import load_scene
+
+    scene = load_scene(SAMPLES / "tiny")
+    trace = make_trace(scene, 0, 40, 30, 3.0)
+    image = trace_figure(trace, 3)
+    assert image.dtype == np.uint8 and image.shape == (560, 420, 3) and image.std() > 10
+    table = candidate_table_html(trace, 3)
+    assert table.count("<tr") == 1 + len(trace["iterations"][3]["candidates"])
+    assert "pattern:0" in table and "L1 p1 i0" in table
+    text = summary_markdown(trace, "0: view_000.png")
+    assert "pixel (40, 30)" in text and "counter: 2 of 4" in text and "GT" in text
+
+
+def test_window_corners_lie_on_the_plane_and_project_back(noisy_run):
+    from engine.scene import load_scene
+
+    scene = load_scene(SAMPLES / "tiny")
+    camera = scene.views[0].camera
+    normal = np.array([0.3, -0.2, -0.93])
+    normal /= np.linalg.norm(normal)
+    corners = window_corners(camera, 50, 40, 4.0, normal, 5)
+    uv, z = camera.project(corners)
+    np.testing.assert_allclose(uv, [[45, 35], [55, 35], [55, 45], [45, 45]], atol=1e-6)
+    centre = np.linalg.inv(camera.K_idx) @ np.array([50, 40, 1.0]) * 4.0
+    offsets = camera.world_to_camera(corners) - centre
+    np.testing.assert_allclose(offsets @ normal, 0.0, atol=1e-9)
+    images = [(np.asarray(scene.image(i)) * 255).astype(np.uint8) for i in (0, 1, 2)]
+    strip = window_thumbnails(images, [scene.views[i].camera for i in (0, 1, 2)], ["a", "b", "c"], 50, 40, 4.0,
+                              normal, 5, {"b"}, [0.3, None])
+    assert strip.shape[1] == 3 * strip.shape[0] - 3 * 14
+
+
+def test_typed_pixel_fills_the_inspector(app):
+    inspector = app.inspector
+    inspector.inspect(1, 40, 30)
+    wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+    assert inspector.trace["view"] == "view_001.png" and (inspector.trace["x"], inspector.trace["y"]) == (40, 30)
+    assert "pixel (40, 30) of view 1: view_001.png" in inspector.summary.content
+    assert inspector.plots.visible and inspector.windows.visible
+    assert "winner in bold" in inspector.table.content
+    assert tuple(inspector.pixel.value) == (40, 30) and inspector.entry.max == len(inspector.trace["iterations"]) - 1
+    depth = app.session.data[1].depth[30, 40]
+    assert inspector.trace["final"]["depth"] == pytest.approx(depth)
+    # another entry of the trace: its candidates
+    inspector.entry.value = 2
+    assert "L1 p0 i2" in inspector.table.content
+    # the same pixel again comes from the cache: no second probe
+    calls = len(app.hand.calls)
+    inspector.inspect(1, 40, 30)
+    assert inspector.wait_idle(10) and len(app.hand.calls) == calls
+
+
+@pytest.mark.parametrize(("view", "x", "y", "message"), [
+    (0, 500, 20, "outside view"), (0, -1, 3, "outside view"), ("nope.png", 3, 3, "no view 'nope.png'")])
+def test_bad_pixel_or_view_is_a_message_and_the_panel_goes_on(app, view, x, y, message):
+    inspector = app.inspector
+    inspector.inspect(view, x, y)
+    wait_for(lambda: "cannot probe" in inspector.status.content)
+    assert message in inspector.status.content and "\n" not in inspector.status.content
+    inspector.inspect(0, 10, 10)
+    wait_for(lambda: inspector.trace is not None and inspector.trace["x"] == 10 and inspector.wait_idle(1))
+
+
+def test_a_click_on_the_cloud_picks_the_pixel_that_holds_the_point(app):
+    inspector = app.inspector
+    view = app.session.scene.views[2]
+    depth = app.session.data[2].depth
+    x, y = 70, 55
+    assert depth[y, x] > 0
+    point = view.camera.backproject(depth)[y, x]
+    app.select_view(2)
+    # a ray from the camera through that pixel, as a browser click sends it
+    direction = point - view.camera.center
+    picked = inspector.pick(view.camera.center, direction / np.linalg.norm(direction))
+    assert picked is not None and picked[0] == 2 and abs(picked[1] - x) <= 1 and abs(picked[2] - y) <= 1
+    # a ray into the void picks nothing
+    assert inspector.pick(view.camera.center, -view.camera.R[2]) is None
+
+
+def test_the_map_plane_turns_a_click_into_its_pixel(app):
+    inspector = app.inspector
+    app.select_view(3)
+    inspector.plane_kind.value = "depth"
+    assert inspector.map_plane is not None and inspector._plane_view == 3
+    camera = app.session.scene.views[3].camera
+    ray = camera.R.T @ (np.linalg.inv(camera.K_idx) @ np.array([33.2, 71.8, 1.0]))
+    picked = inspector.pick(camera.center, ray / np.linalg.norm(ray))
+    assert picked[:3] == (3, 33, 72) and picked[3] == "map plane"
+    app.select_view(1)  # the plane follows the view
+    assert inspector._plane_view == 1
+    inspector.plane_kind.value = "off"
+    assert not inspector.map_plane.visible
+    assert inspector.pick(camera.center, ray / np.linalg.norm(ray))[3] != "map plane"
+
+
+def test_region_rerun_shows_before_after_and_the_new_trace(app):
+    inspector = app.inspector
+    data = app.session.data[0].depth
+    gt = app.session.scene.gt_depth(0)
+    wrong = np.argwhere((np.abs(data - gt) > 0.05 * gt) & (gt > 0) & (data > 0))
+    y, x = (int(v) for v in wrong[len(wrong) // 2])
+    app.select_view(0)
+    inspector.inspect(0, x, y)
+    wait_for(lambda: inspector.trace is not None and inspector.trace["x"] == x and inspector.wait_idle(1))
+    assert "✘" in inspector.summary.content
+    before_trace = inspector.trace
+    inspector.region_inputs["window"].value = 7
+    inspector.region_inputs["iterations"].value = 4
+    inspector.rerun_from_form()
+    wait_for(lambda: inspector.region is not None and inspector.wait_idle(1))
+    call = app.hand.calls[-1]
+    assert call[0] == "region" and call[5] == {"window": 7, "iterations": 4}
+    x0, y0, w, h = call[2]
+    assert x0 <= x < x0 + w and y0 <= y < y0 + h
+    assert inspector.region_image.visible and "within 1 % of GT" in inspector.region_numbers.content
+    assert inspector.region.within_1pct_after > inspector.region.within_1pct_before
+    assert inspector.trace is not before_trace and inspector.compare is before_trace
+    assert "after re-run" in inspector.summary.content and "✔" in inspector.summary.content
+
+
+def test_region_outside_the_image_is_a_message(app):
+    inspector = app.inspector
+    inspector.rerun(0, (150, 100, 64, 64))
+    wait_for(lambda: "cannot re-run" in inspector.region_status.content)
+    assert "not inside view" in inspector.region_status.content
