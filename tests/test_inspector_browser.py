@@ -1,0 +1,126 @@
+"""The pixel inspector in a real browser (Debian chromium + playwright): a click fills the inspector with the
+right pixel, a region re-run changes the maps and the trace, bad input is a message. Hand-made traces
+(support/probe_traces.py) stand in for the engine's probe, so the clicks and the panel are what is tested."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from conftest import SAMPLES, make_noisy_run, wait_for
+
+from support.probe_traces import HandProbe
+
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
+
+
+@pytest.fixture(scope="module")
+def noisy_run(tmp_path_factory):
+    return make_noisy_run(SAMPLES / "tiny", tmp_path_factory.mktemp("noisy_run"))
+
+
+@pytest.fixture
+def app(noisy_run):
+    from workbench.session import ViewerSession
+    from workbench.viewer import ViewerApp
+
+    viewer = ViewerApp(ViewerSession.open(noisy_run), port=0)
+    hand = HandProbe(viewer.session.scene, noisy_run)
+    viewer.inspector.probe_fn, viewer.inspector.region_fn = hand.probe, hand.rerun
+    try:
+        assert viewer.wait_idle(120)
+        yield viewer
+    finally:
+        viewer.stop()
+
+
+def _open(context, app):
+    from workbench.browser import dismiss_software_webgl_notice
+
+    page = context.new_page()
+    page.goto(f"http://127.0.0.1:{app.port}/")
+    wait_for(lambda: len(app.server.get_clients()) > 0)
+    page.get_by_text("Connected").wait_for()
+    page.get_by_text("points").first.wait_for()
+    dismiss_software_webgl_notice(page)
+    page.get_by_text("Inspector", exact=True).click()  # the folder opens
+    page.get_by_role("button", name="Look through the view").wait_for()
+    return page
+
+
+def _look_through_view(page, app):
+    camera = app.session.scene.views[app._selected_view].camera
+    client = next(iter(app.server.get_clients().values()))
+    page.get_by_role("button", name="Look through the view").click()
+    wait_for(lambda: abs(client.camera.position - camera.center).max() < 1e-3 * (1 + abs(camera.center).max()))
+    time.sleep(1.0)  # the browser's camera follows on its next frame
+
+
+def test_a_click_on_the_map_plane_fills_the_inspector_with_that_pixel(browser_context, app):
+    page = _open(browser_context, app)
+    try:
+        inspector = app.inspector
+        inspector.plane_kind.value = "depth"
+        _look_through_view(page, app)
+        box = page.locator('canvas[data-engine^="three.js"]').bounding_box()
+
+        def click(fx: float, fy: float) -> None:
+            page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
+
+        camera = app.session.scene.views[0].camera
+        cx, cy = camera.K_idx[0, 2], camera.K_idx[1, 2]
+        # The client's camera now is view 0's (same vertical field of view): the canvas centre is the principal
+        # point, and a quarter of the canvas height below it is a quarter of the image height lower.
+        click(0.5, 0.75)
+        wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+        x, y = inspector.trace["x"], inspector.trace["y"]
+        assert abs(x - cx) <= 1.5 and abs(y - cy - camera.height / 4) <= 1.5, (x, y, cx, cy)
+        assert "map plane" in inspector.status.content
+        page.get_by_text(f"pixel ({x}, {y}) of view 0: view_000.png").first.wait_for()
+        page.get_by_text("winner in bold").first.wait_for()
+        # with the plane off the same click hits the cloud and inspects the pixel that holds the point
+        inspector.plane_kind.value = "off"
+        click(0.5, 0.5)
+        wait_for(lambda: "cloud point" in inspector.status.content and inspector.wait_idle(1))
+        x, y = inspector.trace["x"], inspector.trace["y"]
+        assert abs(x - cx) <= 6 and abs(y - cy) <= 6
+        page.get_by_text(f"pixel ({x}, {y}) of view 0: view_000.png").first.wait_for()
+    finally:
+        page.close()
+
+
+def test_region_rerun_in_the_browser_changes_the_maps_and_the_trace(browser_context, app):
+    page = _open(browser_context, app)
+    try:
+        inspector = app.inspector
+        inspector.pixel.value = (40, 30)
+        page.get_by_role("button", name="Inspect pixel").click()
+        wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+        page.get_by_text("pixel (40, 30) of view 0").first.wait_for()
+        before = inspector.trace
+        page.get_by_text("Re-run region", exact=True).first.click()  # the folder opens
+        page.get_by_role("button", name="Re-run region").click()
+        wait_for(lambda: inspector.region is not None and inspector.wait_idle(1))
+        page.get_by_text("within 1 % of GT").first.wait_for()
+        page.get_by_text("after re-run").first.wait_for()
+        assert inspector.trace is not before and inspector.compare is before
+        assert (inspector.region.depth_after != inspector.region.depth_before).any()
+    finally:
+        page.close()
+
+
+def test_bad_pixel_and_unknown_view_are_messages_in_the_browser(browser_context, app):
+    page = _open(browser_context, app)
+    try:
+        inspector = app.inspector
+        inspector.pixel.value = (500, 20)
+        page.get_by_role("button", name="Inspect pixel").click()
+        page.get_by_text("cannot probe: pixel (500, 20) is outside view view_000.png").wait_for()
+        inspector.inspect("no_such_view.png", 3, 3)
+        page.get_by_text("cannot probe: no view 'no_such_view.png'").wait_for()
+        # the inspector still works
+        inspector.pixel.value = (12, 14)
+        page.get_by_role("button", name="Inspect pixel").click()
+        page.get_by_text("pixel (12, 14) of view 0").first.wait_for()
+    finally:
+        page.close()
