@@ -26,6 +26,7 @@ from engine.observer import IterationEvent, readonly
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.probe import PassProbe, PixelProbe
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
 from engine.patchmatch.rng import stream_key
 from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, ViewState, row_cache_bytes
@@ -131,7 +132,8 @@ def effective_levels(views: list[PatchMatchView], options: PatchMatchOptions) ->
 
 
 def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | None = None,
-                   observer: Any = None, progress: ProgressFn | None = None, checkpoint: Any = None) -> list[ViewMaps]:
+                   observer: Any = None, progress: ProgressFn | None = None, checkpoint: Any = None,
+                   probe: PixelProbe | None = None, history: Any = None) -> list[ViewMaps]:
     """Multi-scale PatchMatch MVS over all views; returns one :class:`ViewMaps` per view.
 
     Args:
@@ -143,6 +145,11 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
             and after each view finishes it, e.g. ``("level 2 photometric", 3, 11)``.
         checkpoint: optional :class:`engine.checkpoint.PatchMatchCheckpoint`: every view's state is saved
             after each pass, and states saved by an interrupted run with the same inputs are reused.
+        probe: optional :class:`engine.patchmatch.probe.PixelProbe`: traces of its pixels of its view (passes
+            restored from a checkpoint are not traced); the maps are the same with or without it.
+        history: optional; ``save_snapshot(level, pass_index, depths)`` receives every view's depth map that the
+            geometric pass ``pass_index`` of ``level`` reads (``engine.pass_history.PassHistory``), so that one
+            view can be re-run alone later (:func:`replay_view`).
 
     Views without source views or with a degenerate depth range are skipped with a warning and get
     empty (zero) maps; they still serve as source images for others. Invalid inputs (image/camera
@@ -164,16 +171,16 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
     try:
         if checkpoint is not None:
             checkpoint.bind(views, options, n_levels)
-        return _run(views, options, active, n_levels, on_iter, on_stage, progress, checkpoint)
+        if probe is not None:
+            probe.bind([v.name for v in views], [(v.camera.width, v.camera.height) for v in views],
+                       [list(v.source_views) for v in views])
+        return _run(views, options, active, n_levels, on_iter, on_stage, progress, checkpoint, probe, history)
     finally:
         numba.set_num_threads(old_threads)
 
 
-def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
-         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
-         checkpoint: Any = None) -> list[ViewMaps]:
-    n_views = len(views)
-    # pyramid of images and cameras
+def _pyramids(views: list[PatchMatchView], n_levels: int) -> tuple[list[list[np.ndarray]], list[list[Camera]]]:
+    """Every view's images and cameras at levels 0 .. n_levels - 1."""
     images: list[list[np.ndarray]] = []
     cameras: list[list[Camera]] = []
     for v in views:
@@ -185,6 +192,41 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             cams.append(v.camera if level == 0 else v.camera.rescaled(w, h))
         images.append(imgs)
         cameras.append(cams)
+    return images, cameras
+
+
+def _level_start(i: int, v: PatchMatchView, prev: ViewState | None, images: list, cameras: list, level: int,
+                 coarsest: bool, active: bool, options: PatchMatchOptions) -> ViewState:
+    """View ``i``'s state at the start of ``level``: the JBU-upsampled state ``prev`` of the coarser level
+    (none at the coarsest), random hypotheses where it has none (Xu & Tao 2019 ACMM)."""
+    h, w = images[i][level].shape
+    st = ViewState.zeros(h, w)
+    if active:
+        cam = cameras[i][level]
+        kinv = np.linalg.inv(cam.K_idx).ravel()
+        if not coarsest:
+            st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, images[i][level], options.jbu_radius,
+                                               options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
+            _face_camera(st.normal, cam)
+        key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
+        K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
+    return st
+
+
+def _pass_probe(probe: PixelProbe | None, i: int, st: ViewState, level: int, pass_index: int,
+                detail: bool) -> PassProbe | None:
+    """The probe's hook for pass ``pass_index`` of view ``i`` at ``level`` (None unless ``i`` is probed)."""
+    if probe is None or probe.view != i:
+        return None
+    h, w = st.depth.shape
+    return probe.pass_probe(level, pass_index, w, h, detail)
+
+
+def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
+         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
+         checkpoint: Any = None, probe: PixelProbe | None = None, history: Any = None) -> list[ViewMaps]:
+    n_views = len(views)
+    images, cameras = _pyramids(views, n_levels)
     states: list[ViewState | None] = [None] * n_views
     step = 0
     done = 0  # iterations of all earlier passes (perturbation schedule 'global')
@@ -207,20 +249,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if resume is not None:
                 break  # this level's states are the resume point's
             check_interrupt()
-            h, w = images[i][level].shape
-            st = ViewState.zeros(h, w)
-            if active[i]:
-                cam = cameras[i][level]
-                kinv = np.linalg.inv(cam.K_idx).ravel()
-                if not coarsest:
-                    prev = states[i]
-                    st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, images[i][level], options.jbu_radius,
-                                                       options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
-                    _face_camera(st.normal, cam)
-                key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
-                K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key,
-                                     not coarsest)
-            new_states.append(st)
+            new_states.append(_level_start(i, v, states[i], images, cameras, level, coarsest, active[i], options))
         states = new_states if resume is None else resume[2]
         for pass_index in range(1 + options.geom_passes):
             if resume is not None and level == resume[0] and pass_index <= resume[1]:
@@ -232,6 +261,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if on_stage is not None:
                 on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
             snapshot = [s.depth.copy() for s in states] if geometric else None
+            if history is not None and snapshot is not None:
+                history.save_snapshot(level, pass_index, snapshot)
             if progress is not None:
                 progress(f"level {level} {kind}", 0, n_views)
             for i, v in enumerate(views):
@@ -243,7 +274,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 elif active[i]:
                     step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, detail,
                                           options, on_iter, step, done, random_start=coarsest and pass_index == 0,
-                                          pool=pool)
+                                          pool=pool, probe=_pass_probe(probe, i, states[i], level, pass_index,
+                                                                       detail))
                 if checkpoint is not None and saved is None:
                     checkpoint.save(level, pass_index, i, states[i].checkpoint_arrays())
                 if progress is not None:
@@ -292,7 +324,8 @@ def _face_camera(normal: np.ndarray, cam: Camera) -> None:
 
 def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
-                   step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None) -> int:
+                   step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
+                   probe: PassProbe | None = None) -> int:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
     counter after it."""
@@ -313,7 +346,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
 
     run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
                    pass_index=pass_index, detail=detail, done_before=done_before,
-                   on_iteration=event if on_iter is not None else None, pool=pool)
+                   on_iteration=event if on_iter is not None else None, pool=pool, probe=probe)
     if pool is not None:
         ctx.release(pool)
     return step + options.pass_iterations(pass_index)
