@@ -11,6 +11,9 @@ to the recording) instead of an empty "No data available" panel.
 - ``pipelines``: the fused clouds of the pipelines side by side with one view's maps.
 - ``confidence``: confidence against GT labels, the image and the depth error: one tab per view (the
   chosen view's tab open).
+- ``probe``: the probed pixels of a view (``probe/<view>/<x>_<y>``, ``workbench/probe_stream.py``), one tab
+  each: cost and depth against the iteration, the candidates on the pixel's ray in 3-D, the pixel's window in
+  each source image, the candidate table and the final estimate, beside the view's depth and error maps.
 """
 
 from __future__ import annotations
@@ -133,9 +136,43 @@ def confidence(contents: Contents, view: str) -> rrb.Blueprint:
     )
 
 
+def probed_pixels(contents: Contents, view: str) -> list[str]:
+    """The ``<x>_<y>`` of every probed pixel of ``view`` the recording holds, in reading order."""
+    prefix = f"/probe/{view}/"
+    found = {path[len(prefix):].split("/", 1)[0] for path in contents.entities or () if path.startswith(prefix)}
+    return sorted(found, key=lambda xy: tuple(int(c) for c in xy.split("_")[::-1]) if "_" in xy else (0, 0))
+
+
+def _probe_tab(view: str, xy: str):
+    base = f"/probe/{view}/{xy}"
+    return rrb.Horizontal(
+        rrb.Vertical(rrb.TimeSeriesView(name=f"cost · pixel {xy}", origin=f"{base}/cost"),
+                     rrb.TimeSeriesView(name=f"depth and GT · pixel {xy}", origin=base,
+                                        contents=[f"{base}/depth", f"{base}/gt_depth"]),
+                     rrb.Spatial2DView(name="window in each source image", origin=f"{base}/windows")),
+        rrb.Vertical(rrb.Spatial3DView(name="candidates on the pixel's ray", origin="/",
+                                       contents=["/world/**", f"{base}/candidates", f"{base}/ray", f"{base}/gt"]),
+                     rrb.Tabs(rrb.TextDocumentView(name="candidates", origin=f"{base}/candidates_table"),
+                              rrb.TextDocumentView(name="final estimate", origin=f"{base}/summary"))),
+        name=f"pixel {xy.replace('_', ', ')}")
+
+
+def probe(contents: Contents, view: str) -> rrb.Blueprint:
+    pixels = probed_pixels(contents, view)
+    tabs = [_probe_tab(view, xy) for xy in pixels] or [
+        rrb.TextDocumentView(name=f"no probed pixel of {view_title(view)}", origin=f"/missing/{view}/probe")]
+    maps = [map_panel(contents, view, kind) for kind in ("depth", "error") if contents.has(f"/maps/{view}/{kind}")]
+    main = rrb.Tabs(*tabs) if len(tabs) > 1 else tabs[0]
+    return rrb.Blueprint(
+        rrb.Horizontal(main, rrb.Vertical(*maps, _text_panels()), column_shares=[3, 1]) if maps else main,
+        *_panels(contents, "expanded"),
+    )
+
+
 LAYOUTS: dict[str, Callable[[Contents, str], rrb.Blueprint]] = {
     "iterations": iterations,
     "pipelines": pipelines,
     "confidence": confidence,
+    "probe": probe,
 }
 DEFAULT = "iterations"

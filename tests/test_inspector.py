@@ -161,3 +161,24 @@ def test_region_outside_the_image_is_a_message(app):
     inspector.rerun(0, (150, 100, 64, 64))
     wait_for(lambda: "cannot re-run" in inspector.region_status.content)
     assert "not inside view" in inspector.region_status.content
+
+
+def test_a_trace_in_rerun_with_the_probe_layout(app, tmp_path):
+    from workbench.replay import default_layout, layout_file, recording_contents
+
+    inspector = app.inspector
+    inspector.inspect(0, 40, 30)
+    wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+    path = inspector.save_rrd()
+    assert path.is_file() and path.parent.name == "exports" and "wrote" in inspector.status.content
+    contents = recording_contents(path).contents
+    base = "/probe/000_view_000.png/40_30"
+    for part in ("cost", "depth", "gt_depth", "candidates", "ray", "gt", "windows", "candidates_table", "summary"):
+        assert f"{base}/{part}" in contents.entities, part
+    assert "/maps/000_view_000.png/depth" in contents.entities
+    assert "view_iteration" in contents.timelines
+    assert default_layout(path) == "probe"
+    from layouts import probed_pixels
+
+    assert probed_pixels(contents, contents.views[0]) == ["40_30"]
+    assert layout_file(path, "probe", tmp_path).is_file()

@@ -165,6 +165,28 @@ def candidate_table_html(trace: dict, entry: int) -> str:
             f"<tr><th>origin</th><th>depth</th><th>cost</th>{head}</tr>{''.join(rows)}</table></div>")
 
 
+def candidate_table_markdown(trace: dict, entry: int) -> str:
+    """The candidates of trace entry ``entry`` as a markdown table (rerun's text panels): origin, depth, cost,
+    the per-view costs (selected views starred) and the winner in bold."""
+    steps = trace["iterations"]
+    if not steps:
+        return "*the trace has no iterations*"
+    step = steps[max(0, min(entry, len(steps) - 1))]
+    names = list(trace.get("source_views") or [])
+    lines = [f"**{iteration_label(step)}** · decided by *{step.get('decided_by') or '?'}* · * = selected view", "",
+             "| origin | depth | cost | " + " | ".join(_short(n, 8) for n in names) + " |",
+             "|---|---|---|" + "---|" * len(names)]
+    for k, cand in enumerate(step.get("candidates") or []):
+        selected = set(cand.get("selected_views") or [])
+        costs = [("·" if c is None else f"{float(c):.2f}") + ("*" if j < len(names) and names[j] in selected else "")
+                 for j, c in enumerate(cand.get("view_costs") or [])]
+        cells = [str(cand["origin"]), _fmt(cand["depth"]), _fmt(cand["cost"], 3), *costs]
+        if k == step.get("winner"):
+            cells = [f"**{c}**" for c in cells]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def summary_markdown(trace: dict, view_label: str) -> str:
     """The pixel's final estimate in a few lines: depth against GT, error, label, confidence, cost and the
     counter's verdict per source view."""

@@ -162,9 +162,12 @@ def _error_line(lines: list[str]) -> str:
 
 
 def default_layout(path: str | Path) -> str:
-    """``iterations`` for a recording of PatchMatch iterations, ``pipelines`` for one of results only."""
-    contents = recording_contents(path).contents
-    return "iterations" if any(e.startswith("/stats/") for e in contents.entities or ()) else "pipelines"
+    """``iterations`` for a recording of PatchMatch iterations, ``probe`` for one of probed pixels only
+    (``workbench/probe_stream.py``), ``pipelines`` for one of results only."""
+    entities = recording_contents(path).contents.entities or ()
+    if any(e.startswith("/stats/") for e in entities):
+        return "iterations"
+    return "probe" if any(e.startswith("/probe/") for e in entities) else "pipelines"
 
 
 class WebViewer:

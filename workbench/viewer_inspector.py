@@ -53,7 +53,7 @@ def _engine_probe(run_dir, view, pixels, progress=None):
 
 
 def _engine_rerun(run_dir, view, **kwargs):
-    from engine.probe_run import rerun_region
+    from engine.probe_run import rerun_region  # lazy: re-runs PatchMatch (numba)
 
     return rerun_region(run_dir, view, **kwargs)
 
@@ -164,6 +164,8 @@ class InspectorPanel:
             self.table = gui.add_html("")
             self.windows = gui.add_image(np.full((8, 8, 3), 255, np.uint8), label="window in each source image",
                                          format="png", visible=False)
+            self.save_button = gui.add_button("Save trace (.rrd)", disabled=True,
+                                              hint="OUT/exports/probe_<view>_<x>_<y>.rrd, the probe layout")
         with gui.add_folder("Re-run region", expand_by_default=False):
             self.box_origin = gui.add_vector2("Box corner (x0, y0)", initial_value=(0, 0), step=1,
                                               disabled=not usable)
@@ -195,6 +197,7 @@ class InspectorPanel:
         self.plane_kind.on_update(lambda _event: self.update_map_plane())
         self.look_button.on_click(lambda event: self.look_through_view(event.client))
         self.region_button.on_click(lambda _event: self.rerun_from_form())
+        self.save_button.on_click(lambda _event: self.save_rrd())
         self.app.view_dropdown.on_update(lambda _event: self._view_changed())
 
     def _view_changed(self) -> None:
@@ -283,6 +286,7 @@ class InspectorPanel:
                 self.windows.image = windows
             self.windows.visible = windows is not None
             self.pixel.value = (trace["x"], trace["y"])
+            self.save_button.disabled = False
             x0 = max(0, trace["x"] - REGION_SIDE // 2)
             y0 = max(0, trace["y"] - REGION_SIDE // 2)
             if compare is None:
@@ -331,6 +335,23 @@ class InspectorPanel:
         return window_thumbnails(images, cameras, [names[k] for k in keep], x, y, float(after["depth"] or 0),
                                  after.get("normal"), half, set(winner.get("selected_views") or []),
                                  [costs[k - 1] for k in keep[1:]] if costs else None)
+
+    def save_rrd(self) -> Path | None:
+        """The shown trace (and its view's depth and GT error maps) as OUT/exports/probe_<view>_<x>_<y>.rrd."""
+        from workbench.probe_stream import write_probe_recording  # lazy: rerun
+        from workbench.viewer_export import safe_file_name
+
+        trace, app = self.trace, self.app
+        if trace is None or app.session.out_dir is None:
+            return None
+        index = self._view_index(trace["view"])
+        maps = app.session.view_maps(index, app.params())
+        path = app.session.out_dir / "exports" / safe_file_name(
+            f"probe_{Path(trace['view']).stem}_{trace['x']}_{trace['y']}", ".rrd")
+        shown = {kind: maps[k][0] for k, kind in (("depth", "depth"), ("GT error", "error")) if k in maps}
+        write_probe_recording(path, app.session.scene, [trace], self.options.window, {index: shown})
+        self.status.content = f"wrote `{path}`"
+        return path
 
     # ---- clicks ---------------------------------------------------------------------------------------
     def _scene_clicked(self, event: Any) -> None:
