@@ -24,6 +24,7 @@ from engine.patchmatch.geometry import plane_vector, ray, reprojection
 from engine.patchmatch.kernels import photometric_cost
 from engine.patchmatch.ncc import load_window, ncc_work
 from engine.patchmatch.options import PatchMatchOptions
+from engine.resample import resample_depth
 
 PROBES_DIR = "probes"
 SCHEMA_VERSION = 1
@@ -120,7 +121,6 @@ def final_entries(scene: Any, index: int, views: list[PatchMatchView], depths: l
     labels = None
     if gt is not None:
         if gt.shape != depth.shape:
-            from engine.resample import resample_depth
             gt = resample_depth(gt, (depth.shape[1], depth.shape[0]))
         labels = view_labels(scene, index, depth)
     out = []

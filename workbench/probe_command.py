@@ -47,8 +47,8 @@ def _overrides(items: list[str]) -> dict[str, object]:
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
-    from engine.probe_output import probe_path
-    from engine.probe_run import probe_run, rerun_region
+    from engine.probe_output import probe_path  # lazy: the engine pipeline
+    from engine.probe_run import probe_run, rerun_region  # lazy: the engine pipeline
 
     pixels = [parse_pixel(p) for p in args.pixel]
     if args.region is None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from engine.errors import DeepCError
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
 from engine.patchmatch import PatchMatchOptions
 from engine.scene import SceneOptions
@@ -60,8 +61,6 @@ def add_probe_flags(parser: argparse.ArgumentParser) -> None:
 
 def parse_probe(text: str) -> tuple[str, list[tuple[int, int]]]:
     """``VIEW:X,Y[;X,Y...]`` -> (VIEW, [(X, Y), ...]); a one-line :class:`DeepCError` when malformed."""
-    from engine.errors import DeepCError
-
     view, sep, spec = text.rpartition(":")
     if not sep or not view:
         raise DeepCError(f"--probe {text!r}: expected VIEW:X,Y[;X,Y...]")
@@ -70,8 +69,6 @@ def parse_probe(text: str) -> tuple[str, list[tuple[int, int]]]:
 
 def parse_pixel(text: str, flag: str = "--pixel") -> tuple[int, int]:
     """``X,Y`` -> (X, Y) integers; a one-line :class:`DeepCError` when malformed."""
-    from engine.errors import DeepCError
-
     parts = text.split(",")
     try:
         if len(parts) != 2:
