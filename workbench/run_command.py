@@ -20,7 +20,7 @@ from engine.pass_history import HISTORY_DIR, PassHistory
 from engine.patchmatch.probe import PixelProbe
 from engine.pipeline import PipelineOptions, run_pipeline
 from engine.probe_output import PROBES_DIR
-from engine.probe_run import resolve_view
+from engine.probe_run import probe_run, resolve_view
 from engine.run_folder import RunMetrics
 from engine.scene import Scene, load_scene
 from workbench.progress import PassProgress
@@ -69,6 +69,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"resumed: {checkpoint.stats.reused} saved PatchMatch view states reused, "
                   f"{checkpoint.stats.rejected} rejected and recomputed", file=sys.stderr)
         print_run_summary(RunMetrics.from_dict(result.metrics), args.out)
+        if probe is not None and checkpoint.stats.reused and history is not None:
+            # passes restored from the checkpoint were not traced: trace the view again from the history
+            probe_run(args.out, probe.view, probe.pixels)
         if probe is not None:
             print(f"probe: {len(probe.pixels)} pixel trace(s) of view {probe.view_name} in "
                   f"{Path(args.out) / PROBES_DIR / probe.view_name}", file=sys.stderr)
