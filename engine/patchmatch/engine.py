@@ -33,13 +33,17 @@ from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, ViewState, row_cache_by
 from engine.patchmatch.view_pass import run_view_level
 
 # engine.memory sizes the cost caches with these (they live in state.py)
-__all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "row_cache_bytes",
-           "run_patchmatch"]
+__all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "replay_view",
+           "row_cache_bytes", "run_patchmatch"]
 
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
 
 ProgressFn = Callable[[str, int, int], Any]
+# snapshots(level, pass_index, view indices) -> {view index: depth map the geometric pass read}
+SnapshotFn = Callable[[int, int, list[int]], dict[int, np.ndarray]]
+# on_pass(level, pass_index, phase, state, images, cameras): phase "start" before a pass, "end" after a level's last
+PassFn = Callable[[int, int, str, ViewState, list, list], Any]
 
 
 @dataclasses.dataclass
@@ -171,6 +175,8 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
     try:
         if checkpoint is not None:
             checkpoint.bind(views, options, n_levels)
+        if history is not None:
+            history.bind(views, options, n_levels)
         if probe is not None:
             probe.bind([v.name for v in views], [(v.camera.width, v.camera.height) for v in views],
                        [list(v.source_views) for v in views])
@@ -179,11 +185,15 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
         numba.set_num_threads(old_threads)
 
 
-def _pyramids(views: list[PatchMatchView], n_levels: int) -> tuple[list[list[np.ndarray]], list[list[Camera]]]:
-    """Every view's images and cameras at levels 0 .. n_levels - 1."""
-    images: list[list[np.ndarray]] = []
-    cameras: list[list[Camera]] = []
+def _pyramids(views: list[PatchMatchView | None], n_levels: int) -> tuple[list, list]:
+    """Every view's images and cameras at levels 0 .. n_levels - 1 (None for a view given as None)."""
+    images: list[list[np.ndarray] | None] = []
+    cameras: list[list[Camera] | None] = []
     for v in views:
+        if v is None:
+            images.append(None)
+            cameras.append(None)
+            continue
         img0 = np.ascontiguousarray(v.image_gray, dtype=np.float32)
         imgs, cams = [], []
         for level in range(n_levels):
@@ -211,6 +221,13 @@ def _level_start(i: int, v: PatchMatchView, prev: ViewState | None, images: list
         key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
         K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
     return st
+
+
+def level_start(views: list[PatchMatchView], i: int, prev: ViewState | None, images: list, cameras: list, level: int,
+                options: PatchMatchOptions, coarsest: bool = False) -> ViewState:
+    """View ``i``'s state at the start of ``level`` as :func:`run_patchmatch` makes it from ``prev``, its state
+    at the end of the coarser level (``images``, ``cameras``: the views' pyramids)."""
+    return _level_start(i, views[i], prev, images, cameras, level, coarsest, True, options)
 
 
 def _pass_probe(probe: PixelProbe | None, i: int, st: ViewState, level: int, pass_index: int,
@@ -350,3 +367,81 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
     if pool is not None:
         ctx.release(pool)
     return step + options.pass_iterations(pass_index)
+
+
+def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, options: PatchMatchOptions | None = None,
+                probe: PixelProbe | None = None, on_pass: PassFn | None = None) -> ViewMaps:
+    """Re-run the PatchMatch of view ``view`` alone: the same passes, random streams and kernels as
+    :func:`run_patchmatch`, with every geometric pass reading the source depth maps ``snapshots`` gives
+    (``engine.pass_history``). Given the snapshots the full run's geometric passes read, the result is that run's
+    maps of this view, bit for bit.
+
+    ``probe``: traces of the view's pixels (``probe.view`` must be ``view``); ``on_pass(level, pass_index,
+    phase, state, images, cameras)``: called with phase "start" before each pass (the state the pass starts
+    from) and "end" after each level's last pass (``images``, ``cameras``: every view's pyramid, None for views
+    the replay does not need); the state must not be kept without a copy."""
+    options = (options or PatchMatchOptions()).validate()
+    active = _check_views(views, options)
+    if not 0 <= view < len(views):
+        raise DeepCError(f"view {view} does not exist (the scene has {len(views)} views)")
+    if not active[view]:
+        raise DeepCError(f"view {view} ({views[view].name}) has no PatchMatch (no source view or no depth range)")
+    if probe is not None:
+        if probe.view != view:
+            raise DeepCError(f"probe: the probe is for view {probe.view}, the replay is of view {view}")
+        probe.bind([v.name for v in views], [(v.camera.width, v.camera.height) for v in views],
+                   [list(v.source_views) for v in views])
+    n_levels = effective_levels(views, options)
+    v = views[view]
+    needed = {view, *v.source_views}
+    images, cameras = _pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    old_threads = numba.get_num_threads()
+    if options.num_threads > 0:
+        numba.set_num_threads(min(options.num_threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        st: ViewState | None = None
+        done = 0
+        pool = BufferPool()
+        for level in range(n_levels - 1, -1, -1):
+            coarsest = level == n_levels - 1
+            pool.clear()
+            st = _level_start(view, v, st, images, cameras, level, coarsest, True, options)
+            for pass_index in range(1 + options.geom_passes):
+                check_interrupt()
+                geometric = pass_index > 0
+                if on_pass is not None:
+                    on_pass(level, pass_index, "start", st, images, cameras)
+                snapshot = None
+                if geometric:
+                    got = snapshots(level, pass_index, list(v.source_views))
+                    snapshot = [got.get(j) for j in range(len(views))]
+                run_view_pass(views, view, st, images, cameras, snapshot, level, pass_index, n_levels, options, done,
+                              probe, pool)
+                done += options.pass_iterations(pass_index)
+            if on_pass is not None:
+                on_pass(level, options.geom_passes, "end", st, images, cameras)
+    finally:
+        numba.set_num_threads(old_threads)
+    valid = st.depth > 0
+    st.normal[~valid] = 0.0
+    st.cost[~valid] = 0.0
+    return ViewMaps(st.depth, st.normal, st.cost, st.selected_views)
+
+
+def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: list, cameras: list,
+                  snapshot: list | None, level: int, pass_index: int, n_levels: int, options: PatchMatchOptions,
+                  done_before: int, probe: PixelProbe | None = None, pool: BufferPool | None = None,
+                  origin: tuple[int, int] = (0, 0)) -> None:
+    """Pass ``pass_index`` of view ``i`` at ``level`` on ``st`` in place, as :func:`run_patchmatch` runs it (detail
+    restorer in a finer level's photometric pass, random start at the coarsest's): ``images``, ``cameras``: every
+    view's pyramid (``images[i][level]`` may be a crop of the level's image at ``origin`` (x, y), with its camera;
+    ``probe`` then traces the probed pixels inside it); ``snapshot``: the views' depth maps a geometric pass reads;
+    ``done_before``: iterations of all earlier passes."""
+    coarsest = level == n_levels - 1
+    detail = pass_index == 0 and not coarsest and options.detail_restorer
+    pass_probe = None
+    if probe is not None and probe.view == i:
+        w, h = level_size(views[i].camera.width, views[i].camera.height, level)
+        pass_probe = probe.pass_probe(level, pass_index, w, h, detail, origin, st.depth.shape)
+    _run_view_pass(i, views[i], st, images, cameras, snapshot, level, pass_index, detail, options, None, 0, done_before,
+                   random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe)

@@ -90,10 +90,12 @@ class PixelProbe:
             self._entries[p] = []
             self._final[p] = None
 
-    def pass_probe(self, level: int, pass_index: int, level_width: int, level_height: int,
-                   detail: bool) -> PassProbe:
-        """The hook of one pass of the probed view (``view_pass.run_view_level(probe=...)``)."""
-        return PassProbe(self, level, pass_index, level_width, level_height, detail)
+    def pass_probe(self, level: int, pass_index: int, level_width: int, level_height: int, detail: bool,
+                   origin: tuple[int, int] = (0, 0), shape: tuple[int, int] | None = None) -> PassProbe:
+        """The hook of one pass of the probed view (``view_pass.run_view_level(probe=...)``) at a level of
+        ``level_width`` x ``level_height`` pixels; a pass over a crop of it gives the crop's ``origin`` (x, y)
+        and ``shape`` (h, w): pixels outside the crop are not traced."""
+        return PassProbe(self, level, pass_index, level_width, level_height, detail, origin, shape)
 
     def record(self, pixel: tuple[int, int], entry: dict[str, Any]) -> None:
         self._entries[pixel].append(entry)
@@ -126,12 +128,17 @@ class PassProbe:
     the hypothesis the kernel wrote after it."""
 
     def __init__(self, probe: PixelProbe, level: int, pass_index: int, level_width: int, level_height: int,
-                 detail: bool):
+                 detail: bool, origin: tuple[int, int] = (0, 0), shape: tuple[int, int] | None = None):
         self.probe, self.level, self.pass_index, self.detail = probe, level, pass_index, detail
+        self.origin = origin
+        h, w = shape if shape is not None else (level_height, level_width)
+        # probed pixels by their pixel in the pass's maps (the level's, or a crop's at ``origin``)
         self.at_level: dict[tuple[int, int], list[tuple[int, int]]] = {}
         for p in probe.pixels:
-            q = level_pixel(p[0], p[1], probe.width, probe.height, level_width, level_height)
-            self.at_level.setdefault(q, []).append(p)
+            qx, qy = level_pixel(p[0], p[1], probe.width, probe.height, level_width, level_height)
+            q = (qx - origin[0], qy - origin[1])
+            if 0 <= q[0] < w and 0 <= q[1] < h:
+                self.at_level.setdefault(q, []).append(p)
         self._start: dict[tuple[int, int], tuple] = {}
         self._pending: dict[tuple[int, int], dict[str, Any]] = {}
 
@@ -145,7 +152,7 @@ class PassProbe:
         """Explain the pixels of ``colour`` from the state the half-step starts from."""
         names = self.probe.source_names
         for x, y in self.at_level:
-            if (x + y) % 2 != colour:
+            if (x + y) % 2 != colour:  # a crop's colours are its own (x, y)
                 continue
             ex = explain_pixel(state.maps(), state.view_costs, ctx.reference_windows(), ctx.source_images(),
                                pattern, key, params, cpre, x, y)
@@ -158,7 +165,8 @@ class PassProbe:
                 c["view_weights"] = ex["view_weights"]
             self._pending[(x, y)] = {
                 "level": self.level, "pass": self.pass_index, "pass_kind": "geometric" if params.geometric
-                else "photometric", "iteration": iteration, "colour": colour, "x_level": x, "y_level": y,
+                else "photometric", "iteration": iteration, "colour": colour, "x_level": x + self.origin[0],
+                "y_level": y + self.origin[1],
                 "before": _hypothesis(state, x, y), "after": None, "candidates": ex["candidates"],
                 "winner": ex["winner"], "decided_by": ex["decided_by"], "source_views": list(names),
                 "view_weights": ex["view_weights"], "selected_views": selected,
