@@ -66,10 +66,12 @@ def make_trace(scene: Scene, view: str | int, x: int, y: int, final_depth: float
     error = abs(final_depth - gt_depth) / gt_depth if gt_depth else None
     return {"view": v.name, "x": x, "y": y, "source_views": sources, "iterations": steps,
             "final": {"depth": final_depth, "normal": normal, "cost": steps[-1]["after"]["cost"],
-                      "counter_verdicts": {name: ("geometric" if i % 2 == 0 else "none")
+                      "counter_verdicts": {name: ("consistent" if i % 2 == 0 else "geometric")
                                            for i, name in enumerate(sources)},
+                      "counter_details": {name: {"verdict": "geometric", "reprojection_px": 3.5}
+                                          for i, name in enumerate(sources) if i % 2},
                       "confidence": 0.42, "gt_depth": gt_depth,
-                      "label": None if error is None else ("inlier" if error < 0.01 else "outlier"),
+                      "label": None if error is None else int(error < 0.01),
                       "error": error}}
 
 

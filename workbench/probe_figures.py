@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 SELECTED, OTHER = "#2a9d4b", "#b5b5b5"  # bar colours of selected / not selected source views
+LABELS = {1: "inlier", 0: "outlier", -1: "unlabelled", "inlier": "inlier", "outlier": "outlier"}
 WITHIN = 0.01  # the "within 1 %" band of the depth plot (relative to the GT depth)
 
 
@@ -205,14 +206,22 @@ def summary_markdown(trace: dict, view_label: str) -> str:
     extra = [f"cost {_fmt(final.get('cost'), 3)}"]
     if final.get("confidence") is not None:
         extra.append(f"confidence {float(final['confidence']):.2f}")
-    if final.get("label") is not None:
-        extra.append(f"label {final['label']}")
+    label = final.get("label")
+    if label is not None:
+        extra.append("label " + LABELS.get(label, str(label)))
     lines.append(" · ".join(extra))
     verdicts = final.get("counter_verdicts") or {}
     if verdicts:
-        agree = sum(v != "none" for v in verdicts.values())
-        lines.append(f"counter: {agree} of {len(verdicts)} source views consistent — "
-                     + ", ".join(f"{_short(k, 10)}: {v}" for k, v in verdicts.items()))
+        agree = sum(v == "consistent" for v in verdicts.values())
+        details = final.get("counter_details") or {}
+        parts = []
+        for name, verdict in verdicts.items():
+            why = details.get(name) or {}
+            numbers = [f"{why['reprojection_px']:.1f} px" if why.get("reprojection_px") is not None else "",
+                       f"{why['angle_deg']:.1f}°" if why.get("angle_deg") is not None else ""]
+            extra_text = ", ".join(n for n in numbers if n)
+            parts.append(f"{_short(name, 10)}: {verdict}" + (f" ({extra_text})" if extra_text else ""))
+        lines.append(f"counter: {agree} of {len(verdicts)} source views consistent — " + "; ".join(parts))
     steps = trace.get("iterations") or []
     if steps:
         last_change = max((i for i, s in enumerate(steps)

@@ -63,7 +63,9 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _progress_text(args: tuple) -> str:
-    """Whatever the probe reports as progress ((done, total), a fraction or a message), as a short text."""
+    """What the probe reports as progress ((description, done, total), (done, total) or a message), in short."""
+    if len(args) == 3 and isinstance(args[0], str) and all(isinstance(a, int | float) for a in args[1:]) and args[2]:
+        return f"{args[0]} · {100 * args[1] / args[2]:.0f} %"
     if len(args) >= 2 and all(isinstance(a, int | float) for a in args[:2]) and args[1]:
         return f"{100 * args[0] / args[1]:.0f} %"
     if len(args) == 1 and isinstance(args[0], float) and args[0] <= 1:

@@ -1,0 +1,140 @@
+"""Pixel inspector latency: from a click to a client holding the filled inspector, and a region re-run.
+
+    .venv/bin/python benchmarks/performance/bench_inspector.py [--run OUT | --scene sample_scenes/fountain_p11
+                                                   --size 192] [--pixels 4] [--out benchmarks/results/...]
+
+A run folder of ``deepc run`` (with its pass history) is opened in the viewer; a raw websocket client registers
+as a browser would, and each click is a ray through a pixel handed to the inspector's click handler. The time is
+taken when the client receives the inspector's summary for that pixel (the last update of the atomic block
+that fills the folder), and for a region re-run when it receives the region's numbers. The first click on a view
+replays that view's PatchMatch from the history ("cold"); later clicks on the same view reuse the replay
+("warm"); a pixel probed before answers from the viewer's cache ("again"). Without ``--run`` a vanilla run
+of ``--scene`` at ``--size`` px is made first with ``deepc run --headless``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import msgspec
+import numpy as np
+import websockets
+
+from support import bench
+from support.viewer_clients import CAMERA, SUBPROTOCOL, decode_frame, markdown_text
+from workbench.session import ViewerSession
+from workbench.viewer import ViewerApp
+
+
+def click_ray(app: ViewerApp, view: int, x: int, y: int) -> SimpleNamespace:
+    """The click event a browser sends for a ray from view ``view``'s camera through pixel (x, y)."""
+    camera = app.session.scene.views[view].camera
+    direction = camera.R.T @ (np.linalg.inv(camera.K_idx) @ np.array([x, y, 1.0]))
+    return SimpleNamespace(ray_origin=tuple(camera.center), ray_direction=tuple(direction / np.linalg.norm(direction)))
+
+
+async def measure(app: ViewerApp, jobs: list[tuple[str, int, int, int]]) -> list[dict]:
+    inspector = app.inspector
+    summary_id, region_id = inspector.summary._impl.uuid, inspector.region_numbers._impl.uuid
+    results = []
+    async with websockets.connect(f"ws://127.0.0.1:{app.port}", subprotocols=[SUBPROTOCOL], max_size=None) as ws:
+        await ws.send(msgspec.msgpack.encode(CAMERA))
+
+        async def wait_text(uuid: str, needle: str, deadline: float) -> str:
+            while time.perf_counter() < deadline:
+                data = await asyncio.wait_for(ws.recv(), timeout=max(0.01, deadline - time.perf_counter()))
+                if isinstance(data, str):
+                    continue
+                for message in decode_frame(data):
+                    text = markdown_text(message, uuid)
+                    if text is not None and needle in text:
+                        return text
+            raise TimeoutError(f"no {needle!r} from the viewer")
+
+        async def drain(quiet: float = 1.0) -> None:
+            try:
+                while True:
+                    await asyncio.wait_for(ws.recv(), timeout=quiet)
+            except TimeoutError:
+                pass
+
+        await drain()
+        for kind, view, x, y in jobs:
+            inspector.wait_idle(600)
+            await drain(0.5)
+            start = time.perf_counter()
+            if kind == "region":
+                inspector.rerun(view, (max(0, x - 32), max(0, y - 32), 64, 64))
+                await wait_text(region_id, "re-run took", start + 600)
+            else:
+                inspector._scene_clicked(click_ray(app, view, x, y))
+                await wait_text(summary_id, f"pixel ({x}, {y})", start + 600)
+            seconds = time.perf_counter() - start
+            inspector.wait_idle(600)
+            status = inspector.region_status.content if kind == "region" else inspector.status.content
+            results.append({"kind": kind, "view": view, "x": x, "y": y, "seconds": round(seconds, 4),
+                            "status": status})
+            print(f"{kind:<7} view {view} ({x}, {y}): {seconds:.3f} s  · {status}", flush=True)
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", type=Path, help="a run folder of deepc run (with history/)")
+    parser.add_argument("--scene", type=Path, default=bench.REPO_ROOT / "sample_scenes" / "fountain_p11")
+    parser.add_argument("--size", type=int, default=192)
+    parser.add_argument("--pixels", type=int, default=4, help="warm clicks per view")
+    parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
+    args = parser.parse_args()
+
+    run_dir = args.run
+    if run_dir is None:
+        run_dir = Path(tempfile.mkdtemp(prefix="bench-inspector-")) / "run"
+        t = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "workbench.cli", "run", str(args.scene), "--out", str(run_dir),
+                        "--max-image-size", str(args.size), "--headless"], check=True, stdout=subprocess.DEVNULL)
+        print(f"deepc run of {args.scene.name} at {args.size} px in {time.perf_counter() - t:.1f} s")
+    app = ViewerApp(ViewerSession.open(run_dir), port=0)
+    app.wait_idle(600)
+    scene = app.session.scene
+    camera = scene.views[0].camera
+    rng = np.random.default_rng(0)
+    jobs: list[tuple[str, int, int, int]] = []
+    for view in (0, len(scene.views) // 2):
+        depth = app.session.data[view].depth
+        ys, xs = np.nonzero(depth > 0)
+        picks = rng.choice(len(xs), args.pixels + 1, replace=False)
+        pixels = [(int(xs[i]), int(ys[i])) for i in picks]
+        jobs += [("cold" if k == 0 else "warm", view, *p) for k, p in enumerate(pixels)]
+        jobs.append(("again", view, *pixels[1]))
+        jobs.append(("region", view, *pixels[1]))
+    try:
+        results = asyncio.run(measure(app, jobs))
+    finally:
+        app.stop()
+
+    by_kind = {kind: [r["seconds"] for r in results if r["kind"] == kind] for kind in ("cold", "warm", "again",
+                                                                                          "region")}
+    rows = [{"what": kind, "n": len(times), "median s": statistics.median(times), "max s": max(times)}
+            for kind, times in by_kind.items() if times]
+    bench.print_table(rows)
+    record = {"run": str(run_dir), "scene": scene.name, "size": f"{camera.width}x{camera.height}",
+              "views": len(scene.views), "summary": rows, "clicks": results,
+              "what": {"cold": "click -> inspector filled, first probe of a view (replays the view)",
+                       "warm": "click -> inspector filled, the view replayed before",
+                       "again": "click on a pixel probed before (viewer cache)",
+                       "region": "re-run of a 64x64 box -> before/after maps shown"}}
+    bench.write_result(record, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
