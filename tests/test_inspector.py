@@ -120,6 +120,7 @@ def test_the_map_plane_turns_a_click_into_its_pixel(app):
     app.select_view(3)
     inspector.plane_kind.value = "depth"
     assert inspector.map_plane is not None and inspector._plane_view == 3
+    assert [f.visible for f in app.frustums] == [True, True, True, False, True]  # the plane stands in for it
     camera = app.session.scene.views[3].camera
     ray = camera.R.T @ (np.linalg.inv(camera.K_idx) @ np.array([33.2, 71.8, 1.0]))
     picked = inspector.pick(camera.center, ray / np.linalg.norm(ray))
@@ -127,7 +128,7 @@ def test_the_map_plane_turns_a_click_into_its_pixel(app):
     app.select_view(1)  # the plane follows the view
     assert inspector._plane_view == 1
     inspector.plane_kind.value = "off"
-    assert not inspector.map_plane.visible
+    assert not inspector.map_plane.visible and all(f.visible for f in app.frustums)
     assert inspector.pick(camera.center, ray / np.linalg.norm(ray))[3] != "map plane"
 
 

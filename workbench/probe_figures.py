@@ -44,6 +44,10 @@ def trace_arrays(trace: dict) -> dict[str, np.ndarray]:
             "pass": np.array([s["pass"] for s in steps], np.int64)}
 
 
+def _key(step: dict) -> tuple:
+    return step["level"], step["pass"], step["iteration"]
+
+
 def _pass_starts(arrays: dict[str, np.ndarray]) -> list[tuple[int, str]]:
     """(entry index, "L<level> p<pass>") where a new (level, pass) starts."""
     out = []
@@ -76,6 +80,11 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
     steps = trace["iterations"]
     arrays = trace_arrays(trace)
     x = np.arange(len(steps))
+    if compare is not None and compare.get("iterations"):
+        # a region re-run starts at a later (level, pass): its entries sit where the run's same entries sit
+        where = {_key(s): i for i, s in enumerate(compare["iterations"])}
+        if all(_key(s) in where for s in steps):
+            x = np.array([where[_key(s)] for s in steps])
     final = trace.get("final") or {}
     gt = final.get("gt_depth")
     for ax, key, label in ((axes[0], "cost", "cost (1 − NCC)"), (axes[1], "depth", "depth")):
@@ -83,20 +92,21 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
             other = trace_arrays(compare)[key]
             ax.plot(np.arange(len(other)), other, "--", color="#999999", lw=1, label="before re-run")
         ax.plot(x, arrays[key], "-o", ms=2.5, lw=1.2, color="#1f5fa8", label="after each iteration")
-        for start, name in _pass_starts(arrays):
+        passes = trace_arrays(compare) if compare is not None and len(x) and x[0] > 0 else arrays
+        for start, name in _pass_starts(passes):
             ax.axvline(start - 0.5, color="#dddddd", lw=0.8)
             if key == "cost":
-                ax.text(start, 1.0, name, fontsize=6, color="#777777", transform=ax.get_xaxis_transform(),
+                ax.text(start, 1.0, name, fontsize=6.5, color="#777777", transform=ax.get_xaxis_transform(),
                         va="bottom")
-        if entry is not None:
-            ax.axvline(entry, color="#e07b00", lw=1)
-        ax.set_ylabel(label, fontsize=7)
-        ax.tick_params(labelsize=6)
+        if entry is not None and 0 <= entry < len(x):
+            ax.axvline(x[entry], color="#e07b00", lw=1)
+        ax.set_ylabel(label, fontsize=8)
+        ax.tick_params(labelsize=7)
     if gt is not None and gt > 0:
         axes[1].axhline(gt, color="#2a9d4b", ls="--", lw=1, label="GT depth")
         axes[1].axhspan(gt * (1 - WITHIN), gt * (1 + WITHIN), color="#2a9d4b", alpha=0.12, label="±1 %")
     axes[1].legend(fontsize=6, loc="best")
-    axes[1].set_xlabel("iteration (run order)", fontsize=7)
+    axes[1].set_xlabel("iteration (run order)", fontsize=8)
     index = len(steps) - 1 if entry is None else entry
     names = list(trace.get("source_views") or [])
     ax = axes[2]
@@ -115,10 +125,10 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
                     ax.text(i, 0.02, "n/e", ha="center", fontsize=6, color="#777777")
             ax.set_xticks(np.arange(len(costs)), labels, fontsize=6, rotation=30, ha="right")
             ax.set_ylim(0, 2)
-            ax.set_title(f"per-view costs of the winner ({winner['origin']}) at {iteration_label(step)}; "
-                         "green = selected", fontsize=7)
-    ax.set_ylabel("view cost", fontsize=7)
-    ax.tick_params(labelsize=6)
+            ax.set_title(f"winner's view costs ({winner['origin']}, {iteration_label(step)}); green: selected",
+                         fontsize=7)
+    ax.set_ylabel("view cost", fontsize=8)
+    ax.tick_params(labelsize=7)
     if title:
         fig.suptitle(title, fontsize=8)
     fig.tight_layout(pad=0.4)
@@ -127,8 +137,9 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
 
 
 def _short(name: str, keep: int = 12) -> str:
-    """An image name shortened to its last ``keep`` characters for axis labels."""
+    """An image name without folder and extension, shortened to its last ``keep`` characters for labels."""
     name = str(name).rsplit("/", 1)[-1]
+    name = name.rsplit(".", 1)[0] if "." in name[1:] else name
     return name if len(name) <= keep else "…" + name[-keep + 1:]
 
 
@@ -147,7 +158,7 @@ def candidate_table_html(trace: dict, entry: int) -> str:
         return "<p><i>the trace has no iterations</i></p>"
     step = steps[max(0, min(entry, len(steps) - 1))]
     names = list(trace.get("source_views") or [])
-    head = "".join(f"<th title='{html.escape(str(n))}'>{html.escape(_short(n, 6))}</th>" for n in names)
+    head = "".join(f"<th title='{html.escape(str(n))}'>{html.escape(_short(n, 5))}</th>" for n in names)
     rows = []
     for k, cand in enumerate(step.get("candidates") or []):
         selected = set(cand.get("selected_views") or [])
@@ -159,7 +170,7 @@ def candidate_table_html(trace: dict, entry: int) -> str:
         rows.append(f"<tr{weight}><td>{html.escape(str(cand['origin']))}</td><td>{_fmt(cand['depth'])}</td>"
                     f"<td>{_fmt(cand['cost'], 3)}</td>{''.join(cells)}</tr>")
     decided = html.escape(str(step.get("decided_by") or ""))
-    return ("<div style='font-size:11px;overflow-x:auto'>"
+    return ("<div style='font-size:10px;overflow-x:auto'>"
             f"<b>{html.escape(iteration_label(step))}</b> · winner in bold"
             + (f" · decided by <i>{decided}</i>" if decided else "")
             + " · green cells: selected views<table style='border-collapse:collapse' border='1' cellpadding='2'>"
@@ -212,16 +223,17 @@ def summary_markdown(trace: dict, view_label: str) -> str:
     lines.append(" · ".join(extra))
     verdicts = final.get("counter_verdicts") or {}
     if verdicts:
-        agree = sum(v == "consistent" for v in verdicts.values())
         details = final.get("counter_details") or {}
-        parts = []
+        groups: dict[str, list[str]] = {}
         for name, verdict in verdicts.items():
             why = details.get(name) or {}
-            numbers = [f"{why['reprojection_px']:.1f} px" if why.get("reprojection_px") is not None else "",
-                       f"{why['angle_deg']:.1f}°" if why.get("angle_deg") is not None else ""]
-            extra_text = ", ".join(n for n in numbers if n)
-            parts.append(f"{_short(name, 10)}: {verdict}" + (f" ({extra_text})" if extra_text else ""))
-        lines.append(f"counter: {agree} of {len(verdicts)} source views consistent — " + "; ".join(parts))
+            text = _short(name, 10)
+            if verdict != "consistent" and why.get("reprojection_px") is not None:
+                text += f" {why['reprojection_px']:.1f} px"
+            groups.setdefault(verdict, []).append(text)
+        agree = len(groups.get("consistent", []))
+        lines.append(f"counter: {agree} of {len(verdicts)} source views consistent  \n"
+                     + "; ".join(f"*{verdict}*: {', '.join(names)}" for verdict, names in groups.items()))
     steps = trace.get("iterations") or []
     if steps:
         last_change = max((i for i, s in enumerate(steps)

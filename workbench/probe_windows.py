@@ -48,8 +48,8 @@ def _crop(image: np.ndarray, centre: np.ndarray, radius: int) -> tuple[np.ndarra
 
 def window_thumbnails(images: list[np.ndarray], cameras: list[Camera], names: list[str], x: int, y: int,
                       depth: float, normal, half: int, selected: set[str] | frozenset = frozenset(),
-                      costs: list | None = None) -> np.ndarray:
-    """(H, W, 3) uint8 strip: the reference window (first) and its footprint in each source image.
+                      costs: list | None = None, columns: int = 4) -> np.ndarray:
+    """(H, W, 3) uint8 grid, ``columns`` wide: the reference window (first) and its footprint in each source image.
 
     Args:
         images: uint8 (H_i, W_i, 3) images, reference first, then the sources in ``names[1:]`` order.
@@ -100,4 +100,9 @@ def window_thumbnails(images: list[np.ndarray], cameras: list[Camera], names: li
             caption += f" {float(costs[k - 1]):.2f}"
         draw.text((2, THUMB + 1), caption, fill=(0, 0, 0))
         tiles.append(np.asarray(tile))
-    return np.concatenate(tiles, axis=1) if tiles else np.zeros((THUMB + 14, THUMB, 3), np.uint8)
+    if not tiles:
+        return np.zeros((THUMB + 14, THUMB, 3), np.uint8)
+    blank = np.full_like(tiles[0], 255)
+    width = min(columns, len(tiles))
+    tiles += [blank] * (-len(tiles) % width)
+    return np.concatenate([np.concatenate(tiles[r:r + width], axis=1) for r in range(0, len(tiles), width)], axis=0)

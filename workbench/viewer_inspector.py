@@ -160,12 +160,12 @@ class InspectorPanel:
             self.look_button = gui.add_button("Look through the view", disabled=not usable)
             self.status = gui.add_markdown("")
             self.summary = gui.add_markdown("")
+            self.windows = gui.add_image(np.full((8, 8, 3), 255, np.uint8), label="window in each source image",
+                                         format="png", visible=False)
             self.plots = gui.add_image(np.full((8, 8, 3), 255, np.uint8), label="trace", format="png", visible=False)
             self.entry = gui.add_slider("Iteration", min=0, max=1, step=1, initial_value=0, disabled=True,
                                         hint="the trace entry whose candidates the table lists")
             self.table = gui.add_html("")
-            self.windows = gui.add_image(np.full((8, 8, 3), 255, np.uint8), label="window in each source image",
-                                         format="png", visible=False)
             self.save_button = gui.add_button("Save trace (.rrd)", disabled=True,
                                               hint="OUT/exports/probe_<view>_<x>_<y>.rrd, the probe layout")
         with gui.add_folder("Re-run region", expand_by_default=False):
@@ -293,6 +293,8 @@ class InspectorPanel:
             y0 = max(0, trace["y"] - REGION_SIDE // 2)
             if compare is None:
                 self.box_origin.value = (x0, y0)
+        if str(self.plane_kind.value) != "off":
+            self.update_map_plane()  # the plane marks the inspected pixel
 
     def _set_entry(self, value: int, count: int) -> None:
         self._setting_entry = True
@@ -441,6 +443,7 @@ class InspectorPanel:
         if kind == "off":
             if self.map_plane is not None:
                 self.map_plane.visible = False
+            self._show_frustum(None)
             return
         from viser.transforms import SO3  # lazy: viser
 
@@ -449,16 +452,26 @@ class InspectorPanel:
         if kind not in maps:
             self.status.content = f"**no {kind} map** for this view"
             return
+        image = maps[kind][0]
+        trace = self.trace
+        if trace is not None and trace["view"] == app.session.scene.views[view].name:
+            image = mark_pixel(image, trace["x"], trace["y"])
         camera = app.session.scene.views[view].camera
         distance = self._plane_distance(view)
         # the image's centre is the principal ray at `distance`; it spans the image exactly
         centre_px = np.array([(camera.width - 1) / 2, (camera.height - 1) / 2, 1.0])
         centre = np.linalg.inv(camera.K_idx) @ centre_px * distance
         self.map_plane = app.server.scene.add_image(
-            "/inspector/map", maps[kind][0], render_width=distance * camera.width / camera.fx,
+            "/inspector/map", image, render_width=distance * camera.width / camera.fx,
             render_height=distance * camera.height / camera.fy, format="png",
             wxyz=SO3.from_matrix(camera.R.T).wxyz, position=camera.camera_to_world(centre))
         self._plane_view = view
+        self._show_frustum(view)
+
+    def _show_frustum(self, hidden: int | None) -> None:
+        """Every camera frustum drawn except view ``hidden``'s, whose image the map plane stands in for."""
+        for i, frustum in enumerate(self.app.frustums):
+            frustum.visible = i != hidden
 
     def look_through_view(self, client: Any) -> None:
         """Put a browser's camera where the selected view's camera is, with its field of view."""
@@ -547,6 +560,20 @@ class InspectorPanel:
     def stop(self) -> None:
         self.worker.stop(timeout=10)
         self.region_worker.stop(timeout=10)
+
+
+def mark_pixel(image: np.ndarray, x: int, y: int, colour=(255, 0, 255)) -> np.ndarray:
+    """A copy of ``image`` with a cross (arms of about 3 % of the image) centred on pixel (x, y), the pixel
+    itself left as it is."""
+    out = np.array(image, copy=True)
+    h, w = out.shape[:2]
+    arm = max(2, round(0.03 * max(h, w)))
+    for dx in range(-arm, arm + 1):
+        if dx and 0 <= x + dx < w and 0 <= y < h:
+            out[y, x + dx] = colour
+        if dx and 0 <= y + dx < h and 0 <= x < w:
+            out[y + dx, x] = colour
+    return out
 
 
 def _tile(values: np.ndarray | None, lo: float, hi: float, cmap: str, invalid: np.ndarray | None) -> np.ndarray:
