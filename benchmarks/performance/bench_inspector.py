@@ -3,10 +3,11 @@
     .venv/bin/python benchmarks/performance/bench_inspector.py [--run OUT | --scene sample_scenes/fountain_p11
                                                    --size 192] [--pixels 4] [--out benchmarks/results/...]
 
-A run folder of ``deepc run`` (with its pass history) is opened in the viewer; a raw websocket client registers
-as a browser would, and each click is a ray through a pixel handed to the inspector's click handler. The time is
-taken when the client receives the inspector's summary for that pixel (the last update of the atomic block
-that fills the folder), and for a region re-run when it receives the region's numbers. The first click on a view
+A run folder of ``deepc run`` (with its pass history) is opened in the viewer with the view's depth map as the
+map plane; a raw websocket client registers as a browser would, and each click is a ray from the view's camera
+through a pixel, handed to the inspector's click handler (the plane turns it into that pixel). The time is taken
+when the client receives the inspector's status line for that pixel (sent after the filled folder), and for a
+region re-run the region's status line (sent after the before/after maps). The first click on a view
 replays that view's PatchMatch from the history ("cold"); later clicks on the same view reuse the replay
 ("warm"); a pixel probed before answers from the viewer's cache ("again"). Without ``--run`` a vanilla run
 of ``--scene`` at ``--size`` px is made first with ``deepc run --headless``.
@@ -43,21 +44,23 @@ def click_ray(app: ViewerApp, view: int, x: int, y: int) -> SimpleNamespace:
 
 async def measure(app: ViewerApp, jobs: list[tuple[str, int, int, int]]) -> list[dict]:
     inspector = app.inspector
-    summary_id, region_id = inspector.summary._impl.uuid, inspector.region_numbers._impl.uuid
+    status_id, region_id = inspector.status._impl.uuid, inspector.region_status._impl.uuid
     results = []
     async with websockets.connect(f"ws://127.0.0.1:{app.port}", subprotocols=[SUBPROTOCOL], max_size=None) as ws:
         await ws.send(msgspec.msgpack.encode(CAMERA))
 
-        async def wait_text(uuid: str, needle: str, deadline: float) -> str:
+        async def wait_text(uuid: str, start: str, deadline: float) -> str:
             while time.perf_counter() < deadline:
                 data = await asyncio.wait_for(ws.recv(), timeout=max(0.01, deadline - time.perf_counter()))
                 if isinstance(data, str):
                     continue
                 for message in decode_frame(data):
                     text = markdown_text(message, uuid)
-                    if text is not None and needle in text:
+                    if text is not None and text.startswith(start) and text.endswith(" s"):
                         return text
-            raise TimeoutError(f"no {needle!r} from the viewer")
+                    if text is not None and "cannot" in text:
+                        raise RuntimeError(text)
+            raise TimeoutError(f"no {start!r} from the viewer")
 
         async def drain(quiet: float = 1.0) -> None:
             try:
@@ -69,14 +72,18 @@ async def measure(app: ViewerApp, jobs: list[tuple[str, int, int, int]]) -> list
         await drain()
         for kind, view, x, y in jobs:
             inspector.wait_idle(600)
+            if app._selected_view != view or str(inspector.plane_kind.value) == "off":
+                app.select_view(view)  # the map plane follows the view: a click through (x, y) hits that pixel
+                inspector.plane_kind.value = "depth"
             await drain(0.5)
             start = time.perf_counter()
             if kind == "region":
                 inspector.rerun(view, (max(0, x - 32), max(0, y - 32), 64, 64))
-                await wait_text(region_id, "re-run took", start + 600)
+                await wait_text(region_id, "box", start + 600)
             else:
                 inspector._scene_clicked(click_ray(app, view, x, y))
-                await wait_text(summary_id, f"pixel ({x}, {y})", start + 600)
+                text = await wait_text(status_id, f"pixel ({x}, {y})", start + 600)
+                assert "map plane" in text, text
             seconds = time.perf_counter() - start
             inspector.wait_idle(600)
             status = inspector.region_status.content if kind == "region" else inspector.status.content
