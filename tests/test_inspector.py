@@ -183,3 +183,49 @@ def test_a_trace_in_rerun_with_the_probe_layout(app, tmp_path):
 
     assert probed_pixels(contents, contents.views[0]) == ["40_30"]
     assert layout_file(path, "probe", tmp_path).is_file()
+
+
+@pytest.fixture(scope="module")
+def engine_run(tmp_path_factory):
+    """A real vanilla run of sample_scenes/tiny with its pass history (short schedule)."""
+    from engine.pass_history import HISTORY_DIR, PassHistory
+    from engine.patchmatch.options import PatchMatchOptions
+    from engine.pipeline import PipelineOptions, run_pipeline
+    from engine.scene import load_scene
+
+    out = tmp_path_factory.mktemp("engine_run")
+    options = PipelineOptions(patchmatch=PatchMatchOptions(iterations=1, levels=2, geom_passes=1))
+    run_pipeline(load_scene(SAMPLES / "tiny"), out, options, history=PassHistory(out / HISTORY_DIR))
+    return out
+
+
+def test_the_engine_probe_and_region_rerun_in_the_inspector(engine_run):
+    """The inspector on the engine's own probe_run / rerun_region: the real schema fills every widget."""
+    from workbench.session import ViewerSession
+    from workbench.viewer import ViewerApp
+
+    app = ViewerApp(ViewerSession.open(engine_run), port=0)
+    try:
+        assert app.wait_idle(120)
+        inspector = app.inspector
+        inspector.plane_kind.value = "GT error"
+        inspector.inspect(0, 70, 50)
+        wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1), timeout=300)
+        trace = inspector.trace
+        assert (trace["view"], trace["x"], trace["y"]) == ("view_000.png", 70, 50)
+        assert trace["final"]["depth"] == pytest.approx(float(app.session.data[0].depth[50, 70]), rel=1e-6)
+        assert "GT" in inspector.summary.content and "counter:" in inspector.summary.content
+        assert inspector.plots.visible and inspector.windows.visible and "winner in bold" in inspector.table.content
+        for entry in (0, len(trace["iterations"]) // 2):
+            inspector.entry.value = entry
+            assert "winner in bold" in inspector.table.content
+        inspector.rerun(0, (50, 30, 40, 40), overrides={"window": 7})
+        wait_for(lambda: inspector.region is not None and inspector.wait_idle(1), timeout=300)
+        assert inspector.region.depth_after.shape == (40, 40)
+        assert "within 1 % of GT" in inspector.region_numbers.content
+        assert inspector.compare is trace and "after re-run" in inspector.summary.content
+        inspector.inspect(0, 70, 500)
+        wait_for(lambda: "cannot probe" in inspector.status.content and inspector.wait_idle(1))
+        assert "outside view" in inspector.status.content
+    finally:
+        app.stop()
