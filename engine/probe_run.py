@@ -92,8 +92,29 @@ class RegionResult:
     seconds: float
 
 
+_runs: collections.OrderedDict[tuple, _Run] = collections.OrderedDict()
+
+
 def _open_run(run_dir: str | Path) -> _Run:
+    """The run in ``run_dir`` (kept in memory while its metrics.json is unchanged: loading the scene's images
+    would otherwise dominate a region re-run)."""
     run_dir = Path(run_dir)
+    try:
+        key = (str(run_dir.resolve()), (run_dir / "metrics.json").stat().st_mtime_ns)
+    except OSError:
+        key = None
+    if key in _runs:
+        _runs.move_to_end(key)
+        return _runs[key]
+    run = _load_run(run_dir)
+    if key is not None:
+        _runs[key] = run
+        while len(_runs) > _CACHE_VIEWS:
+            _runs.popitem(last=False)
+    return run
+
+
+def _load_run(run_dir: Path) -> _Run:
     metrics = read_run_metrics(run_dir)
     options = PipelineOptions.from_dict({k: v for k, v in metrics.options.items() if k != "scene"})
     scene = run_scene(run_dir)
