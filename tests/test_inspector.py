@@ -229,3 +229,17 @@ def test_the_engine_probe_and_region_rerun_in_the_inspector(engine_run):
         assert "outside view" in inspector.status.content
     finally:
         app.stop()
+
+
+def test_a_run_without_pass_history_says_so(noisy_run):
+    """A run folder made without history (here: one that never ran PatchMatch) cannot be probed: one line."""
+    from workbench.session import ViewerSession
+    from workbench.viewer import ViewerApp
+
+    app = ViewerApp(ViewerSession.open(noisy_run), port=0)  # the engine's own probe
+    try:
+        app.inspector.inspect(0, 10, 10)
+        wait_for(lambda: "cannot probe" in app.inspector.status.content and app.inspector.wait_idle(1))
+        assert "history" in app.inspector.status.content and app.inspector.trace is None
+    finally:
+        app.stop()

@@ -21,6 +21,10 @@ import numpy as np
 
 SELECTED, OTHER = "#2a9d4b", "#b5b5b5"  # bar colours of selected / not selected source views
 LABELS = {1: "inlier", 0: "outlier", -1: "unlabelled", "inlier": "inlier", "outlier": "outlier"}
+# candidate colours by origin (the part before ':'), in the viewer's scene and in rerun
+ORIGIN_COLOURS = {"current": (120, 120, 120), "upsampled": (150, 110, 60), "pattern": (60, 120, 230),
+                  "perturbation": (230, 140, 30), "random": (200, 60, 200), "combination": (40, 180, 170),
+                  "restorer": (150, 110, 60)}
 WITHIN = 0.01  # the "within 1 %" band of the depth plot (relative to the GT depth)
 
 

@@ -25,15 +25,10 @@ import rerun as rr
 
 from engine.scene import Scene
 from layouts import LAYOUTS, Contents
-from workbench.probe_figures import candidate_table_markdown, summary_markdown
-from workbench.probe_windows import window_thumbnails
+from workbench.probe_figures import ORIGIN_COLOURS, candidate_table_markdown, summary_markdown
+from workbench.probe_windows import ray_points, window_thumbnails
 from workbench.recording import Recording
 from workbench.stream import RerunStream, entity_name
-
-# candidate colours by origin (the part before ':')
-ORIGIN_COLOURS = {"current": (120, 120, 120), "upsampled": (150, 110, 60), "pattern": (60, 120, 230),
-                  "perturbation": (230, 140, 30), "random": (200, 60, 200), "combination": (40, 180, 170),
-                  "restorer": (150, 110, 60)}
 
 
 def probe_entity(scene: Scene, trace: dict) -> str:
@@ -42,10 +37,8 @@ def probe_entity(scene: Scene, trace: dict) -> str:
     return f"probe/{entity_name(index, trace['view'])}/{trace['x']}_{trace['y']}"
 
 
-def _ray_points(scene: Scene, index: int, x: int, y: int, depths: np.ndarray) -> np.ndarray:
-    camera = scene.views[index].camera
-    ray = np.linalg.inv(camera.K_idx) @ np.array([x, y, 1.0])
-    return camera.camera_to_world(np.asarray(depths, np.float64)[:, None] * ray[None, :])
+def _ray_points(scene: Scene, index: int, x: int, y: int, depths) -> np.ndarray:
+    return ray_points(scene.views[index].camera, x, y, depths)
 
 
 def log_probe(rec: rr.RecordingStream, scene: Scene, trace: dict, window: int = 11) -> str:

@@ -34,6 +34,12 @@ def window_corners(camera: Camera, x: int, y: int, depth: float, normal, half: i
     return camera.camera_to_world(np.array(corners))
 
 
+def ray_points(camera: Camera, x: int, y: int, depths) -> np.ndarray:
+    """(N, 3) world points on pixel (x, y)'s ray at camera-frame ``depths`` (N,)."""
+    ray = np.linalg.inv(camera.K_idx) @ np.array([x, y, 1.0])
+    return camera.camera_to_world(np.asarray(depths, np.float64).reshape(-1)[:, None] * ray[None, :])
+
+
 def _crop(image: np.ndarray, centre: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
     """A (2r+1)² crop of ``image`` around ``centre`` (black outside the image) and its top-left corner."""
     h, w = image.shape[:2]

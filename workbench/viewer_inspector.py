@@ -30,8 +30,8 @@ import numpy as np
 from engine.errors import DeepCError
 from engine.patchmatch.options import PATTERNS, PatchMatchOptions
 from workbench.map_images import colorize
-from workbench.probe_figures import candidate_table_html, summary_markdown, trace_figure
-from workbench.probe_windows import window_thumbnails
+from workbench.probe_figures import ORIGIN_COLOURS, candidate_table_html, summary_markdown, trace_figure
+from workbench.probe_windows import ray_points, window_thumbnails
 from workbench.scheduler import NewestWorker
 
 PICK_RADIANS = 0.006  # a click picks cloud points within this angle of its ray (about 5 px at a 60° view)
@@ -293,6 +293,7 @@ class InspectorPanel:
             y0 = max(0, trace["y"] - REGION_SIDE // 2)
             if compare is None:
                 self.box_origin.value = (x0, y0)
+        self._show_candidates(trace, last)
         if str(self.plane_kind.value) != "off":
             self.update_map_plane()  # the plane marks the inspected pixel
 
@@ -317,6 +318,39 @@ class InspectorPanel:
         windows = self._windows(trace, index, entry)
         if windows is not None:
             self.windows.image = windows
+        self._show_candidates(trace, entry)
+
+    def _show_candidates(self, trace: dict, entry: int) -> None:
+        """The pixel's ray in the scene with entry ``entry``'s candidates on it (coloured by origin, as in
+        rerun), the winner larger in orange and the GT point in green."""
+        index = self._view_index(trace["view"])
+        steps = trace.get("iterations") or []
+        if index is None or not steps:
+            return
+        app = self.app
+        view = app.session.scene.views[index]
+        camera, x, y = view.camera, trace["x"], trace["y"]
+        step = steps[max(0, min(entry, len(steps) - 1))]
+        candidates = [c for c in step.get("candidates") or [] if c.get("depth") and c["depth"] > 0]
+        size = float(app.default_point_size)
+        scene = app.server.scene
+        with app.server.atomic():
+            scene.add_line_segments("/inspector/ray", ray_points(camera, x, y, view.depth_range)[None],
+                                    (255, 140, 0), thickness=2.0, thickness_units="screen")
+            if candidates:
+                scene.add_point_cloud(
+                    "/inspector/candidates", ray_points(camera, x, y, [c["depth"] for c in candidates]).astype(
+                        np.float32),
+                    colors=np.array([ORIGIN_COLOURS.get(str(c["origin"]).split(":")[0], (255, 255, 255))
+                                     for c in candidates], np.uint8), point_size=4 * size, precision="float32")
+            winner = step["after"].get("depth")
+            if winner:
+                scene.add_point_cloud("/inspector/winner", ray_points(camera, x, y, [winner]).astype(np.float32),
+                                      colors=(255, 140, 0), point_size=8 * size, precision="float32")
+            gt = (trace.get("final") or {}).get("gt_depth")
+            if gt:
+                scene.add_point_cloud("/inspector/gt", ray_points(camera, x, y, [gt]).astype(np.float32),
+                                      colors=(40, 200, 80), point_size=8 * size, precision="float32")
 
     def _windows(self, trace: dict, index: int | None, entry: int) -> np.ndarray | None:
         """The thumbnails of the pixel's window in its source images, under entry ``entry``'s plane."""
