@@ -82,10 +82,18 @@ def test_typed_pixel_fills_the_inspector(app):
     # another entry of the trace: its candidates
     inspector.entry.value = 2
     assert "L1 p0 i2" in inspector.table.content
-    # the same pixel again comes from the cache: no second probe
+    # one probe traced the pixel's 8 neighbours too: the same pixel and a neighbour come from the cache
+    assert app.hand.calls[-1][2][0] == (40, 30) and len(app.hand.calls[-1][2]) == 9
     calls = len(app.hand.calls)
     inspector.inspect(1, 40, 30)
     assert inspector.wait_idle(10) and len(app.hand.calls) == calls
+    inspector.inspect(1, 41, 31)
+    wait_for(lambda: inspector.trace["x"] == 41 and inspector.wait_idle(1))
+    assert len(app.hand.calls) == calls
+    # at the image corner only the neighbours inside the image come along
+    inspector.inspect(1, 0, 0)
+    wait_for(lambda: inspector.trace["x"] == 0 and inspector.wait_idle(1))
+    assert sorted(app.hand.calls[-1][2]) == [(0, 0), (0, 1), (1, 0), (1, 1)]
 
 
 @pytest.mark.parametrize(("view", "x", "y", "message"), [

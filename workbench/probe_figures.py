@@ -76,6 +76,7 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib (no pyplot: thread-safe)
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     width, height = size
     fig = Figure(figsize=(width / 100, height / 100), dpi=100)
@@ -106,6 +107,7 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
             ax.axvline(x[entry], color="#e07b00", lw=1)
         ax.set_ylabel(label, fontsize=8)
         ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     if gt is not None and gt > 0:
         axes[1].axhline(gt, color="#2a9d4b", ls="--", lw=1, label="GT depth")
         axes[1].axhspan(gt * (1 - WITHIN), gt * (1 + WITHIN), color="#2a9d4b", alpha=0.12, label="±1 %")
@@ -135,7 +137,8 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
     ax.tick_params(labelsize=7)
     if title:
         fig.suptitle(title, fontsize=8)
-    fig.tight_layout(pad=0.4)
+    # fixed margins: tight_layout measured every tick label and took a third of the figure's time
+    fig.subplots_adjust(left=0.15, right=0.97, top=0.93 if title else 0.96, bottom=0.09, hspace=0.62)
     fig.canvas.draw()
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 

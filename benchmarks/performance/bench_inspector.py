@@ -9,7 +9,8 @@ through a pixel, handed to the inspector's click handler (the plane turns it int
 when the client receives the inspector's status line for that pixel (sent after the filled folder), and for a
 region re-run the region's status line (sent after the before/after maps). The first click on a view
 replays that view's PatchMatch from the history ("cold"); later clicks on the same view reuse the replay
-("warm"); a pixel probed before answers from the viewer's cache ("again"). Without ``--run`` a vanilla run
+("warm"); a pixel probed before answers from the viewer's cache ("again"), and so does its neighbour ("next"),
+traced by the same probe (``viewer_inspector.PROBE_NEIGHBOURS``). Without ``--run`` a vanilla run
 of ``--scene`` at ``--size`` px is made first with ``deepc run --headless``.
 """
 
@@ -122,14 +123,15 @@ def main() -> None:
         pixels = [(int(xs[i]), int(ys[i])) for i in picks]
         jobs += [("cold" if k == 0 else "warm", view, *p) for k, p in enumerate(pixels)]
         jobs.append(("again", view, *pixels[1]))
+        jobs.append(("next", view, min(pixels[1][0] + 1, depth.shape[1] - 1), pixels[1][1]))
         jobs.append(("region", view, *pixels[1]))
     try:
         results = asyncio.run(measure(app, jobs))
     finally:
         app.stop()
 
-    by_kind = {kind: [r["seconds"] for r in results if r["kind"] == kind] for kind in ("cold", "warm", "again",
-                                                                                          "region")}
+    kinds = ("cold", "warm", "again", "next", "region")
+    by_kind = {kind: [r["seconds"] for r in results if r["kind"] == kind] for kind in kinds}
     rows = [{"what": kind, "n": len(times), "median s": statistics.median(times), "max s": max(times)}
             for kind, times in by_kind.items() if times]
     bench.print_table(rows)
@@ -138,6 +140,7 @@ def main() -> None:
               "what": {"cold": "click -> inspector filled, first probe of a view (replays the view)",
                        "warm": "click -> inspector filled, the view replayed before",
                        "again": "click on a pixel probed before (viewer cache)",
+                       "next": "click on a neighbour of a pixel probed before (probed with it)",
                        "region": "re-run of a 64x64 box -> before/after maps shown"}}
     bench.write_result(record, args.out)
     print(f"wrote {args.out}")
