@@ -76,7 +76,7 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib (no pyplot: thread-safe)
     from matplotlib.figure import Figure
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator  # lazy: matplotlib
 
     width, height = size
     fig = Figure(figsize=(width / 100, height / 100), dpi=100)
