@@ -124,3 +124,19 @@ def test_bad_pixel_and_unknown_view_are_messages_in_the_browser(browser_context,
         page.get_by_text("pixel (12, 14) of view 0").first.wait_for()
     finally:
         page.close()
+
+
+def test_a_saved_trace_replays_in_the_rerun_web_viewer_with_the_probe_layout(browser_context, app, tmp_path):
+    from test_replay_browser import _shot, blueprint_titles
+
+    from workbench.replay import WebViewer, default_layout, layout_file
+
+    inspector = app.inspector
+    inspector.inspect(0, 40, 30)
+    wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+    path = inspector.save_rrd()
+    assert default_layout(path) == "probe"
+    titles = blueprint_titles(layout_file(path, "probe", tmp_path))
+    assert {"cost · pixel 40_30", "candidates on the pixel's ray", "window in each source image"} <= set(titles)
+    with WebViewer(path) as viewer:
+        assert _shot(browser_context, viewer).std() > 10

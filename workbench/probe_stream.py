@@ -112,11 +112,10 @@ def write_probe_recording(path: str | Path, scene: Scene, traces: list[dict], wi
     recording = Recording(path, LAYOUTS["probe"](Contents(names, entities), bases[0].split("/")[1] if bases else
                                                  names[0]))
     try:
-        stream = RerunStream(recording.rec, [(v.name, v.camera, scene.image(v.index), v.source_views)
-                                             for v in scene.views])
+        RerunStream(recording.rec, [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views])
         for i, kinds in (maps or {}).items():
-            for kind, image in kinds.items():
-                stream.log_view_map(i, kind, image)
+            for kind, image in kinds.items():  # static: beside every iteration of the trace
+                recording.rec.log(f"maps/{names[i]}/{kind}", rr.Image(image), static=True)
         for trace in traces:
             log_probe(recording.rec, scene, trace, window)
     except BaseException:
