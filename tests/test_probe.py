@@ -209,7 +209,7 @@ def test_region_rerun(tiny_run):
                      probe_pixels=[(50, 40)])
     (trace,) = r.traces
     assert [(e["level"], e["pass"]) for e in trace["iterations"]] == [(1, 1), (0, 0), (0, 1)]
-    assert all(e["explained"] for e in trace["iterations"])
+    assert all(e["explained"] and (e["x_level"] + e["y_level"]) % 2 == e["colour"] for e in trace["iterations"])
     assert trace["iterations"][-1]["after"]["depth"] == float(r.depth_after[40 - 30, 50 - 40])
     assert (trace["iterations"][0]["x_level"], trace["iterations"][0]["y_level"]) == level_pixel(50, 40, 160, 120,
                                                                                                    80, 60)
