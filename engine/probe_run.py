@@ -277,6 +277,8 @@ def rerun_region(run_dir: str | Path, view: str | int, box: tuple[int, int, int,
         bx1, by1 = (c + 1 for c in level_pixel(x0 + bw - 1, y0 + bh - 1, W, H, lw, lh))
         cx0, cy0 = max(0, bx0 - margin), max(0, by0 - margin)
         cx1, cy1 = min(lw, bx1 + margin), min(lh, by1 + margin)
+        if (cx0 + cy0) % 2:  # an even origin: every crop pixel keeps its red-black colour of the full level
+            cx0, cy0 = (cx0 - 1, cy0) if cx0 > 0 else (cx0, cy0 - 1)
         if lv == level:
             depth, normal = rep.states[(level, pass_index)]
             full = ViewState(depth.copy(), normal.copy(), np.zeros((lh, lw), np.float32), np.zeros((lh, lw), np.uint32))

@@ -86,6 +86,23 @@ def test_traces_follow_the_kernel_to_the_written_maps(probed):
     json.dumps(traces, allow_nan=False)  # plain JSON
 
 
+@pytest.mark.parametrize("changes", [{"pattern": "acmm", "combos": "all8"},
+                                     {"view_sampling": "deterministic", "plane_propagation": False},
+                                     {"detail_restorer_reference": "upsampled", "pattern": "deepc_far",
+                                      "k_update": 8, "k_viewsel": 4}],
+                         ids=["acmm_all8", "deterministic_raw_depth", "upsampled_far"])
+def test_explainer_follows_other_settings(small_scene, changes):
+    views, _ = small_scene
+    opts = OPTS.replace(**changes)
+    probe = PixelProbe(0, PIXELS[:3])
+    maps = run_patchmatch(views, opts, probe=probe)
+    for t in probe.traces():
+        assert all(e["explained"] for e in t["iterations"])
+        assert t["iterations"][-1]["after"]["depth"] == float(maps[0].depth[t["y"], t["x"]])
+        if changes.get("combos") == "all8":
+            assert sum(c.get("refinement") is not None for c in t["iterations"][0]["candidates"]) <= 8
+
+
 def test_level_pixel_maps_centres():
     assert level_pixel(0, 0, 64, 48, 32, 24) == (0, 0)
     assert level_pixel(63, 47, 64, 48, 32, 24) == (31, 23)
@@ -192,7 +209,7 @@ def test_region_rerun(tiny_run):
                      probe_pixels=[(50, 40)])
     (trace,) = r.traces
     assert [(e["level"], e["pass"]) for e in trace["iterations"]] == [(1, 1), (0, 0), (0, 1)]
-    assert all(e["explained"] for e in trace["iterations"])
+    assert all(e["explained"] and (e["x_level"] + e["y_level"]) % 2 == e["colour"] for e in trace["iterations"])
     assert trace["iterations"][-1]["after"]["depth"] == float(r.depth_after[40 - 30, 50 - 40])
     assert (trace["iterations"][0]["x_level"], trace["iterations"][0]["y_level"]) == level_pixel(50, 40, 160, 120,
                                                                                                    80, 60)
@@ -235,6 +252,22 @@ def test_cli_probe_errors_are_one_line_and_exit_2(tiny_run, tmp_path):
         lines = [ln for ln in res.stderr.splitlines() if ln.startswith("deepc: error:")]
         assert len(lines) == 1 and message in lines[0], res.stderr
     assert not (tmp_path / "o" / "metrics.json").exists()
+
+
+def test_cli_run_with_probe_and_without_history(tmp_path):
+    out = tmp_path / "run"
+    res = _deepc("run", str(TINY), "--out", str(out), "--headless", "--levels", "1", "--iterations", "1",
+                 "--geom-passes", "1", "--probe", "view_001.png:10,12;30,20")
+    assert res.returncode == 0, res.stderr
+    depth = read_map(out, "depth", "view_001.png")
+    for x, y in [(10, 12), (30, 20)]:
+        data = json.loads(probe_path(out, "view_001.png", x, y).read_text())
+        assert len(data["iterations"]) == 2 and data["iterations"][-1]["after"]["depth"] == float(depth[y, x])
+    assert (out / HISTORY_DIR / "manifest.json").is_file()
+    res = _deepc("run", str(TINY), "--out", str(tmp_path / "plain"), "--headless", "--levels", "1", "--iterations",
+                 "1", "--geom-passes", "1", "--no-history")
+    assert res.returncode == 0, res.stderr
+    assert not (tmp_path / "plain" / HISTORY_DIR).exists()
 
 
 def test_cli_probe_writes_traces(tiny_run):
