@@ -94,6 +94,11 @@ def test_typed_pixel_fills_the_inspector(app):
     inspector.inspect(1, 0, 0)
     wait_for(lambda: inspector.trace["x"] == 0 and inspector.wait_idle(1))
     assert sorted(app.hand.calls[-1][2]) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    # the re-run box is centred on the pixel, inside the image (tiny: 160x120)
+    assert tuple(inspector.box_origin.value) == (0, 0) and tuple(inspector.box_size.value) == (64, 64)
+    inspector.inspect(1, 159, 119)
+    wait_for(lambda: inspector.trace["x"] == 159 and inspector.wait_idle(1))
+    assert tuple(inspector.box_origin.value) == (96, 56)
 
 
 @pytest.mark.parametrize(("view", "x", "y", "message"), [

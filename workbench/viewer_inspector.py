@@ -311,10 +311,12 @@ class InspectorPanel:
             self.windows.visible = windows is not None
             self.pixel.value = (trace["x"], trace["y"])
             self.save_button.disabled = False
-            x0 = max(0, trace["x"] - REGION_SIDE // 2)
-            y0 = max(0, trace["y"] - REGION_SIDE // 2)
-            if compare is None:
-                self.box_origin.value = (x0, y0)
+            if compare is None and index is not None:  # the re-run box: centred on the pixel, inside the image
+                camera = self.app.session.scene.views[index].camera
+                w, h = min(REGION_SIDE, camera.width), min(REGION_SIDE, camera.height)
+                self.box_origin.value = (min(max(0, trace["x"] - w // 2), camera.width - w),
+                                         min(max(0, trace["y"] - h // 2), camera.height - h))
+                self.box_size.value = (w, h)
         self._show_candidates(trace, last)
         if str(self.plane_kind.value) != "off":
             self.update_map_plane()  # the plane marks the inspected pixel
