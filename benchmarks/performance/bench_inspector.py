@@ -94,6 +94,11 @@ async def measure(app: ViewerApp, jobs: list[tuple[str, int, int, int]]) -> list
     return results
 
 
+def summary(result: dict) -> list[dict]:
+    """Median and largest time per kind of click, and of a region re-run."""
+    return [{"scene": f"{result['scene']} {result['size']}", **row} for row in result["summary"]]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, help="a run folder of deepc run (with history/)")
