@@ -646,9 +646,14 @@ def _tile(values: np.ndarray | None, lo: float, hi: float, cmap: str, invalid: n
 
 
 def region_picture(result: Any, depth_range: tuple[float, float], pixel: tuple[int, int] | None) -> np.ndarray:
-    """(H, W, 3) uint8: depth before | after on top, error before | after below (0-5 % of GT, when known);
-    the inspected pixel marked in magenta."""
-    lo, hi = depth_range
+    """(H, W, 3) uint8: depth before | after on top (turbo over the box's own 2-98 % depth range, else
+    ``depth_range``), error before | after below (0-5 % of GT, when known); the inspected pixel in magenta."""
+    both = np.concatenate([np.ravel(result.depth_before), np.ravel(result.depth_after)])
+    both = both[np.isfinite(both) & (both > 0)]
+    # the box's own depth range (2-98 %), not the view's: a region spans a sliver of it
+    lo, hi = np.percentile(both, (2, 98)) if len(both) else depth_range
+    if hi <= lo:
+        lo, hi = depth_range
     rows = []
     pairs = [(result.depth_before, result.depth_after, lo, hi, "turbo")]
     if result.error_before is not None and result.error_after is not None:
