@@ -40,6 +40,7 @@ from engine.observer import ObserverList
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.patchmatch.convergence import EarlyStops
+from engine.probe_output import finish_probe
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
 from engine.refinement.views import refine_views, sky_filter_views
@@ -92,12 +93,16 @@ def patchmatch_views(scene: Scene) -> list[PatchMatchView]:
 
 def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | None = None,
                  observer: Any = None, progress: Callable[[str, int, int], None] | None = None,
-                 checkpoint: Any = None, mesh: MeshOptions | None = None) -> PipelineResult:
+                 checkpoint: Any = None, mesh: MeshOptions | None = None, probe: Any = None,
+                 history: Any = None) -> PipelineResult:
     """Run ``options.pipeline`` on ``scene`` and write the outputs into ``out_dir``.
 
     ``checkpoint`` (an :class:`engine.checkpoint.PatchMatchCheckpoint`) saves PatchMatch states as it
     goes and reuses those of an interrupted run; it is cleared once metrics.json is written. ``mesh``, unless
-    its method is ``none``, adds ``mesh.ply`` made from the fused cloud or the maps fusion used.
+    its method is ``none``, adds ``mesh.ply`` made from the fused cloud or the maps fusion used. ``probe`` (an
+    :class:`engine.patchmatch.probe.PixelProbe`) traces pixels of one view and writes ``OUT/probes/``;
+    ``history`` (an :class:`engine.pass_history.PassHistory`) keeps what re-running one view needs
+    (``engine.probe_run``).
     """
     options = (options or PipelineOptions()).validate()
     out_dir = Path(out_dir)
@@ -120,7 +125,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     early_stops = EarlyStops()
     # EarlyStops has no on_iteration: without an observer the engine still builds no iteration events
     watch = early_stops if observer is None else ObserverList([observer, early_stops])
-    maps = run_patchmatch(views, options.patchmatch, observer=watch, progress=progress, checkpoint=checkpoint)
+    maps = run_patchmatch(views, options.patchmatch, observer=watch, progress=progress, checkpoint=checkpoint,
+                          probe=probe, history=history)
     counter = compute_counter_maps(views, maps, options.counter)
     seconds["patchmatch"] = time.perf_counter() - t
     for view, m, k in zip(scene.views, maps, counter, strict=True):
@@ -234,6 +240,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     metrics["version"] = __version__
     check_interrupt()
     write_metrics(out_dir, metrics)
+    if probe is not None:
+        finish_probe(probe, scene, views, maps, counter, confidence, options.counter, out_dir)
     if checkpoint is not None:
         checkpoint.clear()
     return PipelineResult(maps, counter, confidence, cloud, metrics)

@@ -1,4 +1,4 @@
-"""The ``deepc`` command line: one subcommand per module (run, mesh, info, eval, view, replay, regress, train).
+"""The ``deepc`` command line: one subcommand per module (run, mesh, probe, info, eval, view, replay, regress, train).
 
 Every user-facing problem ends in one line on stderr and exit status 2; success is 0 and, for
 ``regress``, "something regressed" is 1.
@@ -18,7 +18,8 @@ from engine.interrupt import deferred_interrupts
 from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions, load_scene
 from workbench.flags import add_options_flags, options_from_args
-from workbench.run_flags import add_run_option_flags
+from workbench.probe_command import add_probe_arguments
+from workbench.run_flags import add_probe_flags, add_run_option_flags
 from workbench.train_flags import add_train_arguments
 
 # The commands' own modules are imported when their command runs: the engine pipeline, training, the
@@ -49,6 +50,12 @@ def _mesh(args: argparse.Namespace) -> int:
     from workbench.mesh_command import cmd_mesh  # lazy: the engine pipeline (open3d when meshing)
 
     return cmd_mesh(args)
+
+
+def _probe(args: argparse.Namespace) -> int:
+    from workbench.probe_command import cmd_probe  # lazy: the engine pipeline
+
+    return cmd_probe(args)
 
 
 def _view(args: argparse.Namespace) -> int:
@@ -88,6 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scene", help="COLMAP workspace folder")
     run.add_argument("--out", required=True, help="output folder (stereo maps, fused.ply, metrics.json)")
     add_run_option_flags(run)
+    add_probe_flags(run)
     run.add_argument("--mesh", choices=MESH_METHODS, default="none",
                      help="also write OUT/mesh.ply: 'poisson' on the fused cloud, 'tsdf' of the maps fusion used "
                           "(default: none; settings with --set mesh.NAME=VALUE)")
@@ -134,6 +142,14 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)")
     view.add_argument("--port", type=int, default=8080)
     view.set_defaults(handler=_view)
+
+    probe = sub.add_parser("probe", help="trace pixels of a finished run through PatchMatch, or re-run a region",
+                           description="Why is this depth wrong? Re-runs one view of a finished run from its pass "
+                                       "history and writes every half-step of the given pixels to "
+                                       "RUN_DIR/probes/VIEW/X_Y.json (docs/probe_schema.md); --region re-runs a "
+                                       "box with changed options.")
+    add_probe_arguments(probe)
+    probe.set_defaults(handler=_probe)
 
     replay = sub.add_parser("replay", help="replay a .rrd recording in the rerun viewer")
     replay.add_argument("recording", metavar="FILE.rrd")

@@ -16,10 +16,15 @@ from engine.errors import DeepCError
 from engine.interrupt import deferred_interrupts
 from engine.io.atomic import remove_stale_temp_files
 from engine.memory import estimate_run_memory, largest_fitting_size, load_kernels
+from engine.pass_history import HISTORY_DIR, PassHistory
+from engine.patchmatch.probe import PixelProbe
 from engine.pipeline import PipelineOptions, run_pipeline
+from engine.probe_output import PROBES_DIR
+from engine.probe_run import probe_run, resolve_view
 from engine.run_folder import RunMetrics
 from engine.scene import Scene, load_scene
 from workbench.progress import PassProgress
+from workbench.run_flags import parse_probe
 from workbench.run_options import mesh_options, run_options_from_args
 
 
@@ -30,6 +35,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(scene.summary(), file=sys.stderr)
     _check_memory(args, scene, options)
     checkpoint = _prepare_output(args)
+    probe, history = _probe_and_history(args, scene)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = None
     progress = PassProgress()
@@ -47,7 +53,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
             with deferred_interrupts():
                 result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                      progress=progress, checkpoint=checkpoint, mesh=mesh)
+                                      progress=progress, checkpoint=checkpoint, mesh=mesh, probe=probe,
+                                      history=history)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -62,6 +69,12 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"resumed: {checkpoint.stats.reused} saved PatchMatch view states reused, "
                   f"{checkpoint.stats.rejected} rejected and recomputed", file=sys.stderr)
         print_run_summary(RunMetrics.from_dict(result.metrics), args.out)
+        if probe is not None and checkpoint.stats.reused and history is not None:
+            # passes restored from the checkpoint were not traced: trace the view again from the history
+            probe_run(args.out, probe.view, probe.pixels)
+        if probe is not None:
+            print(f"probe: {len(probe.pixels)} pixel trace(s) of view {probe.view_name} in "
+                  f"{Path(args.out) / PROBES_DIR / probe.view_name}", file=sys.stderr)
         if not args.headless:
             from workbench.viewer import serve  # lazy: viser
 
@@ -70,6 +83,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         if live:
             live.stop()
     return 0
+
+
+def _probe_and_history(args: argparse.Namespace, scene: Scene) -> tuple[PixelProbe | None, PassHistory | None]:
+    """The pixel probe of ``--probe`` (checked against the scene before anything runs) and the pass history."""
+    probe = None
+    if getattr(args, "probe", None):
+        name, pixels = parse_probe(args.probe)
+        probe = PixelProbe(resolve_view([u.name for u in scene.views], name), pixels)
+        v = scene.views[probe.view]
+        probe.bind([u.name for u in scene.views], [(u.camera.width, u.camera.height) for u in scene.views],
+                   [list(u.source_views) for u in scene.views])
+        print(f"probe: {len(probe.pixels)} pixel(s) of view {v.name}", file=sys.stderr)
+    history = PassHistory(Path(args.out) / HISTORY_DIR) if getattr(args, "history", False) else None
+    return probe, history
 
 
 def _check_memory(args: argparse.Namespace, scene: Scene, options: PipelineOptions) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from engine.errors import DeepCError
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
 from engine.patchmatch import PatchMatchOptions
 from engine.scene import SceneOptions
@@ -46,3 +47,32 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
                         help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
                              "--set fusion.check_num_images=20, "
                              "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
+
+
+def add_probe_flags(parser: argparse.ArgumentParser) -> None:
+    """``deepc run``'s pixel probe and pass history (docs/probe_schema.md); not part of regression suites."""
+    parser.add_argument("--probe", metavar="VIEW:X,Y[;X,Y...]", default=None,
+                        help="trace up to 64 pixels (column X, row Y at full resolution) of one view (name or "
+                             "index) through every PatchMatch half-step into OUT/probes/VIEW/X_Y.json")
+    parser.add_argument("--history", action=argparse.BooleanOptionalAction, default=True,
+                        help="keep OUT/history/ (the source depth maps every geometric pass read), so that "
+                             "'deepc probe' can trace pixels of this run later (default: on)")
+
+
+def parse_probe(text: str) -> tuple[str, list[tuple[int, int]]]:
+    """``VIEW:X,Y[;X,Y...]`` -> (VIEW, [(X, Y), ...]); a one-line :class:`DeepCError` when malformed."""
+    view, sep, spec = text.rpartition(":")
+    if not sep or not view:
+        raise DeepCError(f"--probe {text!r}: expected VIEW:X,Y[;X,Y...]")
+    return view, [parse_pixel(p, "--probe") for p in spec.split(";") if p.strip()]
+
+
+def parse_pixel(text: str, flag: str = "--pixel") -> tuple[int, int]:
+    """``X,Y`` -> (X, Y) integers; a one-line :class:`DeepCError` when malformed."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return int(parts[0]), int(parts[1])
+    except ValueError:
+        raise DeepCError(f"{flag}: {text!r} is not a pixel X,Y (two integers)") from None

@@ -26,19 +26,24 @@ from engine.observer import IterationEvent, readonly
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.probe import PassProbe, PixelProbe
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
 from engine.patchmatch.rng import stream_key
 from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, ViewState, row_cache_bytes
 from engine.patchmatch.view_pass import run_view_level
 
 # engine.memory sizes the cost caches with these (they live in state.py)
-__all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "row_cache_bytes",
-           "run_patchmatch"]
+__all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "replay_view",
+           "row_cache_bytes", "run_patchmatch"]
 
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
 
 ProgressFn = Callable[[str, int, int], Any]
+# snapshots(level, pass_index, view indices) -> {view index: depth map the geometric pass read}
+SnapshotFn = Callable[[int, int, list[int]], dict[int, np.ndarray]]
+# on_pass(level, pass_index, phase, state, images, cameras): phase "start" before a pass, "end" after a level's last
+PassFn = Callable[[int, int, str, ViewState, list, list], Any]
 
 
 @dataclasses.dataclass
@@ -131,7 +136,8 @@ def effective_levels(views: list[PatchMatchView], options: PatchMatchOptions) ->
 
 
 def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | None = None,
-                   observer: Any = None, progress: ProgressFn | None = None, checkpoint: Any = None) -> list[ViewMaps]:
+                   observer: Any = None, progress: ProgressFn | None = None, checkpoint: Any = None,
+                   probe: PixelProbe | None = None, history: Any = None) -> list[ViewMaps]:
     """Multi-scale PatchMatch MVS over all views; returns one :class:`ViewMaps` per view.
 
     Args:
@@ -143,6 +149,11 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
             and after each view finishes it, e.g. ``("level 2 photometric", 3, 11)``.
         checkpoint: optional :class:`engine.checkpoint.PatchMatchCheckpoint`: every view's state is saved
             after each pass, and states saved by an interrupted run with the same inputs are reused.
+        probe: optional :class:`engine.patchmatch.probe.PixelProbe`: traces of its pixels of its view (passes
+            restored from a checkpoint are not traced); the maps are the same with or without it.
+        history: optional; ``save_snapshot(level, pass_index, depths)`` receives every view's depth map that the
+            geometric pass ``pass_index`` of ``level`` reads (``engine.pass_history.PassHistory``), so that one
+            view can be re-run alone later (:func:`replay_view`).
 
     Views without source views or with a degenerate depth range are skipped with a warning and get
     empty (zero) maps; they still serve as source images for others. Invalid inputs (image/camera
@@ -164,19 +175,25 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
     try:
         if checkpoint is not None:
             checkpoint.bind(views, options, n_levels)
-        return _run(views, options, active, n_levels, on_iter, on_stage, progress, checkpoint)
+        if history is not None:
+            history.bind(views, options, n_levels)
+        if probe is not None:
+            probe.bind([v.name for v in views], [(v.camera.width, v.camera.height) for v in views],
+                       [list(v.source_views) for v in views])
+        return _run(views, options, active, n_levels, on_iter, on_stage, progress, checkpoint, probe, history)
     finally:
         numba.set_num_threads(old_threads)
 
 
-def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
-         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
-         checkpoint: Any = None) -> list[ViewMaps]:
-    n_views = len(views)
-    # pyramid of images and cameras
-    images: list[list[np.ndarray]] = []
-    cameras: list[list[Camera]] = []
+def _pyramids(views: list[PatchMatchView | None], n_levels: int) -> tuple[list, list]:
+    """Every view's images and cameras at levels 0 .. n_levels - 1 (None for a view given as None)."""
+    images: list[list[np.ndarray] | None] = []
+    cameras: list[list[Camera] | None] = []
     for v in views:
+        if v is None:
+            images.append(None)
+            cameras.append(None)
+            continue
         img0 = np.ascontiguousarray(v.image_gray, dtype=np.float32)
         imgs, cams = [], []
         for level in range(n_levels):
@@ -185,6 +202,48 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             cams.append(v.camera if level == 0 else v.camera.rescaled(w, h))
         images.append(imgs)
         cameras.append(cams)
+    return images, cameras
+
+
+def _level_start(i: int, v: PatchMatchView, prev: ViewState | None, images: list, cameras: list, level: int,
+                 coarsest: bool, active: bool, options: PatchMatchOptions) -> ViewState:
+    """View ``i``'s state at the start of ``level``: the JBU-upsampled state ``prev`` of the coarser level
+    (none at the coarsest), random hypotheses where it has none (Xu & Tao 2019 ACMM)."""
+    h, w = images[i][level].shape
+    st = ViewState.zeros(h, w)
+    if active:
+        cam = cameras[i][level]
+        kinv = np.linalg.inv(cam.K_idx).ravel()
+        if not coarsest:
+            st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, images[i][level], options.jbu_radius,
+                                               options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
+            _face_camera(st.normal, cam)
+        key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
+        K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
+    return st
+
+
+def level_start(views: list[PatchMatchView], i: int, prev: ViewState | None, images: list, cameras: list, level: int,
+                options: PatchMatchOptions, coarsest: bool = False) -> ViewState:
+    """View ``i``'s state at the start of ``level`` as :func:`run_patchmatch` makes it from ``prev``, its state
+    at the end of the coarser level (``images``, ``cameras``: the views' pyramids)."""
+    return _level_start(i, views[i], prev, images, cameras, level, coarsest, True, options)
+
+
+def _pass_probe(probe: PixelProbe | None, i: int, st: ViewState, level: int, pass_index: int,
+                detail: bool) -> PassProbe | None:
+    """The probe's hook for pass ``pass_index`` of view ``i`` at ``level`` (None unless ``i`` is probed)."""
+    if probe is None or probe.view != i:
+        return None
+    h, w = st.depth.shape
+    return probe.pass_probe(level, pass_index, w, h, detail)
+
+
+def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[bool], n_levels: int,
+         on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
+         checkpoint: Any = None, probe: PixelProbe | None = None, history: Any = None) -> list[ViewMaps]:
+    n_views = len(views)
+    images, cameras = _pyramids(views, n_levels)
     states: list[ViewState | None] = [None] * n_views
     step = 0
     done = 0  # iterations of all earlier passes (perturbation schedule 'global')
@@ -207,20 +266,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if resume is not None:
                 break  # this level's states are the resume point's
             check_interrupt()
-            h, w = images[i][level].shape
-            st = ViewState.zeros(h, w)
-            if active[i]:
-                cam = cameras[i][level]
-                kinv = np.linalg.inv(cam.K_idx).ravel()
-                if not coarsest:
-                    prev = states[i]
-                    st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, images[i][level], options.jbu_radius,
-                                                       options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
-                    _face_camera(st.normal, cam)
-                key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
-                K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key,
-                                     not coarsest)
-            new_states.append(st)
+            new_states.append(_level_start(i, v, states[i], images, cameras, level, coarsest, active[i], options))
         states = new_states if resume is None else resume[2]
         for pass_index in range(1 + options.geom_passes):
             if resume is not None and level == resume[0] and pass_index <= resume[1]:
@@ -232,6 +278,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if on_stage is not None:
                 on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=pass_index, iterations=n_iter)
             snapshot = [s.depth.copy() for s in states] if geometric else None
+            if history is not None and snapshot is not None:
+                history.save_snapshot(level, pass_index, snapshot)
             if progress is not None:
                 progress(f"level {level} {kind}", 0, n_views)
             for i, v in enumerate(views):
@@ -243,7 +291,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 elif active[i]:
                     step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, detail,
                                           options, on_iter, step, done, random_start=coarsest and pass_index == 0,
-                                          pool=pool, on_stage=on_stage)
+                                          pool=pool, on_stage=on_stage,
+                                          probe=_pass_probe(probe, i, states[i], level, pass_index, detail))
                 if checkpoint is not None and saved is None:
                     checkpoint.save(level, pass_index, i, states[i].checkpoint_arrays())
                 if progress is not None:
@@ -293,7 +342,7 @@ def _face_camera(normal: np.ndarray, cam: Camera) -> None:
 def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
                    step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
-                   on_stage: Callable | None = None) -> int:
+                   on_stage: Callable | None = None, probe: PassProbe | None = None) -> int:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
     counter after it."""
@@ -317,7 +366,8 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                                    ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
 
     run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
-                   pass_index=pass_index, detail=detail, done_before=done_before, on_iteration=event, pool=pool)
+                   pass_index=pass_index, detail=detail, done_before=done_before, on_iteration=event, pool=pool,
+                   probe=probe)
     if pool is not None:
         ctx.release(pool)
     planned = options.pass_iterations(pass_index)
@@ -327,3 +377,80 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
     # steps stay reserved for the planned iterations: a view's n-th iteration has the same step however its
     # earlier passes ended
     return step + planned
+
+def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, options: PatchMatchOptions | None = None,
+                probe: PixelProbe | None = None, on_pass: PassFn | None = None) -> ViewMaps:
+    """Re-run the PatchMatch of view ``view`` alone: the same passes, random streams and kernels as
+    :func:`run_patchmatch`, with every geometric pass reading the source depth maps ``snapshots`` gives
+    (``engine.pass_history``). Given the snapshots the full run's geometric passes read, the result is that run's
+    maps of this view, bit for bit.
+
+    ``probe``: traces of the view's pixels (``probe.view`` must be ``view``); ``on_pass(level, pass_index,
+    phase, state, images, cameras)``: called with phase "start" before each pass (the state the pass starts
+    from) and "end" after each level's last pass (``images``, ``cameras``: every view's pyramid, None for views
+    the replay does not need); the state must not be kept without a copy."""
+    options = (options or PatchMatchOptions()).validate()
+    active = _check_views(views, options)
+    if not 0 <= view < len(views):
+        raise DeepCError(f"view {view} does not exist (the scene has {len(views)} views)")
+    if not active[view]:
+        raise DeepCError(f"view {view} ({views[view].name}) has no PatchMatch (no source view or no depth range)")
+    if probe is not None:
+        if probe.view != view:
+            raise DeepCError(f"probe: the probe is for view {probe.view}, the replay is of view {view}")
+        probe.bind([v.name for v in views], [(v.camera.width, v.camera.height) for v in views],
+                   [list(v.source_views) for v in views])
+    n_levels = effective_levels(views, options)
+    v = views[view]
+    needed = {view, *v.source_views}
+    images, cameras = _pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    old_threads = numba.get_num_threads()
+    if options.num_threads > 0:
+        numba.set_num_threads(min(options.num_threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        st: ViewState | None = None
+        done = 0
+        pool = BufferPool()
+        for level in range(n_levels - 1, -1, -1):
+            coarsest = level == n_levels - 1
+            pool.clear()
+            st = _level_start(view, v, st, images, cameras, level, coarsest, True, options)
+            for pass_index in range(1 + options.geom_passes):
+                check_interrupt()
+                geometric = pass_index > 0
+                if on_pass is not None:
+                    on_pass(level, pass_index, "start", st, images, cameras)
+                snapshot = None
+                if geometric:
+                    got = snapshots(level, pass_index, list(v.source_views))
+                    snapshot = [got.get(j) for j in range(len(views))]
+                run_view_pass(views, view, st, images, cameras, snapshot, level, pass_index, n_levels, options, done,
+                              probe, pool)
+                done += options.pass_iterations(pass_index)
+            if on_pass is not None:
+                on_pass(level, options.geom_passes, "end", st, images, cameras)
+    finally:
+        numba.set_num_threads(old_threads)
+    valid = st.depth > 0
+    st.normal[~valid] = 0.0
+    st.cost[~valid] = 0.0
+    return ViewMaps(st.depth, st.normal, st.cost, st.selected_views)
+
+
+def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: list, cameras: list,
+                  snapshot: list | None, level: int, pass_index: int, n_levels: int, options: PatchMatchOptions,
+                  done_before: int, probe: PixelProbe | None = None, pool: BufferPool | None = None,
+                  origin: tuple[int, int] = (0, 0)) -> None:
+    """Pass ``pass_index`` of view ``i`` at ``level`` on ``st`` in place, as :func:`run_patchmatch` runs it (detail
+    restorer in a finer level's photometric pass, random start at the coarsest's): ``images``, ``cameras``: every
+    view's pyramid (``images[i][level]`` may be a crop of the level's image at ``origin`` (x, y), with its camera;
+    ``probe`` then traces the probed pixels inside it); ``snapshot``: the views' depth maps a geometric pass reads;
+    ``done_before``: iterations of all earlier passes."""
+    coarsest = level == n_levels - 1
+    detail = pass_index == 0 and not coarsest and options.detail_restorer
+    pass_probe = None
+    if probe is not None and probe.view == i:
+        w, h = level_size(views[i].camera.width, views[i].camera.height, level)
+        pass_probe = probe.pass_probe(level, pass_index, w, h, detail, origin, st.depth.shape)
+    _run_view_pass(i, views[i], st, images, cameras, snapshot, level, pass_index, detail, options, None, 0, done_before,
+                   random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe)

@@ -19,6 +19,7 @@ from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.convergence import Convergence
 from engine.patchmatch.options import PatchMatchOptions
+from engine.patchmatch.probe import PassProbe
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.records import KernelParams, SamplingPattern, kernel_params
 from engine.patchmatch.rng import stream_key
@@ -98,7 +99,7 @@ def restorer_reference(state: ViewState, ctx: ViewContext, options: PatchMatchOp
 def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOptions, zmin: float, zmax: float, *,
                    view: int = 0, level: int = 0, pass_index: int = 0, detail: bool = False,
                    iterations: int | None = None, done_before: int = 0, on_iteration: IterationFn | None = None,
-                   pool: BufferPool | None = None) -> np.ndarray:
+                   pool: BufferPool | None = None, probe: PassProbe | None = None) -> np.ndarray:
     """Run one pass of PatchMatch over one reference view at one pyramid level, in place on ``state``.
 
     The initial cost of the stored hypotheses (ACMM's top-k rule), then ``iterations`` (default
@@ -115,11 +116,15 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     hypotheses are kept for the next pass of this level (``pass_index < options.geom_passes``).
     With ``options.converge_ratio`` > 0 (and ``iterations`` unset) the pass ends early once it has converged
     (:class:`Convergence`): the iteration after that is its last.
+    ``probe`` (``probe.PassProbe``): explains its pixels before each half-step and records what the kernel
+    wrote (outside the kernels: the maps are the same with or without it).
     Returns the (N_COUNTS,) int64 counts of the whole pass."""
     pattern = pattern_of(options)
     geometric = pass_index > 0
     n_iter = options.pass_iterations(pass_index) if iterations is None else iterations
     params = kernel_params(options, zmin, zmax, 0, geometric, detail, n_regions(pattern))
+    if probe is not None:
+        probe.start(state)
     if detail:
         cpre = restorer_reference(state, ctx, options, params, view, level)
     init_cost(state, ctx, params, pool=pool)
@@ -138,7 +143,11 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
         counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, view, level, pass_index, t, colour))
+            if probe is not None:
+                probe.before(state, ctx, colour, cpre, pattern, key, params, t)
             counts += half_step(state, ctx, colour, cpre, pattern, key, params)
+            if probe is not None:
+                probe.after(state, colour)
         if on_iteration is not None:
             on_iteration(t, counts, time.perf_counter() - t0)
         total += counts
