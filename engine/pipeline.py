@@ -36,8 +36,10 @@ from engine.interrupt import check_interrupt
 from engine.io.ply import read_points
 from engine.meshing import MeshOptions, evaluate_mesh, mesh_run, write_mesh_ply
 from engine.metrics import depth_metrics
+from engine.observer import ObserverList
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
+from engine.patchmatch.convergence import EarlyStops
 from engine.probe_output import finish_probe
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
@@ -120,7 +122,10 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 
     views = patchmatch_views(scene)
     t = time.perf_counter()
-    maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress, checkpoint=checkpoint,
+    early_stops = EarlyStops()
+    # EarlyStops has no on_iteration: without an observer the engine still builds no iteration events
+    watch = early_stops if observer is None else ObserverList([observer, early_stops])
+    maps = run_patchmatch(views, options.patchmatch, observer=watch, progress=progress, checkpoint=checkpoint,
                           probe=probe, history=history)
     counter = compute_counter_maps(views, maps, options.counter)
     seconds["patchmatch"] = time.perf_counter() - t
@@ -206,6 +211,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         "seconds": seconds,
         "fused_points": len(cloud),
     }
+    if options.patchmatch.converge_ratio > 0:
+        metrics["patchmatch_early_stops"] = early_stops.summary()
     if scene.has_gt_points:
         metrics["eval"] = evaluate_cloud(scene, cloud, options.evaluation).to_dict()
         if surface is not None:

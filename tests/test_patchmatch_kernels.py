@@ -745,3 +745,47 @@ def test_run_view_level_runs_a_pass_and_reports_every_iteration() -> None:
         assert a.tobytes() == b.tobytes()  # same streams, same maps
     run_view_level(again, ctx, opts, 2.0, 5.0, pass_index=1, iterations=1)  # the level's last pass
     assert again.known_costs is None
+
+
+def test_a_converged_pass_ends_early_with_its_last_iteration() -> None:
+    """With ``converge_ratio`` a pass stops once an iteration changes nearly as many pixels as the one before:
+    fewer iterations than the schedule, the same first iterations as the full pass (same streams), and the
+    stopping iteration run as the pass's last (any lower cost accepted). Off (0), the schedule's count runs."""
+    full = PatchMatchOptions(schedule="paper")
+    ctx, _, st = _tiny_problem(12, False, full)
+    start = st.copy_maps()
+    ran_full: list[int] = []
+    run_view_level(st, ctx, full, 2.0, 5.0, on_iteration=lambda t, c, s: ran_full.append(t))
+    assert ran_full == list(range(8))
+    early = full.replace(converge_ratio=0.95)
+    st_early = start.copy_maps()
+    ran: list[int] = []
+    run_view_level(st_early, ctx, early, 2.0, 5.0, on_iteration=lambda t, c, s: ran.append(t))
+    assert 3 <= len(ran) < 8 and ran == list(range(len(ran)))
+    # the same pass cut at the same iteration by the schedule gives the same maps
+    cut = start.copy_maps()
+    run_view_level(cut, ctx, full, 2.0, 5.0, iterations=len(ran))
+    for a, b in zip(st_early.maps(), cut.maps(), strict=True):
+        assert a.tobytes() == b.tobytes()
+
+
+def test_convergence_counts_pixels_moved_beyond_the_tolerance() -> None:
+    """The changed share is of pixels whose depth moved by more than converge_depth (relative); the pass has
+    converged when that share stops falling by the ratio."""
+    from engine.patchmatch.view_pass import Convergence
+
+    depth = np.full((10, 10), 2.0, np.float32)
+    conv = Convergence(depth, PatchMatchOptions(converge_ratio=0.8, converge_depth=0.01))
+    moved = depth.copy()
+    moved[:5] *= 1.05  # half the pixels move 5 %
+    moved[5, 0] *= 1.001  # one moves less than the tolerance
+    assert not conv.update(moved) and conv.changed == [0.5]
+    moved = moved.copy()
+    moved[:2] *= 1.05  # 20 % move: falling fast, not converged
+    assert not conv.update(moved) and conv.changed[-1] == 0.2
+    moved = moved.copy()
+    moved[:1] *= 1.05  # 10 %: fell by half, more than 0.8 would allow -> not converged
+    assert not conv.update(moved)
+    moved = moved.copy()
+    moved[:1] *= 1.05  # 10 % again: stopped falling -> converged
+    assert conv.update(moved)

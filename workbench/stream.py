@@ -247,6 +247,11 @@ class RerunStream(NullObserver):
     def on_stage(self, name: str, **info: Any) -> None:
         """Log what a finished stage produced: counter maps after PatchMatch, confidence maps (and GT labels of
         the depth they score) after the confidence stage, the fused cloud after fusion, the mesh after meshing."""
+        if name == "patchmatch_view_converged":
+            self.rec.log("log", rr.TextLog(
+                f"{info['view_name']}: level {info['level']} pass {info['pass_index']} converged after "
+                f"{info['iterations']} of {info['planned']} iterations", level=rr.TextLogLevel.INFO))
+            return
         self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
         small = self.options.max_size
         maps = info.get("maps") or []

@@ -291,8 +291,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 elif active[i]:
                     step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, detail,
                                           options, on_iter, step, done, random_start=coarsest and pass_index == 0,
-                                          pool=pool, probe=_pass_probe(probe, i, states[i], level, pass_index,
-                                                                       detail))
+                                          pool=pool, on_stage=on_stage,
+                                          probe=_pass_probe(probe, i, states[i], level, pass_index, detail))
                 if checkpoint is not None and saved is None:
                     checkpoint.save(level, pass_index, i, states[i].checkpoint_arrays())
                 if progress is not None:
@@ -342,7 +342,7 @@ def _face_camera(normal: np.ndarray, cam: Camera) -> None:
 def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
                    step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
-                   probe: PassProbe | None = None) -> int:
+                   on_stage: Callable | None = None, probe: PassProbe | None = None) -> int:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
     counter after it."""
@@ -353,21 +353,30 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                         fine_window_region(st.depth, st.normal, cameras[i][level], options, random_start, level), pool)
     kind = "geometric" if pass_index > 0 else "photometric"
     first_step = step
+    ran = 0
 
     def event(t: int, counts: np.ndarray, seconds: float) -> None:
-        on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
-                               iteration=t, step=first_step + t, depth=readonly(st.depth),
-                               normal=readonly(st.normal), cost=readonly(st.cost),
-                               selected_views=readonly(st.selected_views), seconds=seconds,
-                               ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
+        nonlocal ran
+        ran = t + 1
+        if on_iter is not None:
+            on_iter(IterationEvent(view=i, view_name=v.name, level=level, pass_kind=kind, pass_index=pass_index,
+                                   iteration=t, step=first_step + t, depth=readonly(st.depth),
+                                   normal=readonly(st.normal), cost=readonly(st.cost),
+                                   selected_views=readonly(st.selected_views), seconds=seconds,
+                                   ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
 
     run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
-                   pass_index=pass_index, detail=detail, done_before=done_before,
-                   on_iteration=event if on_iter is not None else None, pool=pool, probe=probe)
+                   pass_index=pass_index, detail=detail, done_before=done_before, on_iteration=event, pool=pool,
+                   probe=probe)
     if pool is not None:
         ctx.release(pool)
-    return step + options.pass_iterations(pass_index)
-
+    planned = options.pass_iterations(pass_index)
+    if on_stage is not None and ran < planned:
+        on_stage("patchmatch_view_converged", view=i, view_name=v.name, level=level, pass_index=pass_index,
+                 iterations=ran, planned=planned)
+    # steps stay reserved for the planned iterations: a view's n-th iteration has the same step however its
+    # earlier passes ended
+    return step + planned
 
 def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, options: PatchMatchOptions | None = None,
                 probe: PixelProbe | None = None, on_pass: PassFn | None = None) -> ViewMaps:

@@ -17,6 +17,7 @@ import engine.patchmatch.kernels as K
 from engine.interrupt import check_interrupt
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
+from engine.patchmatch.convergence import Convergence
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.probe import PassProbe
 from engine.patchmatch.propagation import sampling_pattern
@@ -113,6 +114,8 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     of its two half-steps (columns ``kernels.CNT_*``). A stop request (``engine.interrupt``) is honoured
     between iterations. The pass's caches are dropped at the end; the photometric costs of the final
     hypotheses are kept for the next pass of this level (``pass_index < options.geom_passes``).
+    With ``options.converge_ratio`` > 0 (and ``iterations`` unset) the pass ends early once it has converged
+    (:class:`Convergence`): the iteration after that is its last.
     ``probe`` (``probe.PassProbe``): explains its pixels before each half-step and records what the kernel
     wrote (outside the kernels: the maps are the same with or without it).
     Returns the (N_COUNTS,) int64 counts of the whole pass."""
@@ -130,11 +133,13 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     elif options.detail_restorer_reference == "upsampled":
         cpre = state.cost.copy()
     total = np.zeros(K.N_COUNTS, np.int64)
+    convergence = Convergence(state.depth, options) if iterations is None and options.converge_ratio > 0 else None
+    last = n_iter == 1
     for t in range(n_iter):
         check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
         t0 = time.perf_counter()
         params = kernel_params(options, zmin, zmax, t, geometric, detail, n_regions(pattern),
-                               perturbation_scale(options, t, done_before), last=t == n_iter - 1)
+                               perturbation_scale(options, t, done_before), last=last)
         counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, view, level, pass_index, t, colour))
@@ -146,6 +151,10 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
         if on_iteration is not None:
             on_iteration(t, counts, time.perf_counter() - t0)
         total += counts
+        if last:
+            break
+        # the pass's last iteration accepts any lower cost (min_improvement off): it also ends a converged pass
+        last = t + 1 == n_iter - 1 or (convergence is not None and convergence.update(state.depth))
     # the caches are only valid within this pass (ctx); the photometric costs of the final hypotheses also hold
     # in the next pass of this level (same images; init_cost checks the window set)
     state.drop_caches(keep_costs_of=ctx if pass_index < options.geom_passes else None, pool=pool)
