@@ -278,3 +278,15 @@ def test_cli_probe_writes_traces(tiny_run):
     res = _deepc("probe", str(out), "--view", "2", "--region", "20,20,16,16", "--set", "window=9")
     assert res.returncode == 0, res.stderr
     assert "within 1%" in res.stdout
+
+
+def test_cli_run_with_probe_records_the_traces_in_the_run_recording(tmp_path):
+    """``deepc run --probe ... --record``: the run's recording holds the traces under probe/<view>/<x>_<y>/."""
+    from workbench.replay import recording_contents
+
+    out, rrd = tmp_path / "run", tmp_path / "run.rrd"
+    res = _deepc("run", str(TINY), "--out", str(out), "--headless", "--levels", "1", "--iterations", "1",
+                 "--geom-passes", "1", "--probe", "view_001.png:10,12", "--record", str(rrd))
+    assert res.returncode == 0, res.stderr
+    entities = recording_contents(rrd).contents.entities
+    assert "/probe/001_view_001.png/10_12/cost" in entities and "/maps/001_view_001.png/depth" in entities

@@ -61,7 +61,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise
         finally:
             progress.close()
+        traces = _probe_traces(args, probe, history, checkpoint)
         if recording:
+            if traces:
+                from workbench.probe_stream import log_probe  # lazy: rerun
+
+                for trace in traces:
+                    log_probe(recording.stream.rec, scene, trace, options.patchmatch.window)
             recording.finish()
             if record:
                 print(f"recording: {record} ({recording.stream.logged_steps} logged iterations)", file=sys.stderr)
@@ -69,9 +75,6 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"resumed: {checkpoint.stats.reused} saved PatchMatch view states reused, "
                   f"{checkpoint.stats.rejected} rejected and recomputed", file=sys.stderr)
         print_run_summary(RunMetrics.from_dict(result.metrics), args.out)
-        if probe is not None and checkpoint.stats.reused and history is not None:
-            # passes restored from the checkpoint were not traced: trace the view again from the history
-            probe_run(args.out, probe.view, probe.pixels)
         if probe is not None:
             print(f"probe: {len(probe.pixels)} pixel trace(s) of view {probe.view_name} in "
                   f"{Path(args.out) / PROBES_DIR / probe.view_name}", file=sys.stderr)
@@ -83,6 +86,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         if live:
             live.stop()
     return 0
+
+
+def _probe_traces(args: argparse.Namespace, probe: PixelProbe | None, history: PassHistory | None,
+                  checkpoint: PatchMatchCheckpoint) -> list[dict]:
+    """The traces of ``--probe`` after the run (also logged to its recording)."""
+    if probe is None:
+        return []
+    if checkpoint.stats.reused and history is not None:
+        # passes restored from the checkpoint were not traced: trace the view again from the history
+        return probe_run(args.out, probe.view, probe.pixels)
+    return probe.traces()
 
 
 def _probe_and_history(args: argparse.Namespace, scene: Scene) -> tuple[PixelProbe | None, PassHistory | None]:
