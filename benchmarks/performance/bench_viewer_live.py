@@ -10,8 +10,10 @@ Each repeat runs PatchMatch (the default levels and passes, ``--iterations`` per
 observer: the engine builds no events) and once observed by a :class:`workbench.viewer_live.LiveViewer`
 with one websocket client in its own process taking every frame, as a browser tab would; the order alternates
 between repeats so that a drift of the shared machine's load falls on both. Reported: the engine seconds of
-every run, the overhead as the ratio of the medians (and of the best times), the clouds pushed and the bytes
-the client received. The server's start (cameras drawn) is timed apart: it happens once per run.
+every run, the overhead as the ratio of the medians (and of the best times), the CPU seconds of the viewer's
+threads (its worker, viser's event loop and pool) against the engine's (main thread and numba's workers) in
+the same runs, which a loaded machine disturbs far less than wall times, the clouds pushed and the bytes the
+client received. The server's start (cameras drawn) is timed apart: it happens once per run.
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import multiprocessing
+import os
 import statistics
+import threading
 import time
 from pathlib import Path
 
@@ -55,15 +59,45 @@ def client_process(port: int, stop, result) -> None:
     result.put(asyncio.run(main()))
 
 
+def thread_cpu_s() -> dict[int, float]:
+    """CPU seconds (user + system) of every thread of this process so far, by native thread id (Linux)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            fields = Path(f"/proc/self/task/{tid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the thread ended meanwhile
+            continue
+        out[int(tid)] = (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def cpu_split(before: dict[int, float], after: dict[int, float]) -> tuple[float, float]:
+    """(engine, viewer) CPU seconds between two :func:`thread_cpu_s`: the viewer's are the Python threads
+    other than the main one (the live viewer's worker, viser's event loop and its pool); the engine's are the
+    main thread and numba's workers (native threads Python does not list)."""
+    viewer_ids = {t.native_id for t in threading.enumerate() if t is not threading.main_thread()}
+    engine = viewer = 0.0
+    for tid, seconds in after.items():
+        spent = seconds - before.get(tid, 0.0)
+        if tid in viewer_ids:
+            viewer += spent
+        else:
+            engine += spent
+    return engine, viewer
+
+
 def timed_run(scene, options: PatchMatchOptions, live: bool) -> dict:
     """One PatchMatch run: engine seconds, and with ``live`` the server start, pushes and client traffic."""
     from workbench.viewer_live import LiveViewer  # lazy: viser
 
     views = patchmatch_views(scene)
     if not live:
+        cpu = thread_cpu_s()
         start = time.perf_counter()
         run_patchmatch(views, options)
-        return {"engine_s": time.perf_counter() - start}
+        seconds = time.perf_counter() - start
+        return {"engine_s": seconds, "engine_cpu_s": cpu_split(cpu, thread_cpu_s())[0]}
     t = time.perf_counter()
     viewer = LiveViewer(scene, PipelineOptions(patchmatch=options), port=0)
     start_s = time.perf_counter() - t
@@ -77,15 +111,18 @@ def timed_run(scene, options: PatchMatchOptions, live: bool) -> dict:
             if time.monotonic() > deadline:
                 raise TimeoutError("the benchmark client did not connect")
             time.sleep(0.05)
+        cpu = thread_cpu_s()
         start = time.perf_counter()
         run_patchmatch(views, options, observer=viewer)
         seconds = time.perf_counter() - start
+        engine_cpu, viewer_cpu = cpu_split(cpu, thread_cpu_s())
         drained = viewer.wait_idle(30)
         time.sleep(0.5)  # the last frames reach the client
         stop.set()
         frames, size = result.get(timeout=30)
         client.join(timeout=30)
-        return {"engine_s": seconds, "server_start_s": start_s, "pushes": viewer.pushes, "frames": frames,
+        return {"engine_s": seconds, "engine_cpu_s": engine_cpu, "viewer_cpu_s": viewer_cpu,
+                "server_start_s": start_s, "pushes": viewer.pushes, "frames": frames,
                 "client_bytes": size, "drained": drained}
     finally:
         stop.set()
@@ -100,7 +137,8 @@ def summary(result: dict) -> list[dict]:
     return [{"scene": f"{result['scene']} {result['size'][0]}x{result['size'][1]}",
              "iterations": result["iterations_per_pass"], "headless s": statistics.median(result["headless_s"]),
              "live s": statistics.median(result["live_s"]), "overhead % (medians)": result["overhead_pct_median"],
-             "overhead % (best)": result["overhead_pct_best"], "pushes": result["pushes"],
+             "overhead % (best)": result["overhead_pct_best"],
+             "viewer CPU % of engine CPU": result.get("viewer_cpu_pct"), "pushes": result["pushes"],
              "client MB": result["client_bytes"] / 1e6}]
 
 
@@ -116,19 +154,23 @@ def main() -> None:
     scene = load_scene(args.scene, SceneOptions(max_image_size=args.size) if args.size else None)
     options = PatchMatchOptions(iterations=args.iterations)
     timed_run(scene, PatchMatchOptions(iterations=1, levels=1, geom_passes=0), False)  # compile / warm caches
-    headless, live, runs = [], [], []
+    headless, live, runs, headless_cpu = [], [], [], []
     for r in range(args.repeats):
         for with_viewer in ((False, True) if r % 2 == 0 else (True, False)):
             run = timed_run(scene, options, with_viewer)
             (live if with_viewer else headless).append(run["engine_s"])
-            if with_viewer:
-                runs.append(run)
-            print(f"repeat {r}: {'live    ' if with_viewer else 'headless'} {run['engine_s']:.2f} s", flush=True)
+            (runs if with_viewer else headless_cpu).append(run if with_viewer else run["engine_cpu_s"])
+            cpu = f", viewer CPU {run['viewer_cpu_s']:.2f} s" if with_viewer else ""
+            print(f"repeat {r}: {'live    ' if with_viewer else 'headless'} {run['engine_s']:.2f} s "
+                  f"(engine CPU {run['engine_cpu_s']:.1f} s{cpu})", flush=True)
     cam = scene.views[0].camera
     result = {"scene": scene.name, "views": len(scene.views), "size": [cam.width, cam.height],
               "iterations_per_pass": args.iterations, "headless_s": headless, "live_s": live,
               "overhead_pct_median": 100.0 * (statistics.median(live) / statistics.median(headless) - 1.0),
               "overhead_pct_best": 100.0 * (min(live) / min(headless) - 1.0),
+              "headless_engine_cpu_s": headless_cpu, "live_engine_cpu_s": [r["engine_cpu_s"] for r in runs],
+              "viewer_cpu_s": [r["viewer_cpu_s"] for r in runs],
+              "viewer_cpu_pct": 100.0 * sum(r["viewer_cpu_s"] for r in runs) / sum(r["engine_cpu_s"] for r in runs),
               "server_start_s": [r["server_start_s"] for r in runs], "pushes": runs[-1]["pushes"],
               "frames": runs[-1]["frames"], "client_bytes": runs[-1]["client_bytes"],
               "all_drawn": all(r["drained"] for r in runs)}
