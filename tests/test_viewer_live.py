@@ -137,6 +137,22 @@ def test_the_panel_names_each_stage_after_patchmatch(tiny, live):
     assert len(np.unique(live._clouds[1].colors, axis=0)) == 1  # 0.7 everywhere: one viridis colour
 
 
+def test_the_fused_cloud_replaces_the_per_view_clouds_after_fusion(tiny, live):
+    from engine.fusion import FusedCloud
+
+    live.on_iteration(_event(tiny, 0, 0, 0, 0, noise=0.01))
+    assert live.wait_idle(30) and live._clouds[0].visible
+    n = 50
+    xyz = np.random.default_rng(0).uniform(-1, 1, (n, 3)).astype(np.float32)
+    cloud = FusedCloud(xyz, np.zeros((n, 3), np.float32), np.full((n, 3), 200, np.uint8), np.full(n, 2, np.int32),
+                       np.ones(n, np.float32), np.zeros(n, np.int32), np.full(n, 2, np.int32))
+    live.on_stage("fusion", cloud=cloud, pipeline="full")
+    assert live.wait_idle(30)
+    assert not live._clouds[0].visible and "now: **evaluation and metrics**" in live.progress.content
+    live.on_iteration(_event(tiny, 1, 0, 0, 1, noise=0.01))  # (a late update stays hidden behind the cloud)
+    assert live.wait_idle(30) and not live._clouds[1].visible
+
+
 def test_confidence_given_during_patchmatch_colours_its_view(tiny, live):
     live.on_iteration(_event(tiny, 0, 0, 0, 0, noise=0.01))
     assert live.wait_idle(30)
