@@ -264,3 +264,34 @@ def test_in_chromium_points_show_during_the_run_and_the_tuning_panel_after_it(br
                 and t.is_alive()]
     with pytest.raises(OSError), socket.create_connection(("127.0.0.1", live.port), timeout=2):
         pass
+
+
+def test_deepc_run_interrupted_during_patchmatch_stops_the_live_viewer(tmp_path):
+    """SIGINT while the live 3-D viewer serves a running ``deepc run``: exit status 130 and its port closed."""
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", "run", str(SAMPLES / "small"), "--out",
+                             str(tmp_path / "out"), "--port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    port = None
+    try:
+        deadline = time.monotonic() + 240
+        for line in proc.stdout:
+            if line.startswith("live 3-D viewer: http://127.0.0.1:"):
+                port = int(line.split()[3].rsplit(":", 1)[1])
+                break
+            assert time.monotonic() < deadline, line
+        assert port
+        socket.create_connection(("127.0.0.1", port), timeout=20).close()  # serving while PatchMatch runs
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+    assert code == 130
+    assert not (tmp_path / "out" / "metrics.json").exists()  # stopped during the run, not after it
+    with pytest.raises(OSError), socket.create_connection(("127.0.0.1", port), timeout=2):
+        pass
