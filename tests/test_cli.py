@@ -146,7 +146,8 @@ def _rerun_servers() -> set[int]:
 
 @pytest.mark.timeout(300)
 def test_interactive_run_streams_live_serves_the_viewer_and_stops_cleanly(tmp_path):
-    """Without --headless: live rerun web viewer during the run, viser viewer after it; SIGTERM stops both."""
+    """Without --headless: live rerun web viewer and live 3-D viewer during the run, the 3-D viewer's server the
+    tuning viewer after it; SIGTERM stops both."""
     import signal
     import time
     import urllib.request
@@ -167,6 +168,10 @@ def test_interactive_run_streams_live_serves_the_viewer_and_stops_cleanly(tmp_pa
             assert time.monotonic() < deadline, "".join(lines[-20:])
         assert viewer_url, "".join(lines[-20:])
         assert any("live PatchMatch stream: http://127.0.0.1:" in line for line in lines)
+        live = [i for i, line in enumerate(lines) if line.startswith("live 3-D viewer: http://127.0.0.1:")]
+        summary = [i for i, line in enumerate(lines) if line.startswith("fused cloud:")]
+        assert live and summary and live[0] < summary[0], "".join(lines[-20:])  # served from the run's start
+        assert lines[live[0]].split()[3] == viewer_url  # one server: the live viewer becomes the tuning viewer
         assert len(_rerun_servers() - before) == 1  # the live web viewer is up while the viewer serves
         with urllib.request.urlopen(viewer_url, timeout=20) as response:
             assert response.status == 200

@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="write a rerun recording (default path: OUT/recording.rrd)")
     run.add_argument("--headless", action="store_true",
                      help="no viewer, no window: print progress and exit (otherwise the run streams live to rerun "
-                          "and the result opens in the browser viewer)")
+                          "and to the 3-D browser viewer, which becomes the tuning viewer when the run ends)")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted run in OUT: reuse its verified per-view PatchMatch states "
                           "(same scene, options and seed give the same outputs as an uninterrupted run)")

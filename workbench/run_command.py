@@ -1,5 +1,8 @@
 """``deepc run SCENE --out OUT``: reconstruct a scene, streaming it live or recording it, then view the result.
 
+Without ``--headless`` the run streams to rerun and to the live 3-D viewer (``workbench/viewer_live.py``),
+whose server becomes the tuning viewer of the run when it ends (``workbench.viewer.serve``).
+
 Before anything runs, the estimated peak memory is checked against what is available (``engine/memory.py``)
 and what a killed run left in OUT is cleaned; ``--resume`` reuses the verified PatchMatch states of an
 interrupted run. SIGINT and SIGTERM stop the run at the engine's next safe point.
@@ -16,6 +19,7 @@ from engine.errors import DeepCError
 from engine.interrupt import deferred_interrupts
 from engine.io.atomic import remove_stale_temp_files
 from engine.memory import estimate_run_memory, largest_fitting_size, load_kernels
+from engine.observer import ObserverList
 from engine.pass_history import HISTORY_DIR, PassHistory
 from engine.patchmatch.probe import PixelProbe
 from engine.pipeline import PipelineOptions, run_pipeline
@@ -37,7 +41,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     checkpoint = _prepare_output(args)
     probe, history = _probe_and_history(args, scene)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
-    live = recording = None
+    live = recording = live_view = None
     progress = PassProgress()
     try:
         if not args.headless:
@@ -45,6 +49,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             live = live_viewer(args.host)
             print(f"live PatchMatch stream: {live.url}", file=sys.stderr)
+            from workbench.viewer_live import start_live_viewer  # lazy: viser
+
+            live_view = start_live_viewer(scene, options, args.host, args.port, mesh=mesh.method != "none")
         if record or live:
             from workbench.run_recording import open_run_recording  # lazy: rerun
 
@@ -52,9 +59,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         try:
             # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
             with deferred_interrupts():
-                result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                      progress=progress, checkpoint=checkpoint, mesh=mesh, probe=probe,
-                                      history=history)
+                observer = _observer(recording.stream if recording else None, live_view)
+                result = run_pipeline(scene, args.out, options, observer=observer, progress=progress,
+                                      checkpoint=checkpoint, mesh=mesh, probe=probe, history=history)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -81,8 +88,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if not args.headless:
             from workbench.viewer import serve  # lazy: viser
 
-            serve(args.out, host=args.host, port=args.port)
+            serve(args.out, host=args.host, port=args.port, server=live_view.hand_over(), on_open=live_view.release)
     finally:
+        if live_view:
+            live_view.stop()
         if live:
             live.stop()
     return 0
@@ -111,6 +120,13 @@ def _probe_and_history(args: argparse.Namespace, scene: Scene) -> tuple[PixelPro
         print(f"probe: {len(probe.pixels)} pixel(s) of view {v.name}", file=sys.stderr)
     history = PassHistory(Path(args.out) / HISTORY_DIR) if getattr(args, "history", False) else None
     return probe, history
+
+
+def _observer(*observers: object | None) -> object | None:
+    """The run's observer: those given that run (the rerun stream, the live 3-D viewer), fanned out when there
+    are several; None when none runs, so that the engine builds no events at all."""
+    present = [o for o in observers if o is not None]
+    return None if not present else present[0] if len(present) == 1 else ObserverList(present)
 
 
 def _check_memory(args: argparse.Namespace, scene: Scene, options: PipelineOptions) -> None:

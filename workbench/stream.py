@@ -34,7 +34,7 @@ import rerun as rr
 from engine.camera import Camera
 from engine.confidence.labels import label_map
 from engine.observer import IterationEvent, NullObserver
-from engine.resample import resample_depth
+from workbench.gt_depth import LevelGT, depth_error
 from workbench.map_images import normal_to_rgb, subsample
 from workbench.stream_legends import (
     CONTEXTS,
@@ -91,12 +91,12 @@ class RerunStream(NullObserver):
         self.pass_iterations = pass_iterations
         self.views = views
         self.gt_depths = gt_depths or [None] * len(views)
+        self._level_gt = LevelGT(self.gt_depths)
         self.options = (options or StreamOptions()).validate()
         self._previous_depth: dict[int, np.ndarray] = {}
         self._view_iterations: dict[int, int] = {}  # per view: iterations seen so far
         self._passes: list[tuple[int, int]] = []  # (level, pass_index) in the order they ran
         self._last_time: dict[int, tuple[int, int, int]] = {}  # per view: (view_iteration, pass, step) last logged
-        self._gt_cache: dict[tuple[int, tuple[int, int]], np.ndarray] = {}
         self._contexts: set[str] = set()  # class-coded entities whose AnnotationContext is logged
         self._depth_range = [(0.0, 1.0)] * len(views)
         self._point_radius = 0.01  # model units; set_depth_ranges derives one from the scene
@@ -135,13 +135,7 @@ class RerunStream(NullObserver):
 
     def _gt_at(self, view: int, shape: tuple[int, int]) -> np.ndarray | None:
         """The view's GT depth at ``shape`` (coarser pyramid levels get a resampled copy, cached)."""
-        gt = self.gt_depths[view]
-        if gt is None or gt.shape == shape:
-            return gt
-        key = (view, shape)
-        if key not in self._gt_cache:
-            self._gt_cache[key] = resample_depth(gt, (shape[1], shape[0]))
-        return self._gt_cache[key]
+        return self._level_gt.at(view, shape)
 
     def _log_classes(self, path: str, kind: str, ids: np.ndarray, context: Callable[[], Any] | None = None) -> None:
         """Log a class-coded map, with its AnnotationContext (static, once per entity) naming each class."""
@@ -199,12 +193,9 @@ class RerunStream(NullObserver):
         rec.log(f"{stats}/pass", rr.Scalars(event.pass_index))
         gt = self._gt_at(view, depth.shape)
         if gt is not None:
-            has_gt = gt > 0
-            both = has_gt & valid
-            rel = np.where(both, np.abs(depth - gt) / np.where(has_gt, gt, 1.0), np.nan)
-            within = 100.0 * float((rel[both] < 0.01).sum()) / max(1, int(has_gt.sum()))
-            rec.log(f"{stats}/within_1pct", rr.Scalars(within))
-            self._log_classes(f"maps/{base}/error", "error", error_classes(subsample(rel, small) * 100))
+            error = depth_error(depth, gt)
+            rec.log(f"{stats}/within_1pct", rr.Scalars(error.within_pct))
+            self._log_classes(f"maps/{base}/error", "error", error_classes(subsample(error.rel, small) * 100))
         self.logged_steps += 1
 
     # ---- later stages ---------------------------------------------------------------------------

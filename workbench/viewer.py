@@ -24,6 +24,7 @@ import contextlib
 import io
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,7 @@ from viser.transforms import SO3
 
 from engine.errors import DeepCError
 from engine.fusion import FusedCloud
+from engine.scene import Scene
 from workbench.map_images import subsample
 from workbench.scheduler import LatestOnly, RecomputeScheduler
 from workbench.session import ViewerSession, ViewParams, describe
@@ -63,6 +65,44 @@ def _shown_note(total: int) -> str:
     return f" ({DISPLAY_MAX_POINTS:,} drawn)" if total > DISPLAY_MAX_POINTS else ""
 
 
+def set_home_camera(server: viser.ViserServer, scene: Scene) -> None:
+    """Every client that connects starts behind the first camera, looking where it looks, its image "up" on
+    screen (viser also applies this to clients already connected: register it once per server)."""
+    depth = float(np.median([np.mean(v.depth_range) for v in scene.views]))
+    first = scene.views[0].camera
+    home_position = first.center - first.R[2] * 0.2 * depth
+    home_target = first.center + first.R[2] * depth
+
+    @server.on_client_connect
+    def _(client: viser.ClientHandle) -> None:
+        client.camera.position = home_position
+        client.camera.look_at = home_target
+        client.camera.up_direction = -first.R[1]
+
+
+def add_cameras(server: viser.ViserServer, scene: Scene) -> tuple[list, float, float]:
+    """Draw every view as a frustum with its thumbnail under ``/cameras/<index>`` (drawing them again
+    replaces them). Returns (frustum handles, frustum scale, default point size): the frustums are 7 % of the
+    cameras' median spread from their centroid, the point size about one pixel's footprint at a typical depth
+    (model units)."""
+    server.scene.set_up_direction("-y")
+    depths = [np.mean(v.depth_range) for v in scene.views]
+    centers = np.stack([v.camera.center for v in scene.views])
+    spread = float(np.median(np.linalg.norm(centers - centers.mean(axis=0), axis=1))) or 1.0
+    frustum_scale = 0.07 * spread
+    point_size = float(np.median(depths) * 0.5 / np.median([v.camera.fx for v in scene.views]))
+    frustums = []
+    for v in scene.views:
+        cam = v.camera
+        fov = 2 * np.arctan2(cam.height / 2, cam.fy)
+        image = (np.asarray(scene.image(v.index)) * 255 + 0.5).astype(np.uint8)
+        frustums.append(server.scene.add_camera_frustum(
+            f"/cameras/{v.index:03d}", fov=float(fov), aspect=cam.width / cam.height, scale=frustum_scale,
+            image=subsample(image, THUMBNAIL), format="jpeg", wxyz=SO3.from_matrix(cam.R.T).wxyz,
+            position=cam.center, color=(60, 60, 200)))
+    return frustums, frustum_scale, point_size
+
+
 class ViewerApp(ControlPanel):
     """The viser server, its scene and GUI (:class:`ControlPanel`), and the scheduled recomputations.
 
@@ -71,9 +111,13 @@ class ViewerApp(ControlPanel):
     have been still for ``EXACT_QUIET_S``; results of superseded requests are dropped.
     """
 
-    def __init__(self, session: ViewerSession, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False):
+    def __init__(self, session: ViewerSession, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False,
+                 server: viser.ViserServer | None = None):
+        """``server``: an already running viser server to take over (the live viewer of ``deepc run``, whose
+        clients stay connected and keep their camera); without it the app starts its own on host:port."""
         self.session = session
-        self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        own_server = server is None
+        self.server = viser.ViserServer(host=host, port=port, verbose=verbose) if server is None else server
         self.port = self.server.get_port()
         self.host = host
         self._state_lock = threading.Lock()
@@ -92,7 +136,7 @@ class ViewerApp(ControlPanel):
         # cloud to leave would hold up the next events themselves.
         self._scheduler: RecomputeScheduler[ViewParams] = RecomputeScheduler(
             self._preview, self._exact, self._show_error, EXACT_QUIET_S, EXACT_MAX_DELAY_S, name="deepc-viewer")
-        self._build_scene()
+        self._build_scene(home=own_server)
         self._build_gui()
         self.mesh_panel = MeshPanel(self)
         self.inspector = InspectorPanel(self)  # click a point or a pixel: its PatchMatch trace
@@ -100,36 +144,13 @@ class ViewerApp(ControlPanel):
             self.request(self.params())
 
     # ---- scene ----------------------------------------------------------------------------------
-    def _build_scene(self) -> None:
+    def _build_scene(self, home: bool = True) -> None:
         scene = self.session.scene
-        depths = [np.mean(v.depth_range) for v in scene.views]
-        centers = np.stack([v.camera.center for v in scene.views])
-        spread = float(np.median(np.linalg.norm(centers - centers.mean(axis=0), axis=1))) or 1.0
-        self.frustum_scale = 0.07 * spread
-        # about one pixel footprint at a typical depth
-        self.default_point_size = float(np.median(depths) * 0.5 / np.median([v.camera.fx for v in scene.views]))
-        self.server.scene.set_up_direction("-y")
-        first = scene.views[0].camera
-        home_position = first.center - first.R[2] * 0.2 * float(np.median(depths))
-        home_target = first.center + first.R[2] * float(np.median(depths))
-
-        @self.server.on_client_connect
-        def _(client: viser.ClientHandle) -> None:
-            # Start behind the first camera, looking where it looks, its image "up" on screen.
-            client.camera.position = home_position
-            client.camera.look_at = home_target
-            client.camera.up_direction = -first.R[1]
-        self.frustums = []
-        for v in scene.views:
-            cam = v.camera
-            fov = 2 * np.arctan2(cam.height / 2, cam.fy)
-            image = (np.asarray(scene.image(v.index)) * 255 + 0.5).astype(np.uint8)
-            frustum = self.server.scene.add_camera_frustum(
-                f"/cameras/{v.index:03d}", fov=float(fov), aspect=cam.width / cam.height, scale=self.frustum_scale,
-                image=subsample(image, THUMBNAIL), format="jpeg", wxyz=SO3.from_matrix(cam.R.T).wxyz,
-                position=cam.center, color=(60, 60, 200))
-            frustum.on_click(lambda event, i=v.index: self.select_view(i))
-            self.frustums.append(frustum)
+        if home:
+            set_home_camera(self.server, scene)
+        self.frustums, self.frustum_scale, self.default_point_size = add_cameras(self.server, scene)
+        for view, frustum in zip(scene.views, self.frustums, strict=True):
+            frustum.on_click(lambda event, i=view.index: self.select_view(i))
         if not self.session.has_maps and len(scene.model.points):
             self.server.scene.add_point_cloud("/sparse", scene.model.points.astype(np.float32),
                                               colors=(200, 120, 30), point_size=self.default_point_size * 3,
@@ -353,25 +374,53 @@ class ViewerApp(ControlPanel):
         self.server.stop()
 
 
-def serve(path: str, host: str = "127.0.0.1", port: int = 8080) -> None:
-    """Open a session and serve until interrupted (``deepc view``). viser's own banner and log lines are
-    kept off the terminal: a busy port is announced in one line with the port used instead, and a port that
-    cannot be bound at all is a one-line DeepCError."""
-    session = ViewerSession.open(path)
+def open_server(host: str, port: int) -> viser.ViserServer:
+    """A viser server on host:port (port 0 = any free one; a busy port makes viser take the next free one),
+    with viser's own banner and log lines kept off the terminal; a port that cannot be bound at all is a
+    one-line DeepCError."""
     quiet = io.StringIO()
     try:
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            app = ViewerApp(session, host=host, port=port, verbose=False)
+            return viser.ViserServer(host=host, port=port, verbose=False)
     except OSError as exc:
         raise DeepCError(f"cannot serve the viewer on {host}:{port}: {exc.strerror or exc}") from None
+
+
+def announce(label: str, host: str, requested: int, used: int, note: str) -> None:
+    """One line naming the viewer's address (and one before it when the requested port was busy)."""
+    if requested and used != requested:
+        print(f"{label}: port {requested} is in use; serving on port {used} instead", flush=True)
+    print(f"{label}: http://{host}:{used}  ({note})", flush=True)
+
+
+def serve(path: str, host: str = "127.0.0.1", port: int = 8080, server: viser.ViserServer | None = None,
+          on_open: Callable[[ViewerApp], None] | None = None) -> None:
+    """Open a session and serve until interrupted (``deepc view``); the server stops on the way out.
+
+    ``server``: an already running server to take over (``deepc run``'s live viewer, whose browser tabs stay
+    connected); else one is opened on host:port. ``on_open(app)`` runs once the app's panel is up (the live
+    viewer removes its own panel and clouds then)."""
+    quiet = io.StringIO()
+    app = None
     try:  # (a Ctrl+C right after the start stops the server as well)
-        if port and app.port != port:
-            print(f"viewer: port {port} is in use; serving on port {app.port} instead", flush=True)
-        print(f"viewer: http://{host}:{app.port}  (Ctrl+C to stop)", flush=True)
+        session = ViewerSession.open(path)
+        if server is None:
+            server = open_server(host, port)
+            requested = port
+        else:
+            requested = server.get_port()  # announced when it started
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            app = ViewerApp(session, host=host, port=port, verbose=False, server=server)
+        if on_open is not None:
+            on_open(app)
+        announce("viewer", host, requested, app.port, "Ctrl+C to stop")
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         pass
     finally:
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            app.stop()
+            if app is not None:
+                app.stop()
+            elif server is not None:
+                server.stop()
