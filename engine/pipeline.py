@@ -17,10 +17,11 @@ import numpy as np
 
 from engine import __version__
 from engine.confidence.data import view_labels
-from engine.confidence.inputs import network_inputs
 from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
+from engine.distributed import Executor
+from engine.distributed.driver import run_confidence_tasks, run_patchmatch_tasks
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import (
@@ -38,6 +39,7 @@ from engine.meshing import MeshOptions, evaluate_mesh, mesh_run, write_mesh_ply
 from engine.metrics import depth_metrics
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
+from engine.per_view import SceneView, patchmatch_view, view_confidence
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
 from engine.refinement.views import refine_views, sky_filter_views
@@ -84,18 +86,20 @@ class PipelineResult:
 
 def patchmatch_views(scene: Scene) -> list[PatchMatchView]:
     """The PatchMatch inputs of every view of ``scene`` at its working resolution."""
-    return [PatchMatchView(v.name, scene.gray(v.index), v.camera, v.depth_range[0], v.depth_range[1],
-                           list(v.source_views)) for v in scene.views]
+    return [patchmatch_view(scene, v.index) for v in scene.views]
 
 
 def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | None = None,
                  observer: Any = None, progress: Callable[[str, int, int], None] | None = None,
-                 checkpoint: Any = None, mesh: MeshOptions | None = None) -> PipelineResult:
+                 checkpoint: Any = None, mesh: MeshOptions | None = None,
+                 executor: Executor | None = None) -> PipelineResult:
     """Run ``options.pipeline`` on ``scene`` and write the outputs into ``out_dir``.
 
     ``checkpoint`` (an :class:`engine.checkpoint.PatchMatchCheckpoint`) saves PatchMatch states as it
     goes and reuses those of an interrupted run; it is cleared once metrics.json is written. ``mesh``, unless
-    its method is ``none``, adds ``mesh.ply`` made from the fused cloud or the maps fusion used.
+    its method is ``none``, adds ``mesh.ply`` made from the fused cloud or the maps fusion used. ``executor`` (an
+    :class:`engine.distributed.Executor`) runs PatchMatch, counter maps and confidence as per-view tasks on it
+    (``engine/distributed/``; same maps); None keeps them in this process.
     """
     options = (options or PipelineOptions()).validate()
     out_dir = Path(out_dir)
@@ -113,17 +117,23 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         if options.pipeline == "full":
             refined_model = load_weights(options.confidence.refined_weights or DEFAULT_REFINED_WEIGHTS)
 
-    views = patchmatch_views(scene)
     t = time.perf_counter()
-    maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress, checkpoint=checkpoint)
-    counter = compute_counter_maps(views, maps, options.counter)
-    seconds["patchmatch"] = time.perf_counter() - t
-    for view, m, k in zip(scene.views, maps, counter, strict=True):
-        check_interrupt()  # stop requests are honoured between kernels and files (engine/interrupt.py)
-        write_map(out_dir, "depth", view.name, m.depth)
-        write_map(out_dir, "normal", view.name, m.normal)
-        write_map(out_dir, "cost", view.name, m.cost)
-        write_map(out_dir, "counter", view.name, k)
+    if executor is None:
+        views = patchmatch_views(scene)
+        maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress, checkpoint=checkpoint)
+        counter = compute_counter_maps(views, maps, options.counter)
+        seconds["patchmatch"] = time.perf_counter() - t
+        for view, m, k in zip(scene.views, maps, counter, strict=True):
+            check_interrupt()  # stop requests are honoured between kernels and files (engine/interrupt.py)
+            write_map(out_dir, "depth", view.name, m.depth)
+            write_map(out_dir, "normal", view.name, m.normal)
+            write_map(out_dir, "cost", view.name, m.cost)
+            write_map(out_dir, "counter", view.name, k)
+    else:  # one task per view and pass, then per view (engine/distributed); the tasks write the maps
+        views = [SceneView(scene, i) for i in range(len(scene.views))]  # images read when needed
+        maps, counter = run_patchmatch_tasks(scene, out_dir, options.patchmatch, options.counter, executor,
+                                             observer=observer, progress=progress, checkpoint=checkpoint)
+        seconds["patchmatch"] = time.perf_counter() - t
     if notify:
         notify("patchmatch", maps=maps, counter=counter)
 
@@ -132,11 +142,15 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline in ("fast", "full"):
         t = time.perf_counter()
         raw_confidence: list[np.ndarray] | None = [] if options.pipeline == "full" else None  # refinement's
-        confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model,
-                                                          raw=raw_confidence)
-        for view, c in zip(scene.views, confidence, strict=True):
-            check_interrupt()
-            write_map(out_dir, "confidence", view.name, c)
+        if executor is None:
+            confidence = confidence_stage(scene, maps, counter, options.confidence, model, raw=raw_confidence)
+            for view, c in zip(scene.views, confidence, strict=True):
+                check_interrupt()
+                write_map(out_dir, "confidence", view.name, c)
+        else:  # the tasks write the maps
+            confidence, raw_confidence = run_confidence_tasks(scene, out_dir, options.confidence, executor,
+                                                              options.pipeline == "full")
+        fusion_confidence = confidence
         if options.pipeline == "fast":
             filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
                         for m, c in zip(maps, confidence, strict=True)]
@@ -238,7 +252,7 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     """(H, W) float32 confidence in [0, 1] per view from the network (Kuhn et al. 2020, §3.2); ``model``: a loaded
     :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now). ``raw``, when
     given, also receives each view's confidence before the back-facing rule (``zero_backfacing``)."""
-    from engine.confidence.inference import facing_away, predict_confidence, torch_threads  # lazy: torch
+    from engine.confidence.inference import torch_threads  # lazy: torch
     from engine.confidence.weights import load_weights  # lazy: torch
 
     if model is None:
@@ -247,13 +261,9 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     with torch_threads(options.num_threads):
         for view, m, k in zip(scene.views, maps, counter, strict=True):
             check_interrupt()
-            x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
-            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16)
-            c = np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32)
+            c, c_raw = view_confidence(scene.image(view.index), m, k, len(view.source_views), options, model)
             if raw is not None:
-                raw.append(c.copy() if options.zero_backfacing else c)
-            if options.zero_backfacing:
-                c[facing_away(x)] = 0.0
+                raw.append(c_raw)
             out.append(c)
     return out
 

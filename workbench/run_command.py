@@ -30,6 +30,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(scene.summary(), file=sys.stderr)
     _check_memory(args, scene, options)
     checkpoint = _prepare_output(args)
+    executor = _executor(args)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = None
     progress = PassProgress()
@@ -47,7 +48,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
             with deferred_interrupts():
                 result = run_pipeline(scene, args.out, options, observer=recording.stream if recording else None,
-                                      progress=progress, checkpoint=checkpoint, mesh=mesh)
+                                      progress=progress, checkpoint=checkpoint, mesh=mesh, executor=executor)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -69,7 +70,22 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if live:
             live.stop()
+        if executor is not None:
+            executor.close()
     return 0
+
+
+def _executor(args: argparse.Namespace):
+    """None for ``--executor local`` (the in-process pipeline), else the Dask executor (its dashboard printed)."""
+    if getattr(args, "executor", "local") == "local":
+        return None
+    if args.workers < 1:
+        raise DeepCError("--workers must be at least 1")
+    from engine.distributed.dask_executor import DaskExecutor  # lazy: dask
+
+    executor = DaskExecutor(args.scheduler, args.workers)
+    print(executor.describe(), file=sys.stderr)
+    return executor
 
 
 def _check_memory(args: argparse.Namespace, scene: Scene, options: PipelineOptions) -> None:

@@ -46,3 +46,17 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
                         help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
                              "--set fusion.check_num_images=20, "
                              "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
+
+
+def add_executor_flags(parser: argparse.ArgumentParser) -> None:
+    """Where the per-view work of ``deepc run`` runs (``engine/distributed``; docs/distributed.md)."""
+    group = parser.add_argument_group("executor")
+    group.add_argument("--executor", choices=("local", "dask"), default="local",
+                       help="local: everything in this process (default); dask: PatchMatch per view and pass, "
+                            "counter maps and confidence per view as Dask tasks (same maps)")
+    group.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help="with --executor dask: a running Dask scheduler, e.g. tcp://host:8786 (its workers must "
+                            "see OUT and the scene at the same paths); default: a LocalCluster on this machine")
+    group.add_argument("--workers", type=int, default=2, metavar="N",
+                       help="with --executor dask and no --scheduler: worker processes of the LocalCluster, each "
+                            "with cores / N numba threads (default: 2)")
