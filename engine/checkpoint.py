@@ -163,10 +163,17 @@ class PatchMatchCheckpoint:
         """Write one view's state atomically, then record it in the manifest."""
         self.record(level, pass_index, view, write_state(self.folder, level, pass_index, view, state))
 
-    def record(self, level: int, pass_index: int, view: int, sha256: str) -> None:
-        """Record a state :func:`write_state` wrote (here or in a per-view task elsewhere) in the manifest."""
+    def record(self, level: int, pass_index: int, view: int, sha256: str, write: bool = True) -> None:
+        """Record a state :func:`write_state` wrote (here or in a per-view task elsewhere) in the manifest; with
+        ``write`` False only in memory (the next record or :meth:`pass_complete` writes it: a driver of
+        thousands of tasks need not rewrite the manifest after each)."""
         self.entries[self._name(level, pass_index, view)] = sha256
         self.stats.saved += 1
+        if write:
+            self._write_manifest()
+
+    def flush(self) -> None:
+        """Write the manifest with every state recorded so far (after ``record(..., write=False)``)."""
         self._write_manifest()
 
     def pass_complete(self, level: int, pass_index: int) -> None:

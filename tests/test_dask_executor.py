@@ -88,6 +88,27 @@ def test_two_dask_workers_give_the_same_maps_and_progress(scene, reference, clus
     assert cluster.dashboard and cluster.dashboard.startswith("http")
 
 
+def test_confidence_tasks_return_the_refinement_weights(scene, reference, cluster, tmp_path):
+    """``full`` refines with the confidence before the back-facing rule: the tasks return it, equal to the
+    in-process stage's."""
+    import shutil
+
+    from engine.distributed.driver import run_confidence_tasks
+    from engine.patchmatch import ViewMaps
+    from engine.pipeline import confidence_stage
+    from engine.run_folder import read_map
+
+    shutil.copytree(reference, tmp_path, dirs_exist_ok=True)
+    confidence, raw = run_confidence_tasks(scene, tmp_path, OPTIONS.confidence, cluster, want_raw=True)
+    maps = [ViewMaps(read_map(reference, "depth", v.name), read_map(reference, "normal", v.name), None, None)
+            for v in scene.views]
+    counter = [read_map(reference, "counter", v.name).astype(np.uint8) for v in scene.views]
+    want_raw = []
+    want = confidence_stage(scene, maps, counter, OPTIONS.confidence, raw=want_raw)
+    assert all(np.array_equal(a, b) for a, b in zip(confidence, want, strict=True))
+    assert raw is not None and all(np.array_equal(a, b) for a, b in zip(raw, want_raw, strict=True))
+
+
 class _KillOnce:
     """A task wrapper that kills its worker process (like a machine going down) while the first try of job
     ``target`` runs; ``marker`` records that it did."""

@@ -9,6 +9,7 @@ manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run w
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -41,6 +42,7 @@ from engine.run_folder import read_map
 from engine.scene import Scene
 
 ProgressFn = Callable[[str, int, int], Any]
+MANIFEST_EVERY_S = 1.0  # the checkpoint's manifest is rewritten at most this often while a pass runs
 
 
 def pass_schedule(options: PatchMatchOptions, n_levels: int) -> list[tuple[int, int, int]]:
@@ -80,6 +82,7 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     resume = checkpoint.resume_point()
     first = 0 if resume is None else next((k + 1 for k, (lv, p, _) in enumerate(schedule) if (lv, p) == resume), 0)
     step = sum(options.pass_iterations(p) for _, p, _ in schedule[:first]) * sum(active)
+    flushed = time.monotonic()
     for k in range(first, len(schedule)):
         level, p, done = schedule[k]
         shapes = [level_size(v.camera.width, v.camera.height, level)[::-1] for v in views]
@@ -103,8 +106,12 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
         def ended(index: int, result: PassResult, level=level, p=p, description=description, todo=todo,
                   shapes=shapes, n_iter=n_iter) -> None:
             nonlocal finished, step
+            nonlocal flushed
             i = todo[index]
-            checkpoint.record(level, p, i, result.sha256)
+            # the manifest (every entry) at most once a second: a stopped driver loses at most a second of tasks
+            flush = time.monotonic() - flushed > MANIFEST_EVERY_S
+            checkpoint.record(level, p, i, result.sha256, write=flush)
+            flushed = time.monotonic() if flush else flushed
             finished += 1
             if on_iter is not None and active[i]:
                 state = load_state(state_reader(folder, checkpoint.entries), level, p, i, shapes[i])
@@ -113,7 +120,10 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
             if progress is not None:
                 progress(description, finished, n)
 
-        executor.map(patchmatch_view_pass, jobs, ended)
+        try:
+            executor.map(patchmatch_view_pass, jobs, ended)
+        finally:  # a stopped run keeps every state its tasks finished (--resume)
+            checkpoint.flush()
         checkpoint.pass_complete(level, p)
     last = (0, options.geom_passes)
     executor.map(finish_view, [FinishJob(ref, folder, str(out_dir), i, last[1], active[i],
