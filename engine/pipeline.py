@@ -21,7 +21,7 @@ from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.distributed import Executor
-from engine.distributed.driver import run_confidence_tasks, run_patchmatch_tasks
+from engine.distributed.driver import run_confidence_tasks, run_patchmatch_tasks, run_refinement_tasks
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import (
@@ -161,7 +161,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline == "full":
         t = time.perf_counter()
         refined = refinement_stage(scene, maps, refinement_confidence(confidence, raw_confidence, options.refinement),
-                                   options.refinement)
+                                   options.refinement, executor=executor, out_dir=out_dir)
         seconds["refinement"] = time.perf_counter() - t
         t = time.perf_counter()
         # Kuhn et al. 2020, §4.2: the refined maps get their own counter maps and confidence before filtering; all are
@@ -276,14 +276,18 @@ def refinement_confidence(confidence: list[np.ndarray], raw: list[np.ndarray],
 
 
 def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],
-                     options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None
-                     ) -> list[ViewMaps]:
+                     options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None,
+                     executor: Executor | None = None, out_dir: str | Path | None = None) -> list[ViewMaps]:
     """Refined dense depth and normals per view (Rossi et al. 2020) as :class:`ViewMaps` (cost and selected views
     zero); a view without data to refine from stays empty (a warning names it). ``progress(i, n, result)``
-    after each view (result None for an empty one)."""
+    after each view (result None for an empty one). With ``executor``, one task per view reading the maps the
+    PatchMatch tasks wrote into ``out_dir``."""
 
-    refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
-                           progress)
+    if executor is None:
+        refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
+                               progress)
+    else:
+        refined = run_refinement_tasks(scene, out_dir, confidence, options, executor, progress)
     out = []
     for m, r in zip(maps, refined, strict=True):
         depth = np.zeros_like(m.depth) if r is None else np.asarray(r.depth, np.float32)

@@ -109,6 +109,25 @@ def test_confidence_tasks_return_the_refinement_weights(scene, reference, cluste
     assert raw is not None and all(np.array_equal(a, b) for a, b in zip(raw, want_raw, strict=True))
 
 
+def test_refinement_tasks_give_the_same_refined_maps(scene, reference, cluster):
+    """``full``: Rossi et al. 2020's refinement per view as a task, from the maps in the run folder."""
+    from engine.distributed.driver import run_refinement_tasks
+    from engine.refinement.options import RefinementOptions
+    from engine.refinement.views import refine_views
+    from engine.run_folder import read_map
+
+    cheap = RefinementOptions(scales=2, fast_iters=(60, 40), iters=(10, 10), lr=(0.01, 0.01), lr_slots=(1, 1))
+    names = [v.name for v in scene.views]
+    depth, normal, confidence = ([read_map(reference, kind, n) for n in names]
+                                 for kind in ("depth", "normal", "confidence"))
+    done = []
+    got = run_refinement_tasks(scene, reference, confidence, cheap, cluster, lambda i, n, r: done.append(i))
+    want = refine_views(scene, depth, normal, confidence, cheap)
+    assert sorted(done) == list(range(5)) and all(r is not None for r in want)
+    assert all(np.array_equal(a.depth, b.depth) and np.array_equal(a.normal, b.normal)
+               for a, b in zip(got, want, strict=True))
+
+
 class _KillOnce:
     """A task wrapper that kills its worker process (like a machine going down) while the first try of job
     ``target`` runs; ``marker`` records that it did."""

@@ -96,6 +96,16 @@ def _spawn(config: dict, timeout: float) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def summary(result: dict) -> list[dict]:
+    """One row per configuration: wall time, speed-up over local and overhead per task (fountain), peak RSS of the
+    driver (all of the run and fusion alone) and of the busiest worker, map I/O of one level-0 pass."""
+    return [{"views": r["views"], "size": r["size"], "workers": r["workers"] or "local", "threads": r["threads"],
+             "wall s": r["wall_s"], "tasks": r["tasks"], "speed-up": r.get("speedup"),
+             "overhead/task s": r.get("overhead_per_task_s"), "driver MiB": r["driver_peak_mb"],
+             "fusion MiB": r["driver_fusion_peak_mb"], "worker MiB": max(r["worker_peak_mb"], default=None),
+             "pass write MiB": r["pass_written_mb"], "pass read MiB": r["pass_read_mb"]} for r in result["rows"]]
+
+
 def fountain(args: argparse.Namespace) -> dict:
     scene = Path(args.scene)
     if not scene.is_dir():
@@ -182,10 +192,7 @@ def main(argv=None) -> int:
     result = fountain(args) if args.mode == "fountain" else sequence(args)
     path = Path(args.json or bench.results_path(__file__, args.mode))
     bench.write_result(result, path)
-    columns = ["views", "size", "workers", "threads", "wall_s", "tasks", "speedup", "overhead_per_task_s",
-               "driver_peak_mb", "driver_fusion_peak_mb", "worker_peak_mb_max", "pass_written_mb", "pass_read_mb"]
-    rows = [{**r, "worker_peak_mb_max": max(r["worker_peak_mb"], default=None)} for r in result["rows"]]
-    bench.print_table([{k: r.get(k) for k in columns} for r in rows], columns)
+    bench.print_table(summary(result))
     if args.mode == "sequence":
         plot(result, path.with_suffix(".png"))
     print(f"results: {path}")

@@ -26,18 +26,22 @@ from engine.distributed.tasks import (
     FinishJob,
     PassJob,
     PassResult,
+    RefineJob,
     SceneRef,
     confidence_view,
     finish_view,
     load_state,
     pass_event,
     patchmatch_view_pass,
+    refine_view,
     state_reader,
 )
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from engine.patchmatch.engine import _check_views, effective_levels, final_maps
 from engine.patchmatch.pyramid import level_size
 from engine.per_view import SceneView
+from engine.refinement.options import RefinementOptions
+from engine.refinement.refine import RefinedMap
 from engine.run_folder import read_map
 from engine.scene import Scene
 
@@ -164,3 +168,13 @@ def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceO
                           executor.threads) for i in range(len(scene.views))]
     raw = executor.map(confidence_view, jobs)
     return [_read(out_dir, "confidence", v.name) for v in scene.views], (raw if want_raw else None)
+
+
+def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: list[np.ndarray], options: RefinementOptions,
+                         executor: Executor, progress: Callable[[int, int, Any], None] | None = None
+                         ) -> list[RefinedMap | None]:
+    """Rossi et al. 2020's refinement of every view (one task each, from the PatchMatch maps in ``out_dir``), as
+    ``engine.refinement.views.refine_views`` returns it; ``progress(i, n, result)`` as each view's task ends."""
+    n = len(scene.views)
+    jobs = [RefineJob(SceneRef.of(scene), str(out_dir), i, confidence[i], options, executor.threads) for i in range(n)]
+    return executor.map(refine_view, jobs, None if progress is None else lambda i, r: progress(i, n, r))

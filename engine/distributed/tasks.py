@@ -32,6 +32,9 @@ from engine.patchmatch.engine import _run_view_pass, final_maps, level_start_sta
 from engine.patchmatch.pyramid import area_resize, level_size
 from engine.patchmatch.state import ViewState
 from engine.per_view import patchmatch_view, view_confidence, view_counter
+from engine.refinement.options import RefinementOptions
+from engine.refinement.refine import RefinedMap
+from engine.refinement.views import refine_views
 from engine.run_folder import read_map, write_map
 from engine.scene import Scene, SceneOptions, load_scene
 
@@ -237,6 +240,40 @@ def confidence_view(job: ConfidenceJob) -> np.ndarray | None:
                                  job.options, _model(job.weights))
     write_map(job.out, "confidence", view.name, c)
     return raw if job.want_raw else None
+
+
+@dataclasses.dataclass(frozen=True)
+class RefineJob:
+    """Rossi et al. 2020's refinement of ``view`` from its PatchMatch depth and normal maps in ``out``, weighted
+    by ``confidence`` (H, W) f32 (the network's, before the back-facing rule unless the options say otherwise)."""
+
+    scene: SceneRef
+    out: str
+    view: int
+    confidence: np.ndarray
+    options: RefinementOptions
+    threads: int = 0
+
+
+class _OneView:
+    """A scene seen as holding only its view ``i`` (what ``refine_views`` reads: views, image)."""
+
+    def __init__(self, scene: Scene, i: int):
+        self.scene, self.i, self.views = scene, i, [scene.views[i]]
+
+    def image(self, _index: int) -> np.ndarray:
+        return self.scene.image(self.i)
+
+
+def refine_view(job: RefineJob) -> RefinedMap | None:
+    """One view's refined map (None where it has no data to refine from; a warning names it)."""
+    with numba_threads(job.threads):
+        scene = job.scene.load()
+        name = scene.views[job.view].name
+        depth, normal = read_map(job.out, "depth", name), read_map(job.out, "normal", name)
+        if depth is None or normal is None:
+            raise DeepCError(f"maps of view {name} missing", Path(job.out))
+        return refine_views(_OneView(scene, job.view), [depth], [normal], [job.confidence], job.options)[0]
 
 
 def pass_event(i: int, name: str, level: int, pass_index: int, iteration: int, step: int, state: ViewState,
