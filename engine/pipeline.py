@@ -117,9 +117,10 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         if options.pipeline == "full":
             refined_model = load_weights(options.confidence.refined_weights or DEFAULT_REFINED_WEIGHTS)
 
+    # images read when needed in the driver of per-view tasks
+    views = patchmatch_views(scene) if executor is None else [SceneView(scene, i) for i in range(len(scene.views))]
     t = time.perf_counter()
     if executor is None:
-        views = patchmatch_views(scene)
         maps = run_patchmatch(views, options.patchmatch, observer=observer, progress=progress, checkpoint=checkpoint)
         counter = compute_counter_maps(views, maps, options.counter)
         seconds["patchmatch"] = time.perf_counter() - t
@@ -130,7 +131,6 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             write_map(out_dir, "cost", view.name, m.cost)
             write_map(out_dir, "counter", view.name, k)
     else:  # one task per view and pass, then per view (engine/distributed); the tasks write the maps
-        views = [SceneView(scene, i) for i in range(len(scene.views))]  # images read when needed
         maps, counter = run_patchmatch_tasks(scene, out_dir, options.patchmatch, options.counter, executor,
                                              observer=observer, progress=progress, checkpoint=checkpoint)
         seconds["patchmatch"] = time.perf_counter() - t
