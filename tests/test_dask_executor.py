@@ -207,6 +207,17 @@ def test_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
     assert not any(line.startswith("Traceback") for line in err)
 
 
+def test_deepc_run_on_a_local_cluster_prints_its_dashboard(tmp_path, capsys):
+    from workbench.cli import main
+
+    code = main(["run", str(SAMPLES / "tiny"), "--out", str(tmp_path / "out"), "--headless", "--executor", "dask",
+                 "--workers", "2", "--max-image-size", "64", "--levels", "1", "--geom-passes", "0",
+                 "--iterations", "1"])
+    err = capsys.readouterr().err
+    assert code == 0 and (tmp_path / "out" / "fused.ply").is_file()
+    assert "dask: 2 worker(s) on a LocalCluster on this machine" in err and "dashboard http" in err
+
+
 def test_tasks_read_only_what_the_driver_recorded(scene, tmp_path):
     """A state whose bytes differ from the recorded SHA-256 is not used: the task fails instead of computing
     from a wrong input."""
