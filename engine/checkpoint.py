@@ -122,6 +122,7 @@ class PatchMatchCheckpoint:
     # ---- per view and pass --------------------------------------------------------------------------
     @staticmethod
     def _name(level: int, pass_index: int, view: int) -> str:
+        """The file of ``view``'s state after pass ``pass_index`` of ``level``, relative to the folder."""
         return f"L{level}_P{pass_index}/{view}.npz"
 
     def resume_point(self) -> tuple[int, int] | None:
@@ -160,13 +161,19 @@ class PatchMatchCheckpoint:
 
     def save(self, level: int, pass_index: int, view: int, state: dict[str, np.ndarray]) -> None:
         """Write one view's state atomically, then record it in the manifest."""
-        buffer = io.BytesIO()
-        np.savez(buffer, **{k: np.ascontiguousarray(state[k]) for k in _ARRAYS})
-        data = buffer.getvalue()
-        name = self._name(level, pass_index, view)
-        atomic_write_bytes(self.folder / name, data)
-        self.entries[name] = hashlib.sha256(data).hexdigest()
+        self.record(level, pass_index, view, write_state(self.folder, level, pass_index, view, state))
+
+    def record(self, level: int, pass_index: int, view: int, sha256: str, write: bool = True) -> None:
+        """Record a state :func:`write_state` wrote (here or in a per-view task elsewhere) in the manifest; with
+        ``write`` False only in memory (the next record or :meth:`pass_complete` writes it: a driver of
+        thousands of tasks need not rewrite the manifest after each)."""
+        self.entries[self._name(level, pass_index, view)] = sha256
         self.stats.saved += 1
+        if write:
+            self._write_manifest()
+
+    def flush(self) -> None:
+        """Write the manifest with every state recorded so far (after ``record(..., write=False)``)."""
         self._write_manifest()
 
     def pass_complete(self, level: int, pass_index: int) -> None:
@@ -194,6 +201,16 @@ class PatchMatchCheckpoint:
             pass
         except OSError as exc:
             raise DeepCError(f"cannot remove saved PatchMatch states: {exc.strerror or exc}", self.folder) from exc
+
+
+def write_state(folder: str | Path, level: int, pass_index: int, view: int, state: dict[str, np.ndarray]) -> str:
+    """Write one view's state {Z, N, C, S} after a pass atomically into the checkpoint ``folder`` (no manifest
+    change: :meth:`PatchMatchCheckpoint.record` does that); returns the file's SHA-256."""
+    buffer = io.BytesIO()
+    np.savez(buffer, **{k: np.ascontiguousarray(state[k]) for k in _ARRAYS})
+    data = buffer.getvalue()
+    atomic_write_bytes(Path(folder) / PatchMatchCheckpoint._name(level, pass_index, view), data)
+    return hashlib.sha256(data).hexdigest()
 
 
 def _is_pass(value: Any) -> bool:

@@ -17,10 +17,12 @@ import numpy as np
 
 from engine import __version__
 from engine.confidence.data import view_labels
-from engine.confidence.inputs import network_inputs
 from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
+from engine.distributed import Executor
+from engine.distributed.driver import run_confidence_tasks, run_patchmatch_tasks, run_refinement_tasks
+from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import (
@@ -40,6 +42,7 @@ from engine.observer import ObserverList
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.patchmatch.convergence import EarlyStops
+from engine.per_view import SceneView, patchmatch_view, view_confidence
 from engine.probe_output import finish_probe
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
@@ -87,14 +90,13 @@ class PipelineResult:
 
 def patchmatch_views(scene: Scene) -> list[PatchMatchView]:
     """The PatchMatch inputs of every view of ``scene`` at its working resolution."""
-    return [PatchMatchView(v.name, scene.gray(v.index), v.camera, v.depth_range[0], v.depth_range[1],
-                           list(v.source_views)) for v in scene.views]
+    return [patchmatch_view(scene, v.index) for v in scene.views]
 
 
 def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | None = None,
                  observer: Any = None, progress: Callable[[str, int, int], None] | None = None,
                  checkpoint: Any = None, mesh: MeshOptions | None = None, probe: Any = None,
-                 history: Any = None) -> PipelineResult:
+                 history: Any = None, executor: Executor | None = None) -> PipelineResult:
     """Run ``options.pipeline`` on ``scene`` and write the outputs into ``out_dir``.
 
     ``checkpoint`` (an :class:`engine.checkpoint.PatchMatchCheckpoint`) saves PatchMatch states as it
@@ -103,6 +105,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     :class:`engine.patchmatch.probe.PixelProbe`) traces pixels of one view and writes ``OUT/probes/``;
     ``history`` (an :class:`engine.pass_history.PassHistory`) keeps what re-running one view needs
     (``engine.probe_run``).
+    ``executor`` (an :class:`engine.distributed.Executor`) runs PatchMatch, counter maps and confidence as per-view
+    tasks on it (``engine/distributed/``; same maps; no probe, no pass history); None keeps them in this process.
     """
     options = (options or PipelineOptions()).validate()
     out_dir = Path(out_dir)
@@ -120,21 +124,29 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         if options.pipeline == "full":
             refined_model = load_weights(options.confidence.refined_weights or DEFAULT_REFINED_WEIGHTS)
 
-    views = patchmatch_views(scene)
+    # images read when needed in the driver of per-view tasks
+    views = patchmatch_views(scene) if executor is None else [SceneView(scene, i) for i in range(len(scene.views))]
     t = time.perf_counter()
-    early_stops = EarlyStops()
-    # EarlyStops has no on_iteration: without an observer the engine still builds no iteration events
-    watch = early_stops if observer is None else ObserverList([observer, early_stops])
-    maps = run_patchmatch(views, options.patchmatch, observer=watch, progress=progress, checkpoint=checkpoint,
-                          probe=probe, history=history)
-    counter = compute_counter_maps(views, maps, options.counter)
-    seconds["patchmatch"] = time.perf_counter() - t
-    for view, m, k in zip(scene.views, maps, counter, strict=True):
-        check_interrupt()  # stop requests are honoured between kernels and files (engine/interrupt.py)
-        write_map(out_dir, "depth", view.name, m.depth)
-        write_map(out_dir, "normal", view.name, m.normal)
-        write_map(out_dir, "cost", view.name, m.cost)
-        write_map(out_dir, "counter", view.name, k)
+    if executor is None:
+        early_stops = EarlyStops()
+        # EarlyStops has no on_iteration: without an observer the engine still builds no iteration events
+        watch = early_stops if observer is None else ObserverList([observer, early_stops])
+        maps = run_patchmatch(views, options.patchmatch, observer=watch, progress=progress, checkpoint=checkpoint,
+                              probe=probe, history=history)
+        counter = compute_counter_maps(views, maps, options.counter)
+        seconds["patchmatch"] = time.perf_counter() - t
+        for view, m, k in zip(scene.views, maps, counter, strict=True):
+            check_interrupt()  # stop requests are honoured between kernels and files (engine/interrupt.py)
+            write_map(out_dir, "depth", view.name, m.depth)
+            write_map(out_dir, "normal", view.name, m.normal)
+            write_map(out_dir, "cost", view.name, m.cost)
+            write_map(out_dir, "counter", view.name, k)
+    else:  # one task per view and pass, then per view (engine/distributed); the tasks write the maps
+        if probe is not None or history is not None:
+            raise DeepCError("the pixel probe and the pass history need --executor local")
+        maps, counter = run_patchmatch_tasks(scene, out_dir, options.patchmatch, options.counter, executor,
+                                             observer=observer, progress=progress, checkpoint=checkpoint)
+        seconds["patchmatch"] = time.perf_counter() - t
     if notify:
         notify("patchmatch", maps=maps, counter=counter)
 
@@ -143,11 +155,15 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline in ("fast", "full"):
         t = time.perf_counter()
         raw_confidence: list[np.ndarray] | None = [] if options.pipeline == "full" else None  # refinement's
-        confidence = fusion_confidence = confidence_stage(scene, maps, counter, options.confidence, model,
-                                                          raw=raw_confidence)
-        for view, c in zip(scene.views, confidence, strict=True):
-            check_interrupt()
-            write_map(out_dir, "confidence", view.name, c)
+        if executor is None:
+            confidence = confidence_stage(scene, maps, counter, options.confidence, model, raw=raw_confidence)
+            for view, c in zip(scene.views, confidence, strict=True):
+                check_interrupt()
+                write_map(out_dir, "confidence", view.name, c)
+        else:  # the tasks write the maps
+            confidence, raw_confidence = run_confidence_tasks(scene, out_dir, options.confidence, executor,
+                                                              options.pipeline == "full")
+        fusion_confidence = confidence
         if options.pipeline == "fast":
             filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
                         for m, c in zip(maps, confidence, strict=True)]
@@ -158,7 +174,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if options.pipeline == "full":
         t = time.perf_counter()
         refined = refinement_stage(scene, maps, refinement_confidence(confidence, raw_confidence, options.refinement),
-                                   options.refinement)
+                                   options.refinement, executor=executor, out_dir=out_dir)
         seconds["refinement"] = time.perf_counter() - t
         t = time.perf_counter()
         # Kuhn et al. 2020, §4.2: the refined maps get their own counter maps and confidence before filtering; all are
@@ -211,7 +227,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         "seconds": seconds,
         "fused_points": len(cloud),
     }
-    if options.patchmatch.converge_ratio > 0:
+    if options.patchmatch.converge_ratio > 0 and executor is None:  # tasks report no stage events
         metrics["patchmatch_early_stops"] = early_stops.summary()
     if scene.has_gt_points:
         metrics["eval"] = evaluate_cloud(scene, cloud, options.evaluation).to_dict()
@@ -253,7 +269,7 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     """(H, W) float32 confidence in [0, 1] per view from the network (Kuhn et al. 2020, §3.2); ``model``: a loaded
     :class:`engine.confidence.network.ConfidenceNet` (default: load ``options.weights`` now). ``raw``, when
     given, also receives each view's confidence before the back-facing rule (``zero_backfacing``)."""
-    from engine.confidence.inference import facing_away, predict_confidence, torch_threads  # lazy: torch
+    from engine.confidence.inference import torch_threads  # lazy: torch
     from engine.confidence.weights import load_weights  # lazy: torch
 
     if model is None:
@@ -262,13 +278,9 @@ def confidence_stage(scene: Scene, maps: list[ViewMaps], counter: list[np.ndarra
     with torch_threads(options.num_threads):
         for view, m, k in zip(scene.views, maps, counter, strict=True):
             check_interrupt()
-            x = network_inputs(scene.image(view.index), m.normal, k, len(view.source_views))
-            c = predict_confidence(model, x, options.tile, options.overlap, options.bf16)
-            c = np.where(m.depth > 0, c, np.float32(0.0)).astype(np.float32)
+            c, c_raw = view_confidence(scene.image(view.index), m, k, len(view.source_views), options, model)
             if raw is not None:
-                raw.append(c.copy() if options.zero_backfacing else c)
-            if options.zero_backfacing:
-                c[facing_away(x)] = 0.0
+                raw.append(c_raw)
             out.append(c)
     return out
 
@@ -281,14 +293,18 @@ def refinement_confidence(confidence: list[np.ndarray], raw: list[np.ndarray],
 
 
 def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.ndarray],
-                     options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None
-                     ) -> list[ViewMaps]:
+                     options: RefinementOptions, progress: Callable[[int, int, Any], None] | None = None,
+                     executor: Executor | None = None, out_dir: str | Path | None = None) -> list[ViewMaps]:
     """Refined dense depth and normals per view (Rossi et al. 2020) as :class:`ViewMaps` (cost and selected views
     zero); a view without data to refine from stays empty (a warning names it). ``progress(i, n, result)``
-    after each view (result None for an empty one)."""
+    after each view (result None for an empty one). With ``executor``, one task per view reading the maps the
+    PatchMatch tasks wrote into ``out_dir``."""
 
-    refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
-                           progress)
+    if executor is None:
+        refined = refine_views(scene, [m.depth for m in maps], [m.normal for m in maps], confidence, options,
+                               progress)
+    else:
+        refined = run_refinement_tasks(scene, out_dir, confidence, options, executor, progress)
     out = []
     for m, r in zip(maps, refined, strict=True):
         depth = np.zeros_like(m.depth) if r is None else np.asarray(r.depth, np.float32)

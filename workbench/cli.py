@@ -19,7 +19,7 @@ from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions, load_scene
 from workbench.flags import add_options_flags, options_from_args
 from workbench.probe_command import add_probe_arguments
-from workbench.run_flags import add_probe_flags, add_run_option_flags
+from workbench.run_flags import add_executor_flags, add_probe_flags, add_run_option_flags
 from workbench.train_flags import add_train_arguments
 
 # The commands' own modules are imported when their command runs: the engine pipeline, training, the
@@ -111,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="refuse the run if its estimated peak memory exceeds this (default: what is available)")
     run.add_argument("--ignore-memory-check", action="store_true",
                      help="run even when the estimated peak memory exceeds the available memory")
+    add_executor_flags(run)
     run.add_argument("--host", default="127.0.0.1", help="address the viewers bind (default: 127.0.0.1)")
     run.add_argument("--port", type=int, default=8080, help="port of the browser viewer (default: 8080)")
     run.set_defaults(handler=_run)

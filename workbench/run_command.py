@@ -39,7 +39,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(scene.summary(), file=sys.stderr)
     _check_memory(args, scene, options)
     checkpoint = _prepare_output(args)
-    probe, history = _probe_and_history(args, scene)
+    executor = _executor(args)
+    probe, history = _probe_and_history(args, scene, executor is None)
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = live_view = None
     progress = PassProgress()
@@ -61,7 +62,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             with deferred_interrupts():
                 observer = _observer(recording.stream if recording else None, live_view)
                 result = run_pipeline(scene, args.out, options, observer=observer, progress=progress,
-                                      checkpoint=checkpoint, mesh=mesh, probe=probe, history=history)
+                                      checkpoint=checkpoint, mesh=mesh, probe=probe, history=history,
+                                      executor=executor)
         except BaseException:
             if recording:
                 recording.abandon()
@@ -94,6 +96,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             live_view.stop()
         if live:
             live.stop()
+        if executor is not None:
+            executor.close()
     return 0
 
 
@@ -108,9 +112,17 @@ def _probe_traces(args: argparse.Namespace, probe: PixelProbe | None, history: P
     return probe.traces()
 
 
-def _probe_and_history(args: argparse.Namespace, scene: Scene) -> tuple[PixelProbe | None, PassHistory | None]:
-    """The pixel probe of ``--probe`` (checked against the scene before anything runs) and the pass history."""
+def _probe_and_history(args: argparse.Namespace, scene: Scene,
+                       local: bool = True) -> tuple[PixelProbe | None, PassHistory | None]:
+    """The pixel probe of ``--probe`` (checked against the scene before anything runs) and the pass history
+    (neither with per-view tasks on Dask: ``local`` False)."""
     probe = None
+    if getattr(args, "probe", None) and not local:
+        raise DeepCError("--probe needs --executor local")
+    if not local:
+        if getattr(args, "history", False):
+            print("no pass history with --executor dask: 'deepc probe' cannot trace this run later", file=sys.stderr)
+        return None, None
     if getattr(args, "probe", None):
         name, pixels = parse_probe(args.probe)
         probe = PixelProbe(resolve_view([u.name for u in scene.views], name), pixels)
@@ -127,6 +139,19 @@ def _observer(*observers: object | None) -> object | None:
     are several; None when none runs, so that the engine builds no events at all."""
     present = [o for o in observers if o is not None]
     return None if not present else present[0] if len(present) == 1 else ObserverList(present)
+
+
+def _executor(args: argparse.Namespace):
+    """None for ``--executor local`` (the in-process pipeline), else the Dask executor (its dashboard printed)."""
+    if getattr(args, "executor", "local") == "local":
+        return None
+    if args.workers < 1:
+        raise DeepCError("--workers must be at least 1")
+    from engine.distributed.dask_executor import DaskExecutor  # lazy: dask
+
+    executor = DaskExecutor(args.scheduler, args.workers)
+    print(executor.describe(), file=sys.stderr)
+    return executor
 
 
 def _check_memory(args: argparse.Namespace, scene: Scene, options: PipelineOptions) -> None:

@@ -76,3 +76,17 @@ def parse_pixel(text: str, flag: str = "--pixel") -> tuple[int, int]:
         return int(parts[0]), int(parts[1])
     except ValueError:
         raise DeepCError(f"{flag}: {text!r} is not a pixel X,Y (two integers)") from None
+
+
+def add_executor_flags(parser: argparse.ArgumentParser) -> None:
+    """Where the per-view work of ``deepc run`` runs (``engine/distributed``; docs/distributed.md)."""
+    group = parser.add_argument_group("executor")
+    group.add_argument("--executor", choices=("local", "dask"), default="local",
+                       help="local: everything in this process (default); dask: PatchMatch per view and pass, "
+                            "counter maps and confidence per view as Dask tasks (same maps)")
+    group.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help="with --executor dask: a running Dask scheduler, e.g. tcp://host:8786 (its workers must "
+                            "see OUT and the scene at the same paths); default: a LocalCluster on this machine")
+    group.add_argument("--workers", type=int, default=2, metavar="N",
+                       help="with --executor dask and no --scheduler: worker processes of the LocalCluster, each "
+                            "with cores / N numba threads (default: 2)")

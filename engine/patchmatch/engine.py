@@ -205,29 +205,11 @@ def _pyramids(views: list[PatchMatchView | None], n_levels: int) -> tuple[list, 
     return images, cameras
 
 
-def _level_start(i: int, v: PatchMatchView, prev: ViewState | None, images: list, cameras: list, level: int,
-                 coarsest: bool, active: bool, options: PatchMatchOptions) -> ViewState:
-    """View ``i``'s state at the start of ``level``: the JBU-upsampled state ``prev`` of the coarser level
-    (none at the coarsest), random hypotheses where it has none (Xu & Tao 2019 ACMM)."""
-    h, w = images[i][level].shape
-    st = ViewState.zeros(h, w)
-    if active:
-        cam = cameras[i][level]
-        kinv = np.linalg.inv(cam.K_idx).ravel()
-        if not coarsest:
-            st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, images[i][level], options.jbu_radius,
-                                               options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
-            _face_camera(st.normal, cam)
-        key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
-        K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
-    return st
-
-
 def level_start(views: list[PatchMatchView], i: int, prev: ViewState | None, images: list, cameras: list, level: int,
                 options: PatchMatchOptions, coarsest: bool = False) -> ViewState:
     """View ``i``'s state at the start of ``level`` as :func:`run_patchmatch` makes it from ``prev``, its state
     at the end of the coarser level (``images``, ``cameras``: the views' pyramids)."""
-    return _level_start(i, views[i], prev, images, cameras, level, coarsest, True, options)
+    return level_start_state(i, views[i], prev, images[i][level], cameras[i][level], level, coarsest, True, options)
 
 
 def _pass_probe(probe: PixelProbe | None, i: int, st: ViewState, level: int, pass_index: int,
@@ -266,7 +248,8 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if resume is not None:
                 break  # this level's states are the resume point's
             check_interrupt()
-            new_states.append(_level_start(i, v, states[i], images, cameras, level, coarsest, active[i], options))
+            new_states.append(level_start_state(i, v, states[i], images[i][level], cameras[i][level], level,
+                                                coarsest, active[i], options))
         states = new_states if resume is None else resume[2]
         for pass_index in range(1 + options.geom_passes):
             if resume is not None and level == resume[0] and pass_index <= resume[1]:
@@ -301,19 +284,41 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
             if checkpoint is not None:
                 checkpoint.pass_complete(level, pass_index)
         resume = None
-    out = []
-    for i, st in enumerate(states):
-        if not active[i]:
-            h, w = images[i][0].shape
-            out.append(ViewMaps.empty(h, w))
-            continue
-        valid = st.depth > 0
-        st.normal[~valid] = 0.0
-        st.cost[~valid] = 0.0
-        out.append(ViewMaps(st.depth, st.normal, st.cost, st.selected_views))
+    out = [final_maps(st, active[i]) for i, st in enumerate(states)]
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n_views)
     return out
+
+
+def level_start_state(i: int, v: PatchMatchView, prev: ViewState | None, image: np.ndarray, cam: Camera, level: int,
+                      coarsest: bool, active: bool, options: PatchMatchOptions) -> ViewState:
+    """The state view ``i`` starts ``level`` with (Xu & Tao 2019 ACMM): random hypotheses at the coarsest level,
+    else ``prev`` (its final state one level coarser) JBU-upsampled to ``image`` (H, W), with random hypotheses
+    where upsampling left none. Empty maps for an inactive view. A pure function of its arguments (the random
+    stream is keyed by seed, view and level), so the per-view tasks of ``engine.distributed`` call it too."""
+    h, w = image.shape
+    st = ViewState.zeros(h, w)
+    if active:
+        kinv = np.linalg.inv(cam.K_idx).ravel()
+        if not coarsest:
+            st.depth, st.normal = jbu_upsample(prev.depth, prev.normal, image, options.jbu_radius,
+                                               options.jbu_sigma_spatial, options.jbu_sigma_range / 255.0)
+            _face_camera(st.normal, cam)
+        key = np.uint64(stream_key(options.seed, i, level, 0, RANDOM_INIT_ITERATION, 0))
+        K.random_init_kernel(st.depth, st.normal, kinv, float(v.depth_min), float(v.depth_max), key, not coarsest)
+    return st
+
+
+def final_maps(st: ViewState, active: bool) -> ViewMaps:
+    """A view's output from its state after the last pass at level 0: normals and costs zeroed where there is no
+    depth; empty maps for an inactive view."""
+    if not active:
+        h, w = st.depth.shape
+        return ViewMaps.empty(h, w)
+    valid = st.depth > 0
+    st.normal[~valid] = 0.0
+    st.cost[~valid] = 0.0
+    return ViewMaps(st.depth, st.normal, st.cost, st.selected_views)
 
 
 def _resume_states(checkpoint: Any, images: list, n_levels: int) -> tuple[int, int, list[ViewState]] | None:
@@ -414,7 +419,8 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
         for level in range(n_levels - 1, -1, -1):
             coarsest = level == n_levels - 1
             pool.clear()
-            st = _level_start(view, v, st, images, cameras, level, coarsest, True, options)
+            st = level_start_state(view, v, st, images[view][level], cameras[view][level], level, coarsest, True,
+                                   options)
             for pass_index in range(1 + options.geom_passes):
                 check_interrupt()
                 geometric = pass_index > 0

@@ -100,6 +100,8 @@ def make_sparse_model(data: SceneData, rng: np.random.Generator) -> SparseModel:
         for u, other in enumerate(cams):
             if u == v:
                 seen[u], uvs[u] = True, np.c_[cols, rows]
+            elif settings.neighbours and abs(u - v) > settings.neighbours:
+                continue  # a long sequence: views far along it cannot see the feature (O(N) casts, not O(N^2))
             else:
                 seen[u], uvs[u] = visible_in(data, other, X, n_world, settings.depth_tolerance)
         keep = seen.sum(axis=0) >= settings.min_views

@@ -1,0 +1,180 @@
+"""The driver of a run whose per-view work runs as tasks (``deepc run --executor dask``): PatchMatch one task per
+view and pass (the schedule of ``engine.patchmatch.engine``: levels coarse to fine, a photometric pass then
+geometric passes, every view of a pass before the next pass), then one task per view for its final maps and counter
+map, then one per view for its confidence. Maps equal ``--executor local``'s byte for byte.
+
+The driver holds no image and no map while the tasks run: it records each state's SHA-256 in the checkpoint's
+manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run with either executor.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
+from engine.confidence.options import ConfidenceOptions
+from engine.consistency import CounterOptions
+from engine.distributed.executor import Executor
+from engine.distributed.tasks import (
+    ConfidenceJob,
+    FinishJob,
+    PassJob,
+    PassResult,
+    RefineJob,
+    SceneRef,
+    confidence_view,
+    finish_view,
+    load_state,
+    pass_event,
+    patchmatch_view_pass,
+    refine_view,
+    state_reader,
+)
+from engine.patchmatch import PatchMatchOptions, ViewMaps
+from engine.patchmatch.engine import _check_views, effective_levels, final_maps
+from engine.patchmatch.pyramid import level_size
+from engine.per_view import SceneView
+from engine.refinement.options import RefinementOptions
+from engine.refinement.refine import RefinedMap
+from engine.run_folder import read_map
+from engine.scene import Scene
+
+ProgressFn = Callable[[str, int, int], Any]
+MANIFEST_EVERY_S = 1.0  # the checkpoint's manifest is rewritten at most this often while a pass runs
+
+
+def pass_schedule(options: PatchMatchOptions, n_levels: int) -> list[tuple[int, int, int]]:
+    """(level, pass, iterations of all earlier passes) of every pass in the order the engine runs them."""
+    out, done = [], 0
+    for level in range(n_levels - 1, -1, -1):
+        for p in range(1 + options.geom_passes):
+            out.append((level, p, done))
+            done += options.pass_iterations(p)
+    return out
+
+
+def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchOptions, counter: CounterOptions,
+                         executor: Executor, observer: Any = None, progress: ProgressFn | None = None,
+                         checkpoint: PatchMatchCheckpoint | None = None) -> tuple[list[ViewMaps], list[np.ndarray]]:
+    """PatchMatch and counter maps of every view as tasks on ``executor``; the tasks write the depth, normal, cost
+    and counter maps into ``out_dir``. Returns the maps and counter maps (read back), like ``run_patchmatch`` and
+    ``compute_counter_maps``. ``observer``, ``progress`` and ``checkpoint`` as for ``run_patchmatch``; the observer
+    gets one ``on_iteration`` per view and pass (when its task ends) instead of one per iteration. Without a
+    checkpoint the states go through ``out_dir/.deepc-resume`` all the same (removed at the end)."""
+    options = options.validate()
+    views = [SceneView(scene, i) for i in range(len(scene.views))]
+    if not views:
+        return [], []
+    active = _check_views(views, options)
+    n_levels = effective_levels(views, options)
+    if n_levels < options.levels:
+        warnings.warn(f"PatchMatch: images too small for {options.levels} levels; using {n_levels}", stacklevel=2)
+    own = checkpoint is None
+    if own:
+        checkpoint = PatchMatchCheckpoint(Path(out_dir) / CHECKPOINT_DIR, resume=False)
+    checkpoint.bind(views, options, n_levels)
+    folder, ref, n = str(checkpoint.folder), SceneRef.of(scene), len(views)
+    on_iter = getattr(observer, "on_iteration", None)
+    on_stage = getattr(observer, "on_stage", None)
+    schedule = pass_schedule(options, n_levels)
+    resume = checkpoint.resume_point()
+    first = 0 if resume is None else next((k + 1 for k, (lv, p, _) in enumerate(schedule) if (lv, p) == resume), 0)
+    step = sum(options.pass_iterations(p) for _, p, _ in schedule[:first]) * sum(active)
+    flushed = time.monotonic()
+    for k in range(first, len(schedule)):
+        level, p, done = schedule[k]
+        shapes = [level_size(v.camera.width, v.camera.height, level)[::-1] for v in views]
+        kind = "geometric" if p else "photometric"
+        n_iter = options.pass_iterations(p)
+        if on_stage is not None:
+            on_stage("patchmatch_pass", level=level, pass_kind=kind, pass_index=p, iterations=n_iter)
+        description = f"level {level} {kind}"
+        if progress is not None:
+            progress(description, 0, n)
+        # states an interrupted run saved for this pass are verified and kept
+        todo = [i for i in range(n) if checkpoint.load(level, p, i, shapes[i]) is None]
+        finished = n - len(todo)
+        if progress is not None and finished:
+            progress(description, finished, n)
+        previous = None if k == 0 else schedule[k - 1][:2]
+        jobs = [PassJob(ref, folder, i, level, p, n_levels, active[i], options,
+                        _inputs(checkpoint, previous, [i, *(views[i].source_views if p else [])]), done,
+                        executor.threads) for i in todo]
+
+        def ended(index: int, result: PassResult, level=level, p=p, description=description, todo=todo,
+                  shapes=shapes, n_iter=n_iter) -> None:
+            nonlocal finished, step
+            nonlocal flushed
+            i = todo[index]
+            # the manifest (every entry) at most once a second: a stopped driver loses at most a second of tasks
+            flush = time.monotonic() - flushed > MANIFEST_EVERY_S
+            checkpoint.record(level, p, i, result.sha256, write=flush)
+            flushed = time.monotonic() if flush else flushed
+            finished += 1
+            if on_iter is not None and active[i]:
+                state = load_state(state_reader(folder, checkpoint.entries), level, p, i, shapes[i])
+                step += n_iter
+                on_iter(pass_event(i, views[i].name, level, p, n_iter - 1, step - 1, state, result))
+            if progress is not None:
+                progress(description, finished, n)
+
+        try:
+            executor.map(patchmatch_view_pass, jobs, ended)
+        finally:  # a stopped run keeps every state its tasks finished (--resume)
+            checkpoint.flush()
+        checkpoint.pass_complete(level, p)
+    last = (0, options.geom_passes)
+    executor.map(finish_view, [FinishJob(ref, folder, str(out_dir), i, last[1], active[i],
+                                         _inputs(checkpoint, last, [i, *views[i].source_views]), counter,
+                                         executor.threads) for i in range(n)])
+    reader = state_reader(folder, checkpoint.entries)
+    maps = [final_maps(load_state(reader, *last, i, (v.camera.height, v.camera.width)), active[i])
+            for i, v in enumerate(views)]
+    counters = [_read(out_dir, "counter", v.name).astype(np.uint8) for v in views]
+    if own:
+        checkpoint.clear()
+    if on_stage is not None:
+        on_stage("patchmatch_done", levels=n_levels, views=n)
+    return maps, counters
+
+
+def _inputs(checkpoint: PatchMatchCheckpoint, at: tuple[int, int] | None, views: list[int]) -> dict[str, str]:
+    """Checkpoint file name -> SHA-256 of the states of ``views`` after pass ``at`` (none before the first pass)."""
+    if at is None:
+        return {}
+    names = [PatchMatchCheckpoint._name(*at, j) for j in views]
+    return {name: checkpoint.entries[name] for name in names if name in checkpoint.entries}
+
+
+def _read(out_dir: str | Path, kind: str, name: str) -> np.ndarray:
+    array = read_map(out_dir, kind, name)
+    if array is None:
+        raise FileNotFoundError(f"{kind} map of {name} missing in {out_dir}")
+    return array
+
+
+def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceOptions, executor: Executor,
+                         want_raw: bool) -> tuple[list[np.ndarray], list[np.ndarray] | None]:
+    """Confidence maps of every view (one task each, from the maps the PatchMatch tasks wrote into ``out_dir``;
+    they write the confidence maps). Returns them (read back) and, with ``want_raw``, the maps before the
+    back-facing rule (the refinement's weights)."""
+    jobs = [ConfidenceJob(SceneRef.of(scene), str(out_dir), i, options, options.weights or None, want_raw,
+                          executor.threads) for i in range(len(scene.views))]
+    raw = executor.map(confidence_view, jobs)
+    return [_read(out_dir, "confidence", v.name) for v in scene.views], (raw if want_raw else None)
+
+
+def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: list[np.ndarray], options: RefinementOptions,
+                         executor: Executor, progress: Callable[[int, int, Any], None] | None = None
+                         ) -> list[RefinedMap | None]:
+    """Rossi et al. 2020's refinement of every view (one task each, from the PatchMatch maps in ``out_dir``), as
+    ``engine.refinement.views.refine_views`` returns it; ``progress(i, n, result)`` as each view's task ends."""
+    n = len(scene.views)
+    jobs = [RefineJob(SceneRef.of(scene), str(out_dir), i, confidence[i], options, executor.threads) for i in range(n)]
+    return executor.map(refine_view, jobs, None if progress is None else lambda i, r: progress(i, n, r))
