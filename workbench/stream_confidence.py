@@ -57,6 +57,11 @@ from workbench.map_images import subsample
 from workbench.stream import RerunStream, entity_name
 from workbench.stream_legends import confidence_classes, counter_classes, label_classes
 
+#: torch threads of the live scoring unless ``confidence.num_threads`` says otherwise: between PatchMatch's kernels two
+#: OpenMP threads wait at every layer's barrier for a core that another process holds; on the 2-core machine under load
+#: one thread scored a 160x120 view in 0.62 s, two in 5.3 s (docs/decisions.md)
+LIVE_TORCH_THREADS = 1
+
 
 class LiveConfidence(NullObserver):
     """Counter and confidence maps of each view every ``every``-th iteration, logged through ``stream``.
@@ -65,7 +70,8 @@ class LiveConfidence(NullObserver):
         stream: the rerun stream that forwards its events here (its timelines, views, GT and thinning).
         every: k >= 1.
         counter: the counter map's checks (``PipelineOptions.counter``).
-        confidence: the network's options (``PipelineOptions.confidence``: weights, tau, tiles, bf16, threads).
+        confidence: the network's options (``PipelineOptions.confidence``: weights, tau, tiles, bf16; its
+            ``num_threads``, else :data:`LIVE_TORCH_THREADS`).
         model: a loaded :class:`engine.confidence.network.ConfidenceNet`; default: load ``confidence.weights`` (the
             shipped network of the fast pipeline), so that ``--pipeline vanilla`` streams confidence too.
     """
@@ -142,7 +148,7 @@ class LiveConfidence(NullObserver):
         _gray, rgb, _camera = self._level(event.view, event.depth.shape)
         x = network_inputs(rgb, event.normal, counter, len(self.stream.views[event.view][3]))
         o = self.options
-        with torch_threads(o.num_threads):
+        with torch_threads(o.num_threads or LIVE_TORCH_THREADS):
             c = predict_confidence(self.model, x, o.tile, o.overlap, o.bf16)
         c = np.where(event.depth > 0, c, np.float32(0.0)).astype(np.float32)
         if o.zero_backfacing:

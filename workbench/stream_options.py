@@ -24,9 +24,8 @@ class StreamOptions(Options):
     selected_views_mask: bool = option(True, "log the raw selected-views bitmask (uint32) as well as the count",
                                        source="ours")
     confidence_every: int | None = option(
-        None, "every k-th iteration of each view, log its counter map against the other views' latest maps and the "
-        f"confidence network on its current maps (any pipeline); unset = every {DEFAULT_CONFIDENCE_EVERY} when "
-        "streaming live, off for recordings without a viewer (--headless); 0 = off", source="ours", low=0, metavar="K")
+        None, f"score counter and confidence every k-th iteration of a view; unset = {DEFAULT_CONFIDENCE_EVERY} live, "
+        "off headless; 0 = off", source="ours", low=0, metavar="K")
 
     def confidence_k(self, live: bool) -> int:
         """The k of :attr:`confidence_every` for a stream to a live viewer (``live``) or to a file only: as given,
