@@ -8,7 +8,7 @@ from engine.options import Options, option
 
 #: ``confidence_every`` of a live stream when none is given: the smallest k whose scoring costs at most 25 % of
 #: PatchMatch's time in the demo (scripts/demo.sh; measured in docs/decisions.md, "Confidence while PatchMatch runs")
-DEFAULT_CONFIDENCE_EVERY = 2
+DEFAULT_CONFIDENCE_EVERY = 3
 
 
 @dataclasses.dataclass
