@@ -1,12 +1,12 @@
 """Cost of scoring confidence while PatchMatch runs (``--stream-confidence-every K``), and the demo recording's size.
 
     .venv/bin/python benchmarks/performance/bench_stream_confidence.py [--scene sample_scenes/small] [--size 0]
-        [--schedule acmm] [--every 2 1] [--repeats 2] [--out benchmarks/results/bench_stream_confidence.json]
+        [--schedule acmm] [--every 3 1] [--repeats 2] [--out benchmarks/results/bench_stream_confidence.json]
 
 fountain_p11 at 768 px (the scene beside the checkout, ../shared/data):
 
     .venv/bin/python benchmarks/performance/bench_stream_confidence.py --scene ../shared/data/fountain_p11 \\
-        --size 768 --every 2 --repeats 2 --out benchmarks/results/bench_stream_confidence_fountain_p11_768.json
+        --size 768 --every 3 --repeats 2 --out benchmarks/results/bench_stream_confidence_fountain_p11_768.json
 
 Per repeat, alternating: PatchMatch headless (no observer), with the rerun stream writing an .rrd (the demo's
 stream, ``scripts/demo.sh``: default thinning, no confidence) and, for each K of ``--every``, with the stream
