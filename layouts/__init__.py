@@ -6,7 +6,8 @@ recording lacks gets a text panel saying so (``missing/<view>/<kind>``, written 
 to the recording) instead of an empty "No data available" panel.
 
 - ``iterations``: PatchMatch iterations of one view — depth, normals, cost, selected views, error
-  against GT, counter, and the per-iteration scalars, with the cameras in 3-D, the colour legends and
+  against GT, counter (and confidence with GT labels when the recording holds confidence, e.g. scored
+  while PatchMatch ran), and the per-iteration scalars, with the cameras in 3-D, the colour legends and
   what the recording holds.
 - ``pipelines``: the fused clouds of the pipelines side by side with one view's maps.
 - ``confidence``: confidence against GT labels, the image and the depth error: one tab per view (the
@@ -27,7 +28,8 @@ import rerun.blueprint as rrb
 MAP_LABELS = {"depth": "depth", "normal": "normal", "cost": "cost", "selected_count": "selected views",
               "error": "error vs GT", "counter": "counter", "confidence": "confidence", "label": "GT labels",
               "refined_depth": "refined depth"}
-STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT"}
+STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT",
+                "confidence_auc": "confidence ROC-AUC", "confidence_kept_pct": "confidence >= tau %"}
 PIPELINES = ("vanilla", "fast", "full")
 SCRUB_TIMELINE = "view_iteration"  # one view's iterations (workbench/stream.py); older recordings: "iteration"
 
@@ -84,6 +86,8 @@ def iterations(contents: Contents, view: str) -> rrb.Blueprint:
     stats = [rrb.TimeSeriesView(name=f"{label} · {title}", origin=f"/stats/{view}/{stat}")
              for stat, label in STATS_LABELS.items() if contents.has(f"/stats/{view}/{stat}")]
     kinds = ("depth", "normal", "cost", "selected_count", "error", "counter")
+    if contents.entities is not None and contents.has(f"/maps/{view}/confidence"):
+        kinds += ("confidence", "label")
     rows = [rrb.Grid(*[map_panel(contents, view, kind) for kind in kinds])]
     if stats:
         rows.append(rrb.Horizontal(*stats))

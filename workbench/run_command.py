@@ -57,6 +57,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             from workbench.run_recording import open_run_recording  # lazy: rerun
 
             recording = open_run_recording(record, scene, options, stream_options, live.grpc_url if live else None)
+            if live_view is not None:  # the live 3-D viewer colours by the confidence the stream scores
+                for companion in recording.stream.companions:
+                    if hasattr(companion, "listeners"):
+                        companion.listeners.append(live_view.set_confidence)
         try:
             # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
             with deferred_interrupts():

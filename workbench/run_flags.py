@@ -14,6 +14,7 @@ from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
 from engine.patchmatch import PatchMatchOptions
 from engine.scene import SceneOptions
 from workbench.flags import add_options_flags
+from workbench.stream_options import DEFAULT_CONFIDENCE_EVERY
 
 # PatchMatch options offered as flags; the rest are reachable with --set patchmatch.NAME=VALUE.
 RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_propagation", "ncc_weighting",
@@ -43,6 +44,10 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
                         help="confidence-network weights for --pipeline fast and full (default: the shipped "
                              "engine/confidence/weights/deepc_middle.pt); the filter threshold is "
                              "--set confidence.tau=0.1")
+    parser.add_argument("--stream-confidence-every", type=int, default=None, metavar="K",
+                        help="while PatchMatch runs, every K-th iteration of each view: its counter map and the "
+                             "confidence network's map (any pipeline) in the rerun stream (default: "
+                             f"{DEFAULT_CONFIDENCE_EVERY} when streaming live, off with --headless; 0 = off)")
     parser.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
                         help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
                              "--set fusion.check_num_images=20, "

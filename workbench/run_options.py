@@ -40,7 +40,10 @@ def run_options_from_args(args: argparse.Namespace) -> tuple[SceneOptions, Pipel
     refinement = RefinementOptions(**section_overrides(args.set, "refinement", RefinementOptions))
     options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, confidence=confidence,
                               refinement=refinement, fusion=fusion).validate()
-    stream_options = StreamOptions(**section_overrides(args.set, "stream", StreamOptions)).validate()
+    stream = section_overrides(args.set, "stream", StreamOptions)
+    if getattr(args, "stream_confidence_every", None) is not None:
+        stream["confidence_every"] = args.stream_confidence_every
+    stream_options = StreamOptions(**stream).validate()
     if options.pipeline in ("fast", "full"):
         check_pipeline_weights(options)
     return scene_options, options, stream_options

@@ -12,16 +12,20 @@ from layouts import DEFAULT, LAYOUTS, Contents
 from workbench.recording import Recording
 from workbench.recording_notes import log_notes
 from workbench.stream import RerunStream, StreamOptions, entity_name
+from workbench.stream_confidence import LiveConfidence
 
 ITERATION_MAPS = ("depth", "normal", "cost", "selected_count", "counter")
 ITERATION_STATS = ("mean_cost", "changed_pct", "seconds", "level", "pass")
+LIVE_CONFIDENCE_STATS = ("confidence_kept_pct", "confidence_seconds")  # and confidence_auc with GT
 
 
-def expected_contents(scene: Scene, options: PipelineOptions, stream_options: StreamOptions) -> Contents:
-    """The entities a run with these options is going to record (for its layout before any data exists)."""
+def expected_contents(scene: Scene, options: PipelineOptions, stream_options: StreamOptions,
+                      live_confidence: bool = False) -> Contents:
+    """The entities a run with these options is going to record (for its layout before any data exists);
+    ``live_confidence``: the stream scores the maps while PatchMatch runs (workbench/stream_confidence.py)."""
     names = [entity_name(v.index, v.name) for v in scene.views]
     entities = {"/legend", f"/world/fused/{options.pipeline}"}
-    confidence = options.pipeline in ("fast", "full")
+    confidence = live_confidence or options.pipeline in ("fast", "full")
     for view, name in zip(scene.views, names, strict=True):
         if stream_options.view is not None and view.index != stream_options.view:
             continue
@@ -30,6 +34,9 @@ def expected_contents(scene: Scene, options: PipelineOptions, stream_options: St
                  *(["label"] if gt and confidence else [])]
         entities |= {f"/maps/{name}/{kind}" for kind in kinds}
         entities |= {f"/stats/{name}/{stat}" for stat in (*ITERATION_STATS, *(["within_1pct"] if gt else []))}
+        if live_confidence:
+            entities |= {f"/stats/{name}/{stat}"
+                         for stat in (*LIVE_CONFIDENCE_STATS, *(["confidence_auc"] if gt else []))}
     return Contents(names, entities)
 
 
@@ -37,8 +44,11 @@ def open_run_recording(path: str | None, scene: Scene, options: PipelineOptions,
                        live_url: str | None = None) -> Recording:
     """A :class:`Recording` to ``path`` (and/or the live viewer at ``live_url``) whose ``stream`` is the
     :class:`RerunStream` observer to hand to ``run_pipeline``. Its layout shows the view the stream is thinned
-    to (else the first), with a text panel in place of each map the run will not record."""
-    contents = expected_contents(scene, options, stream_options)
+    to (else the first), with a text panel in place of each map the run will not record. Counter and confidence
+    maps are scored while PatchMatch runs every ``stream_options.confidence_k(live)`` iterations of a view (by default
+    when streaming live, not to a file only), with the run's counter and confidence options."""
+    every = stream_options.confidence_k(live=live_url is not None)
+    contents = expected_contents(scene, options, stream_options, live_confidence=every > 0)
     names = contents.views
     focus = names[stream_options.view] if stream_options.view is not None and stream_options.view < len(names) \
         else names[0]
@@ -48,5 +58,8 @@ def open_run_recording(path: str | None, scene: Scene, options: PipelineOptions,
     recording.stream = RerunStream(recording.rec, views, gt, stream_options,
                                    pass_iterations=options.patchmatch.pass_iterations)
     recording.stream.set_depth_ranges([v.depth_range for v in scene.views])
+    if every > 0:
+        recording.stream.companions.append(LiveConfidence(recording.stream, every, options.counter,
+                                                          options.confidence))
     log_notes(recording.rec, contents, focus, DEFAULT, live=True)
     return recording

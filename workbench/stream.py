@@ -9,10 +9,12 @@ Entity tree (one per recording; the same code writes to a live viewer or an ``.r
     maps/<view>/selected_count      number of selected source views per pixel, class-coded
     maps/<view>/selected_views      uint32 bitmask over the view's source list (see selected_views_list)
     maps/<view>/error               |z - z_gt| / z_gt in %, class-coded (hover names it), when GT exists
-    maps/<view>/counter             consistent source views after PatchMatch, class-coded
-    maps/<view>/confidence          DeepC confidence (fast/full pipelines), class-coded
+    maps/<view>/counter             consistent source views after PatchMatch (and every k-th iteration with
+                                    StreamOptions.confidence_every, workbench/stream_confidence.py), class-coded
+    maps/<view>/confidence          DeepC confidence (fast/full pipelines; every k-th iteration likewise)
     maps/<view>/label               GT inlier/outlier labels of the depth the confidence scored, when GT exists
     stats/<view>/{mean_cost,changed_pct,within_1pct,seconds,level,pass}   scalars
+    stats/<view>/{confidence_kept_pct,confidence_auc,confidence_seconds}  scalars of the k-th iterations' scoring
     legend, legend/<kind>           markdown: colour scale, unit and 'no data' of every map (stream_legends)
     world/fused/<pipeline>          fused cloud, when a fusion stage reports one
 
@@ -97,6 +99,9 @@ class RerunStream(NullObserver):
         self._view_iterations: dict[int, int] = {}  # per view: iterations seen so far
         self._passes: list[tuple[int, int]] = []  # (level, pass_index) in the order they ran
         self._last_time: dict[int, tuple[int, int, int]] = {}  # per view: (view_iteration, pass, step) last logged
+        self.event_time = (0, 0, 0)  # (view_iteration, pass, step) of the event being handled, logged or not
+        # observers that get every event after this stream handled it and log through it (stream_confidence)
+        self.companions: list[Any] = []
         self._contexts: set[str] = set()  # class-coded entities whose AnnotationContext is logged
         self._depth_range = [(0.0, 1.0)] * len(views)
         self._point_radius = 0.01  # model units; set_depth_ranges derives one from the scene
@@ -149,13 +154,32 @@ class RerunStream(NullObserver):
         self.rec.set_time("pass", sequence=pass_number)
         self.rec.set_time("iteration", sequence=step)
 
+    def depth_range(self, view: int) -> tuple[float, float]:
+        """The (min, max) depth of ``view`` (its colormap range; the PatchMatch range after set_depth_ranges)."""
+        return self._depth_range[view]
+
+    def set_event_time(self) -> None:
+        """Set the timelines to the event being handled (for companions logging at its iteration)."""
+        self._set_time(*self.event_time)
+
+    def log_view_classes(self, view: int, kind: str, ids: np.ndarray) -> None:
+        """Log the class-coded map ``maps/<view>/<kind>`` (a kind of ``stream_legends.CONTEXTS``) at the current
+        time."""
+        self._log_classes(f"maps/{entity_name(view, self.views[view][0])}/{kind}", kind, ids)
+
     def on_iteration(self, event: IterationEvent) -> None:
+        self._log_iteration(event)
+        for companion in self.companions:
+            companion.on_iteration(event)
+
+    def _log_iteration(self, event: IterationEvent) -> None:
         view = event.view
         view_iteration = self._view_iterations.get(view, 0)
         self._view_iterations[view] = view_iteration + 1
         if (event.level, event.pass_index) not in self._passes:
             self._passes.append((event.level, event.pass_index))
         pass_number = self._passes.index((event.level, event.pass_index))
+        self.event_time = (view_iteration, pass_number, event.step)
         depth = event.depth
         valid = depth > 0
         previous = self._previous_depth.get(view)
@@ -224,7 +248,7 @@ class RerunStream(NullObserver):
         self._set_time(*self._last_time.get(view, (0, 0, 0)))
         self._log_classes(f"maps/{entity_name(view, self.views[view][0])}/{kind}", kind, ids)
 
-    def _labels(self, view: int, depth: np.ndarray) -> np.ndarray | None:
+    def labels(self, view: int, depth: np.ndarray) -> np.ndarray | None:
         """GT label map of ``depth`` (Kuhn et al. 2020, §3.2); None without GT depth."""
         gt = self._gt_at(view, depth.shape)
         if gt is None:
@@ -254,7 +278,7 @@ class RerunStream(NullObserver):
             depth = depths[view] if view < len(depths) else None
             invalid = None if depth is None else subsample(depth <= 0, small)
             self._log_stage_map(view, "confidence", confidence_classes(subsample(conf, small), invalid))
-            labels = None if depth is None else self._labels(view, depth)
+            labels = None if depth is None else self.labels(view, depth)
             if labels is not None:
                 self._log_stage_map(view, "label", label_classes(subsample(labels, small)))
         cloud = info.get("cloud")
@@ -264,3 +288,5 @@ class RerunStream(NullObserver):
         mesh = info.get("mesh")
         if mesh is not None:
             self.log_mesh(str(info.get("pipeline", "vanilla")), mesh)
+        for companion in self.companions:
+            companion.on_stage(name, **info)

@@ -127,12 +127,16 @@ LEGENDS: dict[str, str] = {
              "(black-purple) to 50 % or more (yellow), in 0.25 % classes; hover names the class. Logged with the maps "
              "at every logged iteration of every level. No data (no estimate or no GT): black.",
     "counter": "**counter** — number of source views whose depth agrees with this pixel's (geometric consistency), "
-               "colour scale *coolwarm* 0 (blue) to 5+ (red). Computed once after PatchMatch: it appears at each "
-               "view's last iteration. No data: black.",
+               "colour scale *coolwarm* 0 (blue) to 5+ (red). Computed after PatchMatch (at each view's last "
+               "iteration) and, when the stream scores confidence while PatchMatch runs, every k-th iteration "
+               "against the other views' latest maps. No data: black.",
     "confidence": "**confidence** — the DeepC network's probability that the depth is an inlier, 0 to 1, colour "
-                  "scale *viridis*; hover names the value. Only fast/full pipelines compute it. No data: black.",
+                  "scale *viridis*; hover names the value. The fast/full pipelines compute it after PatchMatch; a "
+                  "live stream also scores the current maps every k-th iteration (any pipeline, "
+                  "--stream-confidence-every). No data: black.",
     "label": "**labels** — GT labels (Kuhn et al. 2020): green inlier (< 2 px reprojection error in a source view), "
-             "red outlier, black unlabeled. Needs GT depth and the confidence stage; compare with confidence.",
+             "red outlier, black unlabeled. Needs GT depth and confidence (the stage or the live scoring); compare "
+             "with confidence.",
 }
 
 
