@@ -28,10 +28,9 @@ class PatchMatchOptions(Options):
                            "geometric", source="paper", choices=SCHEDULES)
     iterations: int | None = option(None, "this many red-black iterations in every pass; unset = the schedule's",
                                     source="ours", low=1)
-    converge_ratio: float = option(0.0, "end a pass early once an iteration changes (beyond converge_depth) more "
-                                   "than this share of the pixels the one before changed; 0 = never", source="ours",
-                                   low=0, below=1)
-    converge_depth: float = option(0.01, "a pixel counts as changed by an iteration when its depth moves more",
+    converge_ratio: float = option(0.0, "end a pass once an iteration's changed share exceeds this x the last "
+                                   "one's; 0 = off", source="ours", low=0, below=1)
+    converge_depth: float = option(0.01, "a pixel has changed when its depth moves more than this",
                                    unit="relative depth", source="ours", above=0)
     levels: int = option(3, "pyramid levels, factor 0.5 apart (fewer if the coarsest is below min_level_size)",
                          source="paper", low=1, high=8)

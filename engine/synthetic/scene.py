@@ -51,9 +51,8 @@ class SparseSettings(Options):
                              source="ours")
     noise_rel_3d: float = option(0.001, "standard deviation of 3-D position noise relative to depth, clipped at 2 "
                                  "sigma", source="ours")
-    neighbours: int = option(0, "test a feature's visibility only in the views this many places before and after "
-                             "its own in the list (0 = every view; long sequences, engine/synthetic/sequence.py)",
-                             source="ours", low=0)
+    neighbours: int = option(0, "look for a feature only in the views this many places either side of its own "
+                             "(0 = all)", source="ours", low=0)
 
 
 @dataclasses.dataclass
