@@ -5,13 +5,13 @@ without replaying PatchMatch; the engine's own probe is tested against the kerne
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
 
 from engine.errors import DeepCError
+from engine.probe_run import RegionResult
 from engine.run_folder import read_map
 from engine.scene import Scene
 
@@ -75,21 +75,6 @@ def make_trace(scene: Scene, view: str | int, x: int, y: int, final_depth: float
                       "error": error}}
 
 
-@dataclasses.dataclass
-class Region:
-    """A region result in the shape of ``engine.probe_run.RegionResult``."""
-
-    box: tuple[int, int, int, int]
-    depth_before: np.ndarray
-    depth_after: np.ndarray
-    error_before: np.ndarray | None
-    error_after: np.ndarray | None
-    within_1pct_before: float | None
-    within_1pct_after: float | None
-    traces: list[dict]
-    seconds: float
-
-
 class HandProbe:
     """``probe_run`` and ``rerun_region`` of a run folder, answered from its depth maps (see module doc).
 
@@ -120,7 +105,7 @@ class HandProbe:
             out.append(make_trace(self.scene, v.name, int(x), int(y), float(depth[y, x])))
         return out
 
-    def rerun(self, run_dir, view, box, level=0, pass_index=0, overrides=None, probe_pixels=()) -> Region:
+    def rerun(self, run_dir, view, box, level=0, pass_index=0, overrides=None, probe_pixels=()) -> RegionResult:
         self.calls.append(("region", view, tuple(box), level, pass_index, dict(overrides or {})))
         v = _find_view(self.scene, view)
         x0, y0, w, h = box
@@ -145,4 +130,4 @@ class HandProbe:
 
         traces = [make_trace(self.scene, v.name, x, y, float(depth[y, x]), seed=1) for x, y in probe_pixels]
         eb, ea = error(before), error(after)
-        return Region(tuple(box), before, after, eb, ea, within(eb), within(ea), traces, self.delay_s)
+        return RegionResult(tuple(box), before, after, eb, ea, within(eb), within(ea), traces, self.delay_s)

@@ -124,3 +124,28 @@ def run_async(coro, timeout: float = 300.0):
 
     with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
         return pool.submit(asyncio.run, coro).result(timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def noisy_run(tmp_path_factory):
+    """A tiny vanilla run with noisy maps (make_noisy_run), one per test module."""
+    return make_noisy_run(SAMPLES / "tiny", tmp_path_factory.mktemp("noisy_run"))
+
+
+@pytest.fixture
+def inspector_app(noisy_run):
+    """A viewer on ``noisy_run`` whose inspector probes and re-runs with hand-made traces (``support.probe_traces``);
+    ``inspector_app.hand`` records the calls. Stopped afterwards."""
+    from support.probe_traces import HandProbe
+    from workbench.session import ViewerSession
+    from workbench.viewer import ViewerApp
+
+    viewer = ViewerApp(ViewerSession.open(noisy_run), port=0)
+    hand = HandProbe(viewer.session.scene, noisy_run)
+    viewer.inspector.probe_fn, viewer.inspector.region_fn = hand.probe, hand.rerun
+    viewer.hand = hand
+    try:
+        assert viewer.wait_idle(120)
+        yield viewer
+    finally:
+        viewer.stop()

@@ -5,34 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SAMPLES, make_noisy_run, wait_for
+from conftest import SAMPLES, wait_for
 
-from support.probe_traces import HandProbe, make_trace
+from support.probe_traces import make_trace
 from workbench.probe_figures import candidate_table_html, summary_markdown, trace_figure
 from workbench.probe_windows import window_corners, window_thumbnails
 
 pytestmark = pytest.mark.timeout(300)
 
-
-@pytest.fixture(scope="module")
-def noisy_run(tmp_path_factory):
-    return make_noisy_run(SAMPLES / "tiny", tmp_path_factory.mktemp("noisy_run"))
-
-
-@pytest.fixture
-def app(noisy_run):
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
-
-    viewer = ViewerApp(ViewerSession.open(noisy_run), port=0)
-    hand = HandProbe(viewer.session.scene, noisy_run)
-    viewer.inspector.probe_fn, viewer.inspector.region_fn = hand.probe, hand.rerun
-    viewer.hand = hand
-    try:
-        assert viewer.wait_idle(120)
-        yield viewer
-    finally:
-        viewer.stop()
 
 
 def test_figures_of_a_trace(noisy_run):
@@ -68,8 +48,8 @@ def test_window_corners_lie_on_the_plane_and_project_back(noisy_run):
     assert strip.shape[1] == 3 * strip.shape[0] - 3 * 14
 
 
-def test_typed_pixel_fills_the_inspector(app):
-    inspector = app.inspector
+def test_typed_pixel_fills_the_inspector(inspector_app):
+    inspector = inspector_app.inspector
     inspector.inspect(1, 40, 30)
     wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
     assert inspector.trace["view"] == "view_001.png" and (inspector.trace["x"], inspector.trace["y"]) == (40, 30)
@@ -77,23 +57,23 @@ def test_typed_pixel_fills_the_inspector(app):
     assert inspector.plots.visible and inspector.windows.visible
     assert "winner in bold" in inspector.table.content
     assert tuple(inspector.pixel.value) == (40, 30) and inspector.entry.max == len(inspector.trace["iterations"]) - 1
-    depth = app.session.data[1].depth[30, 40]
+    depth = inspector_app.session.data[1].depth[30, 40]
     assert inspector.trace["final"]["depth"] == pytest.approx(depth)
     # another entry of the trace: its candidates
     inspector.entry.value = 2
     assert "L1 p0 i2" in inspector.table.content
     # one probe traced the pixel's 8 neighbours too: the same pixel and a neighbour come from the cache
-    assert app.hand.calls[-1][2][0] == (40, 30) and len(app.hand.calls[-1][2]) == 9
-    calls = len(app.hand.calls)
+    assert inspector_app.hand.calls[-1][2][0] == (40, 30) and len(inspector_app.hand.calls[-1][2]) == 9
+    calls = len(inspector_app.hand.calls)
     inspector.inspect(1, 40, 30)
-    assert inspector.wait_idle(10) and len(app.hand.calls) == calls
+    assert inspector.wait_idle(10) and len(inspector_app.hand.calls) == calls
     inspector.inspect(1, 41, 31)
     wait_for(lambda: inspector.trace["x"] == 41 and inspector.wait_idle(1))
-    assert len(app.hand.calls) == calls
+    assert len(inspector_app.hand.calls) == calls
     # at the image corner only the neighbours inside the image come along
     inspector.inspect(1, 0, 0)
     wait_for(lambda: inspector.trace["x"] == 0 and inspector.wait_idle(1))
-    assert sorted(app.hand.calls[-1][2]) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert sorted(inspector_app.hand.calls[-1][2]) == [(0, 0), (0, 1), (1, 0), (1, 1)]
     # the re-run box is centred on the pixel, inside the image (tiny: 160x120)
     assert tuple(inspector.box_origin.value) == (0, 0) and tuple(inspector.box_size.value) == (64, 64)
     inspector.inspect(1, 159, 119)
@@ -103,8 +83,8 @@ def test_typed_pixel_fills_the_inspector(app):
 
 @pytest.mark.parametrize(("view", "x", "y", "message"), [
     (0, 500, 20, "outside view"), (0, -1, 3, "outside view"), ("nope.png", 3, 3, "no view 'nope.png'")])
-def test_bad_pixel_or_view_is_a_message_and_the_panel_goes_on(app, view, x, y, message):
-    inspector = app.inspector
+def test_bad_pixel_or_view_is_a_message_and_the_panel_goes_on(inspector_app, view, x, y, message):
+    inspector = inspector_app.inspector
     inspector.inspect(view, x, y)
     wait_for(lambda: "cannot probe" in inspector.status.content)
     assert message in inspector.status.content and "\n" not in inspector.status.content
@@ -112,14 +92,14 @@ def test_bad_pixel_or_view_is_a_message_and_the_panel_goes_on(app, view, x, y, m
     wait_for(lambda: inspector.trace is not None and inspector.trace["x"] == 10 and inspector.wait_idle(1))
 
 
-def test_a_click_on_the_cloud_picks_the_pixel_that_holds_the_point(app):
-    inspector = app.inspector
-    view = app.session.scene.views[2]
-    depth = app.session.data[2].depth
+def test_a_click_on_the_cloud_picks_the_pixel_that_holds_the_point(inspector_app):
+    inspector = inspector_app.inspector
+    view = inspector_app.session.scene.views[2]
+    depth = inspector_app.session.data[2].depth
     x, y = 70, 55
     assert depth[y, x] > 0
     point = view.camera.backproject(depth)[y, x]
-    app.select_view(2)
+    inspector_app.select_view(2)
     # a ray from the camera through that pixel, as a browser click sends it
     direction = point - view.camera.center
     picked = inspector.pick(view.camera.center, direction / np.linalg.norm(direction))
@@ -128,30 +108,30 @@ def test_a_click_on_the_cloud_picks_the_pixel_that_holds_the_point(app):
     assert inspector.pick(view.camera.center, -view.camera.R[2]) is None
 
 
-def test_the_map_plane_turns_a_click_into_its_pixel(app):
-    inspector = app.inspector
-    app.select_view(3)
+def test_the_map_plane_turns_a_click_into_its_pixel(inspector_app):
+    inspector = inspector_app.inspector
+    inspector_app.select_view(3)
     inspector.plane_kind.value = "depth"
     assert inspector.map_plane is not None and inspector._plane_view == 3
-    assert [f.visible for f in app.frustums] == [True, True, True, False, True]  # the plane stands in for it
-    camera = app.session.scene.views[3].camera
+    assert [f.visible for f in inspector_app.frustums] == [True, True, True, False, True]  # the plane stands in for it
+    camera = inspector_app.session.scene.views[3].camera
     ray = camera.R.T @ (np.linalg.inv(camera.K_idx) @ np.array([33.2, 71.8, 1.0]))
     picked = inspector.pick(camera.center, ray / np.linalg.norm(ray))
     assert picked[:3] == (3, 33, 72) and picked[3] == "map plane"
-    app.select_view(1)  # the plane follows the view
+    inspector_app.select_view(1)  # the plane follows the view
     assert inspector._plane_view == 1
     inspector.plane_kind.value = "off"
-    assert not inspector.map_plane.visible and all(f.visible for f in app.frustums)
+    assert not inspector.map_plane.visible and all(f.visible for f in inspector_app.frustums)
     assert inspector.pick(camera.center, ray / np.linalg.norm(ray))[3] != "map plane"
 
 
-def test_region_rerun_shows_before_after_and_the_new_trace(app):
-    inspector = app.inspector
-    data = app.session.data[0].depth
-    gt = app.session.scene.gt_depth(0)
+def test_region_rerun_shows_before_after_and_the_new_trace(inspector_app):
+    inspector = inspector_app.inspector
+    data = inspector_app.session.data[0].depth
+    gt = inspector_app.session.scene.gt_depth(0)
     wrong = np.argwhere((np.abs(data - gt) > 0.05 * gt) & (gt > 0) & (data > 0))
     y, x = (int(v) for v in wrong[len(wrong) // 2])
-    app.select_view(0)
+    inspector_app.select_view(0)
     inspector.inspect(0, x, y)
     wait_for(lambda: inspector.trace is not None and inspector.trace["x"] == x and inspector.wait_idle(1))
     assert "✘" in inspector.summary.content
@@ -160,7 +140,7 @@ def test_region_rerun_shows_before_after_and_the_new_trace(app):
     inspector.region_inputs["iterations"].value = 4
     inspector.rerun_from_form()
     wait_for(lambda: inspector.region is not None and inspector.wait_idle(1))
-    call = app.hand.calls[-1]
+    call = inspector_app.hand.calls[-1]
     assert call[0] == "region" and call[5] == {"window": 7, "iterations": 4}
     x0, y0, w, h = call[2]
     assert x0 <= x < x0 + w and y0 <= y < y0 + h
@@ -170,17 +150,17 @@ def test_region_rerun_shows_before_after_and_the_new_trace(app):
     assert "after re-run" in inspector.summary.content and "✔" in inspector.summary.content
 
 
-def test_region_outside_the_image_is_a_message(app):
-    inspector = app.inspector
+def test_region_outside_the_image_is_a_message(inspector_app):
+    inspector = inspector_app.inspector
     inspector.rerun(0, (150, 100, 64, 64))
     wait_for(lambda: "cannot re-run" in inspector.region_status.content)
     assert "not inside view" in inspector.region_status.content
 
 
-def test_a_trace_in_rerun_with_the_probe_layout(app, tmp_path):
+def test_a_trace_in_rerun_with_the_probe_layout(inspector_app, tmp_path):
     from workbench.replay import default_layout, layout_file, recording_contents
 
-    inspector = app.inspector
+    inspector = inspector_app.inspector
     inspector.inspect(0, 40, 30)
     wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
     path = inspector.save_rrd()
@@ -217,16 +197,16 @@ def test_the_engine_probe_and_region_rerun_in_the_inspector(engine_run):
     from workbench.session import ViewerSession
     from workbench.viewer import ViewerApp
 
-    app = ViewerApp(ViewerSession.open(engine_run), port=0)
+    inspector_app = ViewerApp(ViewerSession.open(engine_run), port=0)
     try:
-        assert app.wait_idle(120)
-        inspector = app.inspector
+        assert inspector_app.wait_idle(120)
+        inspector = inspector_app.inspector
         inspector.plane_kind.value = "GT error"
         inspector.inspect(0, 70, 50)
         wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1), timeout=300)
         trace = inspector.trace
         assert (trace["view"], trace["x"], trace["y"]) == ("view_000.png", 70, 50)
-        assert trace["final"]["depth"] == pytest.approx(float(app.session.data[0].depth[50, 70]), rel=1e-6)
+        assert trace["final"]["depth"] == pytest.approx(float(inspector_app.session.data[0].depth[50, 70]), rel=1e-6)
         assert "GT" in inspector.summary.content and "counter:" in inspector.summary.content
         assert inspector.plots.visible and inspector.windows.visible and "winner in bold" in inspector.table.content
         for entry in (0, len(trace["iterations"]) // 2):
@@ -241,7 +221,7 @@ def test_the_engine_probe_and_region_rerun_in_the_inspector(engine_run):
         wait_for(lambda: "cannot probe" in inspector.status.content and inspector.wait_idle(1))
         assert "outside view" in inspector.status.content
     finally:
-        app.stop()
+        inspector_app.stop()
 
 
 def test_a_run_without_pass_history_says_so(noisy_run):
@@ -249,10 +229,11 @@ def test_a_run_without_pass_history_says_so(noisy_run):
     from workbench.session import ViewerSession
     from workbench.viewer import ViewerApp
 
-    app = ViewerApp(ViewerSession.open(noisy_run), port=0)  # the engine's own probe
+    inspector_app = ViewerApp(ViewerSession.open(noisy_run), port=0)  # the engine's own probe
     try:
-        app.inspector.inspect(0, 10, 10)
-        wait_for(lambda: "cannot probe" in app.inspector.status.content and app.inspector.wait_idle(1))
-        assert "history" in app.inspector.status.content and app.inspector.trace is None
+        inspector_app.inspector.inspect(0, 10, 10)
+        inspector = inspector_app.inspector
+        wait_for(lambda: "cannot probe" in inspector.status.content and inspector.wait_idle(1))
+        assert "history" in inspector_app.inspector.status.content and inspector_app.inspector.trace is None
     finally:
-        app.stop()
+        inspector_app.stop()

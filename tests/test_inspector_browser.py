@@ -7,39 +7,18 @@ from __future__ import annotations
 import time
 
 import pytest
-from conftest import SAMPLES, make_noisy_run, wait_for
-
-from support.probe_traces import HandProbe
+from conftest import wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
 
 
-@pytest.fixture(scope="module")
-def noisy_run(tmp_path_factory):
-    return make_noisy_run(SAMPLES / "tiny", tmp_path_factory.mktemp("noisy_run"))
 
-
-@pytest.fixture
-def app(noisy_run):
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
-
-    viewer = ViewerApp(ViewerSession.open(noisy_run), port=0)
-    hand = HandProbe(viewer.session.scene, noisy_run)
-    viewer.inspector.probe_fn, viewer.inspector.region_fn = hand.probe, hand.rerun
-    try:
-        assert viewer.wait_idle(120)
-        yield viewer
-    finally:
-        viewer.stop()
-
-
-def _open(context, app):
+def _open(context, inspector_app):
     from workbench.browser import dismiss_software_webgl_notice
 
     page = context.new_page()
-    page.goto(f"http://127.0.0.1:{app.port}/")
-    wait_for(lambda: len(app.server.get_clients()) > 0)
+    page.goto(f"http://127.0.0.1:{inspector_app.port}/")
+    wait_for(lambda: len(inspector_app.server.get_clients()) > 0)
     page.get_by_text("Connected").wait_for()
     page.get_by_text("points").first.wait_for()
     dismiss_software_webgl_notice(page)
@@ -48,26 +27,26 @@ def _open(context, app):
     return page
 
 
-def _look_through_view(page, app):
-    camera = app.session.scene.views[app._selected_view].camera
-    client = next(iter(app.server.get_clients().values()))
+def _look_through_view(page, inspector_app):
+    camera = inspector_app.session.scene.views[inspector_app._selected_view].camera
+    client = next(iter(inspector_app.server.get_clients().values()))
     page.get_by_role("button", name="Look through the view").click()
     wait_for(lambda: abs(client.camera.position - camera.center).max() < 1e-3 * (1 + abs(camera.center).max()))
     time.sleep(1.0)  # the browser's camera follows on its next frame
 
 
-def test_a_click_on_the_map_plane_fills_the_inspector_with_that_pixel(browser_context, app):
-    page = _open(browser_context, app)
+def test_a_click_on_the_map_plane_fills_the_inspector_with_that_pixel(browser_context, inspector_app):
+    page = _open(browser_context, inspector_app)
     try:
-        inspector = app.inspector
+        inspector = inspector_app.inspector
         inspector.plane_kind.value = "depth"
-        _look_through_view(page, app)
+        _look_through_view(page, inspector_app)
         box = page.locator('canvas[data-engine^="three.js"]').bounding_box()
 
         def click(fx: float, fy: float) -> None:
             page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
 
-        camera = app.session.scene.views[0].camera
+        camera = inspector_app.session.scene.views[0].camera
         cx, cy = camera.K_idx[0, 2], camera.K_idx[1, 2]
         # The client's camera now is view 0's (same vertical field of view): the canvas centre is the principal
         # point, and a quarter of the canvas height below it is a quarter of the image height lower.
@@ -89,10 +68,10 @@ def test_a_click_on_the_map_plane_fills_the_inspector_with_that_pixel(browser_co
         page.close()
 
 
-def test_region_rerun_in_the_browser_changes_the_maps_and_the_trace(browser_context, app):
-    page = _open(browser_context, app)
+def test_region_rerun_in_the_browser_changes_the_maps_and_the_trace(browser_context, inspector_app):
+    page = _open(browser_context, inspector_app)
     try:
-        inspector = app.inspector
+        inspector = inspector_app.inspector
         inspector.pixel.value = (40, 30)
         page.get_by_role("button", name="Inspect pixel").click()
         wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
@@ -109,10 +88,10 @@ def test_region_rerun_in_the_browser_changes_the_maps_and_the_trace(browser_cont
         page.close()
 
 
-def test_bad_pixel_and_unknown_view_are_messages_in_the_browser(browser_context, app):
-    page = _open(browser_context, app)
+def test_bad_pixel_and_unknown_view_are_messages_in_the_browser(browser_context, inspector_app):
+    page = _open(browser_context, inspector_app)
     try:
-        inspector = app.inspector
+        inspector = inspector_app.inspector
         inspector.pixel.value = (500, 20)
         page.get_by_role("button", name="Inspect pixel").click()
         page.get_by_text("cannot probe: pixel (500, 20) is outside view view_000.png").wait_for()
@@ -126,12 +105,12 @@ def test_bad_pixel_and_unknown_view_are_messages_in_the_browser(browser_context,
         page.close()
 
 
-def test_a_saved_trace_replays_in_the_rerun_web_viewer_with_the_probe_layout(browser_context, app, tmp_path):
+def test_a_saved_trace_replays_in_the_rerun_web_viewer_with_the_probe_layout(browser_context, inspector_app, tmp_path):
     from test_replay_browser import _shot, blueprint_titles
 
     from workbench.replay import WebViewer, default_layout, layout_file
 
-    inspector = app.inspector
+    inspector = inspector_app.inspector
     inspector.inspect(0, 40, 30)
     wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
     path = inspector.save_rrd()
