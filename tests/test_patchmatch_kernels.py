@@ -863,7 +863,8 @@ def test_active_half_step_matches_reference(geometric: bool) -> None:
 
 def test_active_set_is_deterministic_whatever_the_thread_count() -> None:
     """Active half-steps from the same state and change map give bit-identical maps on 1 and 2 threads; in a
-    pass, iterations before ACTIVE_FROM_ITERATION update every pixel and every pixel is counted once."""
+    pass, iterations before ACTIVE_FROM_ITERATION and the last one update every pixel, and every pixel is counted
+    once per iteration."""
     import numba
 
     from engine.patchmatch.records import ACTIVE_FROM_ITERATION
@@ -874,7 +875,8 @@ def test_active_set_is_deterministic_whatever_the_thread_count() -> None:
     seen: list[np.ndarray] = []
     run_view_level(start, ctx, opts, 2.0, 5.0, iterations=4, on_iteration=lambda t, c, s: seen.append(c.copy()))
     size = start.depth.size
-    assert all(c[K.CNT_PIXELS] == size and c[K.CNT_SKIPPED] == 0 for c in seen[:ACTIVE_FROM_ITERATION])
+    assert all(c[K.CNT_PIXELS] == size and c[K.CNT_SKIPPED] == 0 for c in seen[:ACTIVE_FROM_ITERATION] + seen[-1:])
+    assert kernel_params(opts, 2.0, 5.0, 3, last=True).active_share < 0 < kernel_params(opts, 2.0, 5.0, 3).active_share
     assert all(c[K.CNT_PIXELS] + c[K.CNT_SKIPPED] == size for c in seen)
     changed = (np.random.default_rng(2).random(start.depth.shape) < 0.003).astype(np.uint8)
     maps: list[ViewState] = []

@@ -67,10 +67,11 @@ def good_threshold(options: PatchMatchOptions, iteration: int) -> float:
 ACTIVE_FROM_ITERATION = 2
 
 
-def active_share(options: PatchMatchOptions, iteration: int) -> float:
+def active_share(options: PatchMatchOptions, iteration: int, last: bool = False) -> float:
     """``KernelParams.active_share`` of iteration ``iteration`` (0-based in its pass): -1 (every pixel is updated)
-    while the active set is off or before ACTIVE_FROM_ITERATION, else ``options.active_share``."""
-    on = options.active_share >= 0 and iteration >= ACTIVE_FROM_ITERATION
+    while the active set is off, before ACTIVE_FROM_ITERATION and in the pass's ``last`` iteration (which accepts
+    any lower cost: a quiet pixel's candidates may win there), else ``options.active_share``."""
+    on = options.active_share >= 0 and iteration >= ACTIVE_FROM_ITERATION and not last
     return float(options.active_share) if on else -1.0
 
 
@@ -96,7 +97,7 @@ def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteratio
         normal_retries=int(options.normal_perturb_retries), n_regions=int(n_regions),
         plane_propagation=bool(options.plane_propagation), geometric=bool(geometric), detail_restorer=bool(detail),
         deterministic=options.view_sampling == "deterministic", all8=options.combos == "all8",
-        active_share=active_share(options, iteration), track_changes=bool(options.active_share >= 0),
+        active_share=active_share(options, iteration, last), track_changes=bool(options.active_share >= 0),
         change_depth=float(options.converge_depth))
 
 

@@ -117,7 +117,7 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     hypotheses are kept for the next pass of this level (``pass_index < options.geom_passes``).
     With ``options.converge_ratio`` > 0 (and ``iterations`` unset) the pass ends early once it has converged
     (:class:`Convergence`): the iteration after that is its last. With ``options.active_share`` >= 0 the
-    iterations from ``records.ACTIVE_FROM_ITERATION`` on update only the active set
+    iterations from ``records.ACTIVE_FROM_ITERATION`` on, except the pass's last, update only the active set
     (``kernels.half_step_kernel``).
     ``probe`` (``probe.PassProbe``): explains its pixels before each half-step and records what the kernel
     wrote (outside the kernels: the maps are the same with or without it).
