@@ -2,13 +2,16 @@
 hypothesis changed, changed by more than 1 % in depth, and the pooled depth within 1 % of GT.
 
     .venv/bin/python benchmarks/experiments/patchmatch_convergence.py [SCENE] [--size 768] [--schedule paper]
-        [--set patchmatch.NAME=VALUE ...] [--fuse OUT] [--json benchmarks/results/patchmatch_convergence.json]
+        [--set patchmatch.NAME=VALUE ...] [--fuse OUT] [--active-from T] [--num-source-views 5]
+        [--json benchmarks/results/patchmatch_convergence.json]
 
 ``--set patchmatch.active_share=0.1`` turns the active set on (``kernels.half_step_kernel``), ``--set
 patchmatch.converge_ratio=0.8`` convergence-driven pass ends. Every run also reports the kernels' work: pixel
 updates evaluated and skipped by the active set, NCC windows, and the CPU seconds of the half-steps (all threads;
 steadier than wall time on a shared machine). ``--fuse OUT`` runs the vanilla pipeline (PatchMatch, fusion,
-evaluation) into OUT instead of PatchMatch alone and adds its fused F1 and depth within 1 % to the result.
+evaluation) into OUT instead of PatchMatch alone and adds its fused F1 and depth within 1 % to the result;
+``--active-from T`` (ablation) starts the active set at iteration T of every pass instead of
+``records.ACTIVE_FROM_ITERATION``.
 
 The measurement behind convergence-driven iteration counts (issue 34): an iteration whose changed share is
 small and whose within-1 % does not move is an iteration a user pays for and gets nothing from. "Changed"
@@ -26,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import engine.patchmatch.kernels as K
+import engine.patchmatch.records as records
 import engine.patchmatch.view_pass as view_pass
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.pipeline import PipelineOptions, patchmatch_views, run_pipeline
@@ -119,15 +123,28 @@ class _KernelWork:
         windows = int(c[: K.CNT_PIXELS].sum())
         return {"pixel_updates": int(c[K.CNT_PIXELS]), "pixels_skipped": int(c[K.CNT_SKIPPED]),
                 "ncc_windows": windows, "windows_per_update": windows / max(int(c[K.CNT_PIXELS]), 1),
-                "half_step_cpu_seconds": self.cpu_seconds}
+                "half_step_cpu_seconds": self.cpu_seconds,
+                "windows_rows": int(c[K.CNT_ROWS]), "windows_current": int(c[K.CNT_CURRENT]),
+                "windows_remaining": int(c[K.CNT_REMAINING]), "windows_refine": int(c[K.CNT_REFINE])}
 
 
 def summary(result: dict) -> list[dict]:
     """One row per run: its schedule and options, the work done and the final depth within 1 %."""
     opts = ", ".join(f"{k}={v}" for k, v in result["options"].items())
-    return [{"scene": Path(result["scene"]).name, "options": opts,
-             "pixel-iterations (M)": result.get("pixel_iterations", 0) / 1e6,
-             "final within 1 %": result.get("final_within_1pct"), "seconds": result["total_seconds"]}]
+    if "active_share" in result["options"] and "active_from_iteration" in result:
+        opts += f", active from iteration {result['active_from_iteration']}"
+    row = {"scene": Path(result["scene"]).name, "options": opts,
+           "pixel-iterations (M)": result.get("pixel_iterations", 0) / 1e6,
+           "final within 1 %": result.get("final_within_1pct"), "seconds": result["total_seconds"]}
+    kernels = result.get("kernels")
+    if kernels:  # results since the active set: the kernels' work
+        row.update({"updates (M)": kernels["pixel_updates"] / 1e6, "skipped (M)": kernels["pixels_skipped"] / 1e6,
+                    "NCC windows (M)": kernels["ncc_windows"] / 1e6,
+                    "half-step CPU s": kernels["half_step_cpu_seconds"]})
+    f1 = (result.get("fused") or {}).get("f1")
+    if f1:
+        row["fused F1 1 / 2 / 5 cm"] = " / ".join(f"{v:.2f}" for v in f1[:3])
+    return [row]
 
 
 def main() -> None:
@@ -138,8 +155,12 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="patchmatch.NAME=VALUE")
     ap.add_argument("--num-source-views", type=int, default=5)
     ap.add_argument("--fuse", default=None, metavar="OUT", help="run the vanilla pipeline into OUT (fused F1)")
+    ap.add_argument("--active-from", type=int, default=None, metavar="T",
+                    help=f"ablation: first iteration of the active set (default {records.ACTIVE_FROM_ITERATION})")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
+    if args.active_from is not None:
+        records.ACTIVE_FROM_ITERATION = args.active_from  # read by records.active_share at every iteration
     scene_options = SceneOptions(num_source_views=args.num_source_views,
                                  **({"max_image_size": args.size} if args.size else {}))
     scene = load_scene(args.scene, scene_options)
@@ -184,7 +205,8 @@ def main() -> None:
     variant = "_".join([scene.name, args.schedule] + [f"{k}{v}" for k, v in sorted(overrides.items())])
     name = bench.results_path(__file__, variant)
     bench.write_result({"scene": args.scene, "size": list(views[0].image_gray.shape[::-1]), "views": len(views),
-                        "options": {"schedule": args.schedule, **overrides}, "total_seconds": total,
+                        "options": {"schedule": args.schedule, **overrides},
+                        "active_from_iteration": records.ACTIVE_FROM_ITERATION, "total_seconds": total,
                         "cpu_seconds": cpu, "kernels": kernel, "fused": fused,
                         "pixel_iterations": pixel_iterations, "final_within_1pct": final, "rows": rows},
                        args.json or name)
