@@ -385,10 +385,14 @@ def init_cost_ref(prob: RefProblem, Z: np.ndarray, N: np.ndarray, geometric: boo
 
 def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, iteration: int, zmin: float,
                   zmax: float, geometric: bool, detail: bool, pattern: tuple[np.ndarray, np.ndarray],
-                  eps: float | None = None) -> None:
+                  eps: float | None = None, changed: np.ndarray | None = None, active_share: float = -1.0) -> None:
     """Plain-Python red-black half-step, in place (same semantics and random draws as the kernel).
 
-    ``eps`` is the perturbation scale (default 2^-iteration, the 'pass' schedule)."""
+    ``eps`` is the perturbation scale (default 2^-iteration, the 'pass' schedule). Active set: with ``changed``
+    (H, W) u8 (1 = the pixel's last update moved its depth by more than converge_depth or its normal by more than
+    5 degrees; updated in place) and ``active_share`` >= 0,
+    a pixel is updated only if it, a pattern sample or a 4-neighbour changed, or if draw 1 << 16 of its stream
+    falls below ``active_share``."""
     o = prob.o
     h, w = Z.shape
     pat, region = pattern
@@ -400,6 +404,14 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
     for y in range(h):
         for x in range((y + colour) % 2, w, 2):
             pk = int(rng.combine(np.uint64(key), y * w + x))
+            if changed is not None:
+                reads = [(x + int(dx), y + int(dy)) for dx, dy in pat]
+                reads += [(x, y - 1), (x, y + 1), (x - 1, y), (x + 1, y)]
+                moved = changed[y, x] or any(changed[qy, qx] for qx, qy in reads if 0 <= qx < w and 0 <= qy < h)
+                drawn = rng.uniform(np.uint64(pk), 1 << 16) < active_share
+                if active_share >= 0 and not moved and not drawn:
+                    continue
+                changed[y, x] = 0
             rp = prob.ray(x, y)
             # candidates: per region the in-image, valid sample with the lowest stored cost
             best_in_region: dict[int, tuple[float, int]] = {}
@@ -460,6 +472,12 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
             if detail and not (best < Cpre[y, x] - o.detail_restorer_delta):
                 C[y, x] = c_cur
                 continue
+            z_old, n_old = float(Z[y, x]), N[y, x].astype(np.float64)
+            z_new, n_new = float(np.float32(zb)), nb.astype(np.float32).astype(np.float64)
+            if changed is not None and (z_new != z_old or np.any(n_new != n_old)) and (
+                    abs(z_new - z_old) > o.converge_depth * max(z_new, z_old)
+                    or float(n_new @ n_old) < math.cos(math.radians(5.0))):
+                changed[y, x] = 1
             Z[y, x], N[y, x], C[y, x] = zb, nb, best
             if won:
                 S[y, x] = sum(1 << j for j in range(n_views) if v[j] > 0)

@@ -444,15 +444,15 @@ def test_area_resize() -> None:
     assert area_resize(img, 10, 8) is not None
 
 
-def _tiny_problem(seed: int, geometric: bool, options: PatchMatchOptions):
+def _tiny_problem(seed: int, geometric: bool, options: PatchMatchOptions, h: int = 14, w: int = 16):
     rng = np.random.default_rng(seed)
-    a, b = _cameras(16, 14)
-    c = Camera.from_params(16, 14, 20.0, 20.0, 8.3, 6.9, np.eye(3), np.array([0.35, -0.1, 0.0]))
-    imgs = [_mixed_texture(_smooth_noise(rng, 14, 16)) for _ in range(3)]
-    depths = [rng.uniform(2.5, 4.5, size=(14, 16)).astype(np.float32) for _ in range(2)] if geometric else None
+    a, b = _cameras(w, h)
+    c = Camera.from_params(w, h, 20.0, 20.0, w / 2 + 0.3, h / 2 - 0.1, np.eye(3), np.array([0.35, -0.1, 0.0]))
+    imgs = [_mixed_texture(_smooth_noise(rng, h, w)) for _ in range(3)]
+    depths = [rng.uniform(2.5, 4.5, size=(h, w)).astype(np.float32) for _ in range(2)] if geometric else None
     ctx = build_context(imgs[0], a, imgs[1:], [b, c], options, depths)
     prob = ref.RefProblem(imgs[0], a, imgs[1:], [b, c], depths, options)
-    st = ViewState.zeros(14, 16)
+    st = ViewState.zeros(h, w)
     kinv = np.linalg.inv(a.K_idx).ravel()
     K.random_init_kernel(st.depth, st.normal, kinv, 2.0, 5.0, np.uint64(stream_key(seed, 0, 0, 0, 99, 0)), False)
     return ctx, prob, st
@@ -789,3 +789,114 @@ def test_convergence_counts_pixels_moved_beyond_the_tolerance() -> None:
     moved = moved.copy()
     moved[:1] *= 1.05  # 10 % again: stopped falling -> converged
     assert conv.update(moved)
+
+
+def _active_mask(changed: np.ndarray, pattern, colour: int, key: np.uint64, share: float) -> np.ndarray:
+    """Pixels of ``colour`` the active set updates, written from the rule: the pixel, a pattern sample or a
+    4-neighbour changed in its last update, or the pixel's draw 1 << 16 is below ``share``."""
+    h, w = changed.shape
+    reach = [tuple(int(v) for v in o) for o in pattern.offsets] + [(0, -1), (0, 1), (-1, 0), (1, 0)]
+    mask = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range((y + colour) % 2, w, 2):
+            moved = changed[y, x] or any(changed[y + dy, x + dx] for dx, dy in reach
+                                         if 0 <= x + dx < w and 0 <= y + dy < h)
+            mask[y, x] = moved or uniform(np.uint64(combine(key, y * w + x)), K.ACTIVE_DRAW) < share
+    return mask
+
+
+def test_active_set_updates_only_pixels_whose_neighbourhood_changed() -> None:
+    """With share 0 and nothing changed, a half-step leaves every pixel alone (maps bit for bit, all counted as
+    skipped); one changed pixel makes exactly the pixels that read it (pattern samples, 4-neighbours) active."""
+    opts = PatchMatchOptions(active_share=0.0)
+    ctx, _, st = _tiny_problem(12, False, opts)
+    pattern = pattern_of(opts)
+    params = kernel_params(opts, 2.0, 5.0, 2, False, False, n_regions(pattern))
+    assert params.active_share == 0.0 and params.track_changes
+    init_cost(st, ctx, params)
+    key = np.uint64(stream_key(5, 0, 0, 0, 2, 0))
+    st.changed[:] = 0
+    before = st.copy_maps()
+    counts = half_step(st, ctx, 0, st.cost.copy(), pattern, key, params)
+    assert counts[K.CNT_SKIPPED] == st.depth.size // 2 and counts[K.CNT_PIXELS] == 0 and counts[:4].sum() == 0
+    for a, b in zip(st.maps(), before.maps(), strict=True):
+        assert a.tobytes() == b.tobytes()
+    # pixel q = (7, 4) (colour 1) changed: the colour-0 pixels that read it are updated, no other
+    st.changed[4, 7] = 1
+    want = _active_mask(st.changed, pattern, 0, key, 0.0)
+    assert want[4, 10] and want[4, 8] and not want[5, 9]  # a pattern sample 3 px away, a 4-neighbour; neither
+    counts = half_step(st, ctx, 0, st.cost.copy(), pattern, key, params)
+    assert counts[K.CNT_PIXELS] == want.sum() and counts[K.CNT_SKIPPED] == st.depth.size // 2 - want.sum()
+    assert counts[:4].sum() > 0
+    for a, b in zip(st.maps(), before.maps(), strict=True):
+        assert a[~want].tobytes() == b[~want].tobytes()
+    assert (st.cost[want] != before.cost[want]).any()  # updated: at least the cost under new view weights
+    assert st.changed[~want & (np.indices(want.shape).sum(axis=0) % 2 == 0)].max() == 0
+
+
+@pytest.mark.parametrize("geometric", [False, True])
+def test_active_half_step_matches_reference(geometric: bool) -> None:
+    """The active set of the kernel is the reference's (same pixels updated, with the share's random draws), and
+    the updated pixels agree with the plain half-step as in :func:`test_half_step_matches_reference`."""
+    opts = PatchMatchOptions(k_update=10, k_viewsel=6, active_share=0.25)
+    ctx, prob, st = _tiny_problem(9, geometric, opts)
+    pat = pattern_of(opts)
+    params = kernel_params(opts, 2.0, 5.0, 3, geometric, False, n_regions(pat))
+    init_cost(st, ctx, params)
+    rng = np.random.default_rng(3)
+    st.changed[:] = rng.random(st.depth.shape) < 0.01  # a few changed pixels: most of the image is quiet
+    changed = st.changed.copy()
+    Z, N, C, S = st.depth.copy(), st.normal.copy(), st.cost.copy(), st.selected_views.copy()
+    key = np.uint64(stream_key(3, 0, 0, 0, 3, 1))
+    want = _active_mask(changed, pat, 1, key, 0.25)
+    assert 0.2 < want.sum() / (st.depth.size // 2) < 0.9
+    counts = half_step(st, ctx, 1, st.cost.copy(), pat, key, params)
+    ref.half_step_ref(prob, Z, N, C, S, st.cost.copy(), 1, int(key), 3, 2.0, 5.0, geometric, False, tuple(pat),
+                      None, changed, 0.25)
+    assert counts[K.CNT_PIXELS] == want.sum()
+    assert np.array_equal(st.depth[~want], Z[~want]) and np.array_equal(st.cost[~want], C[~want])
+    same = np.isclose(st.depth, Z, rtol=1e-5) & np.all(np.isclose(st.normal, N, atol=1e-5), axis=-1)
+    assert same.mean() > 0.97
+    assert (st.changed == changed).mean() > 0.97  # the change map agrees where the hypotheses do
+    assert (st.changed[want] == 1).any()
+
+
+def test_active_set_is_deterministic_whatever_the_thread_count() -> None:
+    """Active half-steps from the same state and change map give bit-identical maps on 1 and 2 threads; in a
+    pass, iterations before ACTIVE_FROM_ITERATION and the last one update every pixel, and every pixel is counted
+    once per iteration."""
+    import numba
+
+    from engine.patchmatch.records import ACTIVE_FROM_ITERATION
+
+    opts = PatchMatchOptions(active_share=0.1)
+    ctx, _, start = _tiny_problem(12, False, opts, 48, 64)
+    pattern = pattern_of(opts)
+    seen: list[np.ndarray] = []
+    run_view_level(start, ctx, opts, 2.0, 5.0, iterations=4, on_iteration=lambda t, c, s: seen.append(c.copy()))
+    size = start.depth.size
+    assert all(c[K.CNT_PIXELS] == size and c[K.CNT_SKIPPED] == 0 for c in seen[:ACTIVE_FROM_ITERATION] + seen[-1:])
+    assert kernel_params(opts, 2.0, 5.0, 3, last=True).active_share < 0 < kernel_params(opts, 2.0, 5.0, 3).active_share
+    assert all(c[K.CNT_PIXELS] + c[K.CNT_SKIPPED] == size for c in seen)
+    changed = (np.random.default_rng(2).random(start.depth.shape) < 0.003).astype(np.uint8)
+    maps: list[ViewState] = []
+    skipped = 0
+    threads = numba.get_num_threads()
+    try:
+        for n in (1, 2):
+            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+            st = start.copy_maps()
+            params = kernel_params(opts, 2.0, 5.0, 4, False, False, n_regions(pattern))
+            init_cost(st, ctx, params)
+            st.changed[:] = changed
+            for t in (4, 5):
+                params = kernel_params(opts, 2.0, 5.0, t, False, False, n_regions(pattern))
+                for colour in (0, 1):
+                    key = np.uint64(stream_key(4, 0, 0, 0, t, colour))
+                    skipped += half_step(st, ctx, colour, st.cost.copy(), pattern, key, params)[K.CNT_SKIPPED]
+            maps.append(st)
+    finally:
+        numba.set_num_threads(threads)
+    for a, b in zip(maps[0].maps(), maps[1].maps(), strict=True):
+        assert a.tobytes() == b.tobytes()
+    assert skipped > 0.2 * size

@@ -2,7 +2,16 @@
 hypothesis changed, changed by more than 1 % in depth, and the pooled depth within 1 % of GT.
 
     .venv/bin/python benchmarks/experiments/patchmatch_convergence.py [SCENE] [--size 768] [--schedule paper]
-        [--set patchmatch.NAME=VALUE ...] [--json benchmarks/results/patchmatch_convergence.json]
+        [--set patchmatch.NAME=VALUE ...] [--fuse OUT] [--active-from T] [--num-source-views 5]
+        [--json benchmarks/results/patchmatch_convergence.json]
+
+``--set patchmatch.active_share=0.1`` turns the active set on (``kernels.half_step_kernel``), ``--set
+patchmatch.converge_ratio=0.8`` convergence-driven pass ends. Every run also reports the kernels' work: pixel
+updates evaluated and skipped by the active set, NCC windows, and the CPU seconds of the half-steps (all threads;
+steadier than wall time on a shared machine). ``--fuse OUT`` runs the vanilla pipeline (PatchMatch, fusion,
+evaluation) into OUT instead of PatchMatch alone and adds its fused F1 and depth within 1 % to the result;
+``--active-from T`` (ablation) starts the active set at iteration T of every pass instead of
+``records.ACTIVE_FROM_ITERATION``.
 
 The measurement behind convergence-driven iteration counts (issue 34): an iteration whose changed share is
 small and whose within-1 % does not move is an iteration a user pays for and gets nothing from. "Changed"
@@ -19,8 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+import engine.patchmatch.kernels as K
+import engine.patchmatch.records as records
+import engine.patchmatch.view_pass as view_pass
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import patchmatch_views
+from engine.pipeline import PipelineOptions, patchmatch_views, run_pipeline
 from engine.resample import resample_depth
 from engine.scene import SceneOptions, load_scene
 from support import bench
@@ -83,12 +95,56 @@ class _Convergence:
         return out
 
 
+class _KernelWork:
+    """Sums the counts (``kernels.CNT_*``) and the CPU seconds of every half-step while installed (it wraps
+    ``view_pass.half_step``, which ``run_view_level`` calls)."""
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(K.N_COUNTS, np.int64)
+        self.cpu_seconds = 0.0
+        self.original = view_pass.half_step
+
+    def __enter__(self) -> _KernelWork:
+        def counted(*args, **kwargs):
+            t0 = time.process_time()
+            counts = self.original(*args, **kwargs)
+            self.cpu_seconds += time.process_time() - t0
+            self.counts += counts
+            return counts
+
+        view_pass.half_step = counted
+        return self
+
+    def __exit__(self, *exc) -> None:
+        view_pass.half_step = self.original
+
+    def summary(self) -> dict:
+        c = self.counts
+        windows = int(c[: K.CNT_PIXELS].sum())
+        return {"pixel_updates": int(c[K.CNT_PIXELS]), "pixels_skipped": int(c[K.CNT_SKIPPED]),
+                "ncc_windows": windows, "windows_per_update": windows / max(int(c[K.CNT_PIXELS]), 1),
+                "half_step_cpu_seconds": self.cpu_seconds,
+                "windows_rows": int(c[K.CNT_ROWS]), "windows_current": int(c[K.CNT_CURRENT]),
+                "windows_remaining": int(c[K.CNT_REMAINING]), "windows_refine": int(c[K.CNT_REFINE])}
+
+
 def summary(result: dict) -> list[dict]:
     """One row per run: its schedule and options, the work done and the final depth within 1 %."""
     opts = ", ".join(f"{k}={v}" for k, v in result["options"].items())
-    return [{"scene": Path(result["scene"]).name, "options": opts,
-             "pixel-iterations (M)": result.get("pixel_iterations", 0) / 1e6,
-             "final within 1 %": result.get("final_within_1pct"), "seconds": result["total_seconds"]}]
+    if "active_share" in result["options"] and "active_from_iteration" in result:
+        opts += f", active from iteration {result['active_from_iteration']}"
+    row = {"scene": Path(result["scene"]).name, "options": opts,
+           "pixel-iterations (M)": result.get("pixel_iterations", 0) / 1e6,
+           "final within 1 %": result.get("final_within_1pct"), "seconds": result["total_seconds"]}
+    kernels = result.get("kernels")
+    if kernels:  # results since the active set: the kernels' work
+        row.update({"updates (M)": kernels["pixel_updates"] / 1e6, "skipped (M)": kernels["pixels_skipped"] / 1e6,
+                    "NCC windows (M)": kernels["ncc_windows"] / 1e6,
+                    "half-step CPU s": kernels["half_step_cpu_seconds"]})
+    f1 = (result.get("fused") or {}).get("f1")
+    if f1:
+        row["fused F1 1 / 2 / 5 cm"] = " / ".join(f"{v:.2f}" for v in f1[:3])
+    return [row]
 
 
 def main() -> None:
@@ -97,17 +153,36 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=0, help="longest image side (0 = the scene's size)")
     ap.add_argument("--schedule", default="paper")
     ap.add_argument("--set", action="append", default=[], metavar="patchmatch.NAME=VALUE")
+    ap.add_argument("--num-source-views", type=int, default=5)
+    ap.add_argument("--fuse", default=None, metavar="OUT", help="run the vanilla pipeline into OUT (fused F1)")
+    ap.add_argument("--active-from", type=int, default=None, metavar="T",
+                    help=f"ablation: first iteration of the active set (default {records.ACTIVE_FROM_ITERATION})")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
-    scene_options = SceneOptions(num_source_views=5, **({"max_image_size": args.size} if args.size else {}))
+    if args.active_from is not None:
+        records.ACTIVE_FROM_ITERATION = args.active_from  # read by records.active_share at every iteration
+    scene_options = SceneOptions(num_source_views=args.num_source_views,
+                                 **({"max_image_size": args.size} if args.size else {}))
     scene = load_scene(args.scene, scene_options)
     views = patchmatch_views(scene)
     overrides = section_overrides(args.set, "patchmatch", PatchMatchOptions)
     options = PatchMatchOptions(schedule=args.schedule, **overrides).validate()
     probe = _Convergence([scene.gt_depth(i) for i in range(len(views))])
     t0 = time.perf_counter()
-    maps = run_patchmatch(views, options, observer=probe)
+    cpu0 = time.process_time()
+    fused = None
+    with _KernelWork() as work:
+        if args.fuse:
+            pipeline = PipelineOptions(pipeline="vanilla", patchmatch=options)
+            result = run_pipeline(scene, args.fuse, pipeline, observer=probe)
+            maps, metrics = result.maps, result.metrics
+            fused = {"f1": metrics.get("eval", {}).get("f1"), "tolerances": metrics.get("eval", {}).get("tolerances"),
+                     "depth_within_1pct": metrics.get("depth", {}).get("within_1pct"),
+                     "patchmatch_seconds": metrics["seconds"]["patchmatch"]}
+        else:
+            maps = run_patchmatch(views, options, observer=probe)
     total = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
     pixel_iterations = sum(n for (n, *_rest) in probe.counts.values())
     gt = [(m.depth, g) for m, g in zip(maps, probe.gt, strict=True) if g is not None]
     final = None
@@ -121,12 +196,18 @@ def main() -> None:
         fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
         print(f"{r['level']:>5} {r['pass_index']:>4} {r['iteration']:>4} {fmt(r['changed_pct']):>9} "
               f"{fmt(r['changed_1pct_pct']):>7} {fmt(r['within_1pct']):>10} {r['seconds']:6.2f}")
-    print(f"total {total:.1f} s, {pixel_iterations / 1e6:.1f} M pixel-iterations, final within 1 % "
+    print(f"total {total:.1f} s ({cpu:.1f} CPU s), {pixel_iterations / 1e6:.1f} M pixel-iterations, final within 1 % "
           f"{'-' if final is None else f'{final:.2f}'}")
+    kernel = work.summary()
+    print("kernels: " + ", ".join(f"{k} {v:.4g}" for k, v in kernel.items()))
+    if fused is not None:
+        print(f"fused F1 {fused['f1']} at {fused['tolerances']}, depth within 1 % {fused['depth_within_1pct']}")
     variant = "_".join([scene.name, args.schedule] + [f"{k}{v}" for k, v in sorted(overrides.items())])
     name = bench.results_path(__file__, variant)
     bench.write_result({"scene": args.scene, "size": list(views[0].image_gray.shape[::-1]), "views": len(views),
-                        "options": {"schedule": args.schedule, **overrides}, "total_seconds": total,
+                        "options": {"schedule": args.schedule, **overrides},
+                        "active_from_iteration": records.ACTIVE_FROM_ITERATION, "total_seconds": total,
+                        "cpu_seconds": cpu, "kernels": kernel, "fused": fused,
                         "pixel_iterations": pixel_iterations, "final_within_1pct": final, "rows": rows},
                        args.json or name)
     print(f"wrote {args.json or name}")

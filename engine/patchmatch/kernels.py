@@ -39,10 +39,18 @@ from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.view_selection import view_weights
 
 # columns of the half-step's counts (H, N_COUNTS): NCC windows evaluated for the view-selection rows, the
-# current hypothesis, the remaining candidates and the refinement hypotheses; pixels updated
-CNT_ROWS, CNT_CURRENT, CNT_REMAINING, CNT_REFINE, CNT_PIXELS = range(5)
-N_COUNTS = 5
+# current hypothesis, the remaining candidates and the refinement hypotheses; pixels updated; pixels the active
+# set left alone
+CNT_ROWS, CNT_CURRENT, CNT_REMAINING, CNT_REFINE, CNT_PIXELS, CNT_SKIPPED = range(6)
+N_COUNTS = 6
 BIG = 1e30
+# draw of a pixel's stream that decides whether a quiet pixel is updated anyway (the other draws of a half-step
+# are below 300: view weights 0.., refinement 100.., normal perturbation 200..)
+ACTIVE_DRAW = 1 << 16
+# active set: a replaced hypothesis has moved when its depth moves by more than params.change_depth (relative) or
+# its normal turns by more than 5 degrees; smaller moves (most replacements late in a pass are the refinement's
+# small perturbations) change a neighbour's propagated depth 13 px away by well under 1 % and wake no neighbour
+ACTIVE_NORMAL_COS = math.cos(math.radians(5.0))
 
 
 @njit(cache=True, fastmath=True, _nrt=False, inline="always")
@@ -224,6 +232,37 @@ def cached_rows(R, cand_s, cand_v, n_cand, n_old, x, y, pat, VER, RS, RV, RC):
 
 
 @njit(cache=True, _nrt=False, inline="always")
+def moved_plane(z, nx, ny, nz, z0, n0x, n0y, n0z, tol):
+    """Whether hypothesis (z, n) differs from (z0, n0) by more than ``tol`` in relative depth or by more than
+    5 degrees in normal (ACTIVE_NORMAL_COS): a change that wakes the active set."""
+    if abs(z - z0) > tol * max(z, z0):
+        return True
+    return nx * n0x + ny * n0y + nz * n0z < ACTIVE_NORMAL_COS
+
+
+@njit(cache=True, _nrt=False)
+def neighbourhood_changed(CH, pat, x, y):
+    """Whether a pixel that pixel (x, y)'s update reads changed its hypothesis in its last update: a sample of
+    the pattern ``pat`` (P, 2) (its candidates) or a 4-neighbour (the view-selection prior), per ``CH`` (H, W)
+    u8 (``records.CostCaches.changed``). All of them have the other colour, so in a half-step their last update
+    is the previous half-step, which the pixel's previous update did not see yet."""
+    h, w = CH.shape
+    n_pat = pat.shape[0]
+    for s in range(n_pat + 4):
+        if s < n_pat:
+            qx = x + pat[s, 0]
+            qy = y + pat[s, 1]
+        else:  # the 4-neighbours (0, -1), (0, 1), (-1, 0), (1, 0)
+            i = s - n_pat
+            d = 1 if i % 2 else -1
+            qx = x + (d if i >= 2 else 0)
+            qy = y + (0 if i >= 2 else d)
+        if qx >= 0 and qy >= 0 and qx < w and qy < h and CH[qy, qx] != 0:
+            return True
+    return False
+
+
+@njit(cache=True, _nrt=False, inline="always")
 def refinement_hypotheses(pk, rp, zb, nbx, nby, nbz, zmin, zmax, eps, retries, all8, hz, hn):
     """The local refinement's hypotheses around the best one (zb, nb) into ``hz`` (8,) and ``hn`` (8, 3); returns
     their count. Combinations of the current, a perturbed (relative depth ±eps, normal angles ±eps·π/2 with
@@ -398,6 +437,11 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
     float32 values). A hypothesis is replaced only by one whose cost is lower by more than
     ``params.min_improvement``; in the detail restorer's passes also only by one more than
     ``params.detail_delta`` below ``Cpre`` (H, W) f32, the upsampled hypothesis's cost.
+    Active set (``params.active_share`` >= 0): a pixel is updated only if its own last update or the last update
+    of a pixel it reads (:func:`neighbourhood_changed`) moved a plane (:func:`moved_plane`; ``caches.changed``,
+    written while ``params.track_changes``), or if its stream's draw ACTIVE_DRAW falls below the share; the others keep
+    everything and are counted in CNT_SKIPPED. The draw and the map only depend on the pixel and the previous
+    half-steps, so the maps do not depend on the thread count.
     ``ref``: :class:`records.ReferenceWindows`, ``sources``: :class:`records.SourceImages`, ``pattern``:
     :class:`records.SamplingPattern`, ``key``: the half-step's random stream (``rng.stream_key``),
     ``params``: :class:`records.KernelParams`."""
@@ -428,6 +472,10 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
     n_regions = params.n_regions
     mc = params.mc_samples
     min_improvement = params.min_improvement
+    CH = caches.changed
+    share = params.active_share
+    active = share >= 0.0
+    track = params.track_changes
     for y in prange(h):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
@@ -448,10 +496,19 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
         hz = np.empty(8, np.float64)
         hn = np.empty((8, 3), np.float64)
         win, sidx = ncc_work(ox.shape[1])
-        n_rows = n_cur = n_rem = n_ref = n_px = 0
+        n_rows = n_cur = n_rem = n_ref = n_px = n_skip = 0
         for x in range((y + colour) % 2, w, 2):
-            n_px += 1
             pk = combine(key, y * w + x)
+            if track:
+                # active set: a pixel whose own last update and whose neighbours' last updates changed nothing
+                # would see the same candidates as in its previous update, which kept its hypothesis; only a
+                # random share of them is updated (for the refinement's fresh perturbations)
+                if (active and CH[y, x] == 0 and not (uniform(pk, ACTIVE_DRAW) < share)
+                        and not neighbourhood_changed(CH, pat, x, y)):
+                    n_skip += 1
+                    continue  # hypothesis, cost, selected views and caches stay; CH[y, x] stays 0
+                CH[y, x] = 0
+            n_px += 1
             rp = ray(kinv, x, y)
             n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
             mu = mu_a[y, x]
@@ -614,6 +671,9 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
                 for j in range(n_views):
                     P[y, x, j] = np.nan
                 VER[y, x] += np.uint32(1)
+                if track and moved_plane(Z[y, x], Nrm[y, x, 0], Nrm[y, x, 1], Nrm[y, x, 2], z0, n0x, n0y, n0z,
+                                         params.change_depth):
+                    CH[y, x] = 1
             if won:
                 mask = np.uint32(0)
                 for j in range(n_views):
@@ -625,3 +685,4 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
         counts[y, CNT_REMAINING] += n_rem
         counts[y, CNT_REFINE] += n_ref
         counts[y, CNT_PIXELS] += n_px
+        counts[y, CNT_SKIPPED] += n_skip

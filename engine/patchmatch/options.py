@@ -30,7 +30,10 @@ class PatchMatchOptions(Options):
                                     source="ours", low=1)
     converge_ratio: float = option(0.0, "end a pass once an iteration's changed share exceeds this x the last "
                                    "one's; 0 = off", source="ours", low=0, below=1)
-    converge_depth: float = option(0.01, "a pixel has changed when its depth moves more than this",
+    active_share: float = option(-1.0, "from a pass's 3rd iteration update only pixels whose neighbours changed, "
+                                 "plus this random share", source="ours", off=-1.0, low=0, high=1)
+    converge_depth: float = option(0.01, "a pixel has changed (convergence, active set) when its depth moves more "
+                                   "than this",
                                    unit="relative depth", source="ours", above=0)
     levels: int = option(3, "pyramid levels, factor 0.5 apart (fewer if the coarsest is below min_level_size)",
                          source="paper", low=1, high=8)

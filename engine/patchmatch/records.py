@@ -51,12 +51,28 @@ class KernelParams(NamedTuple):
     detail_restorer: bool  # photometric pass of a finer level: compare with the upsampled hypothesis
     deterministic: bool  # view weights are ω itself instead of Monte-Carlo counts
     all8: bool  # refinement tries all 8 combinations of current/perturbed/random depth and normal
+    active_share: float  # active set: share of quiet pixels still updated; < 0 = every pixel is updated
+    track_changes: bool  # write CostCaches.changed (the active set is on in this pass)
+    change_depth: float  # active set: a hypothesis has changed when its depth moves more than this (relative)
 
 
 def good_threshold(options: PatchMatchOptions, iteration: int) -> float:
     """τ_g of iteration ``iteration`` (0-based in its pass): tau0 · exp(-t² / alpha), constant for alpha 0
     (Xu & Tao 2019 ACMM)."""
     return options.tau0 * (math.exp(-(iteration**2) / options.alpha) if options.alpha > 0 else 1.0)
+
+
+# the active set starts at this iteration of a pass: the first ones move most pixels (random start, upsampled or
+# carried-over maps, the largest perturbations) and every pixel's first update has no earlier one to compare with
+ACTIVE_FROM_ITERATION = 2
+
+
+def active_share(options: PatchMatchOptions, iteration: int, last: bool = False) -> float:
+    """``KernelParams.active_share`` of iteration ``iteration`` (0-based in its pass): -1 (every pixel is updated)
+    while the active set is off, before ACTIVE_FROM_ITERATION and in the pass's ``last`` iteration (which accepts
+    any lower cost: a quiet pixel's candidates may win there), else ``options.active_share``."""
+    on = options.active_share >= 0 and iteration >= ACTIVE_FROM_ITERATION and not last
+    return float(options.active_share) if on else -1.0
 
 
 def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int = 0, geometric: bool = False,
@@ -80,7 +96,9 @@ def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteratio
         n_good=int(options.n_good_gt), n_bad=int(options.n_bad_lt), mc_samples=int(options.mc_samples),
         normal_retries=int(options.normal_perturb_retries), n_regions=int(n_regions),
         plane_propagation=bool(options.plane_propagation), geometric=bool(geometric), detail_restorer=bool(detail),
-        deterministic=options.view_sampling == "deterministic", all8=options.combos == "all8")
+        deterministic=options.view_sampling == "deterministic", all8=options.combos == "all8",
+        active_share=active_share(options, iteration, last), track_changes=bool(options.active_share >= 0),
+        change_depth=float(options.converge_depth))
 
 
 class HypothesisMaps(NamedTuple):
@@ -104,6 +122,7 @@ class CostCaches(NamedTuple):
     row_versions: np.ndarray  # (H, W, K) u32 the version of that sample's pixel then
     row_costs: np.ndarray  # (H, W, K, N) f32 the candidates' photometric costs, NaN = not evaluated
     row_count: np.ndarray  # (H, W) i32 candidates of the last update (0 = none cached)
+    changed: np.ndarray  # (H, W) u8 1 = the pixel's last update moved its plane (the active set, see kernels)
     rows: bool  # whether the row cache is used (the row_* arrays are (1, 1, ...) placeholders otherwise)
 
 

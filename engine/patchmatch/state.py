@@ -42,6 +42,7 @@ class ViewState:
     row_versions: np.ndarray | None = None  # (H, W, K_up) u32
     row_costs: np.ndarray | None = None  # (H, W, K_up, N) f32
     row_count: np.ndarray | None = None  # (H, W) i32
+    changed: np.ndarray | None = None  # (H, W) u8
     known_costs: np.ndarray | None = None
     known_window_set: np.ndarray | None = None
 
@@ -63,7 +64,7 @@ class ViewState:
         """The cost caches as the kernels take them; ``rows``: whether the row cache is used
         (:meth:`prepare_caches`)."""
         return CostCaches(self.view_costs, self.versions, self.row_samples, self.row_versions, self.row_costs,
-                          self.row_count, rows)
+                          self.row_count, self.changed, rows)
 
     def checkpoint_arrays(self) -> dict[str, np.ndarray]:
         """The maps a checkpoint saves, under their on-disk names (no copies, unlike ``dataclasses.asdict``,
@@ -85,6 +86,7 @@ class ViewState:
         if self.view_costs is None or self.view_costs.shape != (h, w, n):
             self.view_costs = empty((h, w, n), np.float64)
             self.versions = empty((h, w), np.uint32)
+            self.changed = empty((h, w), np.uint8)
             reset = True
         rows = row_cache_bytes(h, w, k_up, n) <= ROW_CACHE_MAX_BYTES
         if not rows:
@@ -98,6 +100,7 @@ class ViewState:
         if reset:
             self.view_costs[:] = np.nan
             self.versions[:] = 0
+            self.changed[:] = 1  # every pixel's first update in a pass is active
             self.row_count[:] = 0
         return rows
 
@@ -112,6 +115,7 @@ class ViewState:
             self.known_costs = self.known_window_set = None
         if pool is not None:
             pool.give(self.view_costs, self.versions, self.row_samples, self.row_versions, self.row_costs,
-                      self.row_count)
+                      self.row_count, self.changed)
         self.view_costs = self.versions = self.row_samples = self.row_versions = self.row_costs = None
+        self.changed = None
         self.row_count = None

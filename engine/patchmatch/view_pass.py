@@ -72,7 +72,8 @@ def half_step(state: ViewState, ctx: ViewContext, colour: int, cpre: np.ndarray,
     ``params.detail_restorer``); ``key``: the half-step's random stream (``rng.stream_key``).
 
     Returns (N_COUNTS,) int64: NCC windows evaluated for the view-selection rows, the current
-    hypotheses, the remaining candidates and the refinement, and the number of pixels updated."""
+    hypotheses, the remaining candidates and the refinement, the number of pixels updated and the number the
+    active set left alone (``params.active_share``)."""
     rows = state.prepare_caches(ctx.num_sources, params.k_update, False)
     counts = np.zeros((state.depth.shape[0], K.N_COUNTS), np.int64)
     K.half_step_kernel(colour, state.maps(), state.caches(rows), cpre, ctx.reference_windows(), ctx.source_images(),
@@ -115,7 +116,9 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     between iterations. The pass's caches are dropped at the end; the photometric costs of the final
     hypotheses are kept for the next pass of this level (``pass_index < options.geom_passes``).
     With ``options.converge_ratio`` > 0 (and ``iterations`` unset) the pass ends early once it has converged
-    (:class:`Convergence`): the iteration after that is its last.
+    (:class:`Convergence`): the iteration after that is its last. With ``options.active_share`` >= 0 the
+    iterations from ``records.ACTIVE_FROM_ITERATION`` on, except the pass's last, update only the active set
+    (``kernels.half_step_kernel``).
     ``probe`` (``probe.PassProbe``): explains its pixels before each half-step and records what the kernel
     wrote (outside the kernels: the maps are the same with or without it).
     Returns the (N_COUNTS,) int64 counts of the whole pass."""
