@@ -37,6 +37,8 @@ class IterationEvent:
         seconds: wall-clock seconds spent on this iteration.
         ncc_windows: photometric costs (bilateral NCC windows) evaluated in this iteration; the engine's
             caches make this far fewer than the (K_up + 1 + 5) · N per pixel of an uncached half-step.
+        pixel_updates: pixel updates evaluated in this iteration (both half-steps).
+        pixels_skipped: pixel updates the active set left out (``PatchMatchOptions.active_share``; 0 when off).
     """
 
     view: int
@@ -52,6 +54,8 @@ class IterationEvent:
     selected_views: np.ndarray
     seconds: float
     ncc_windows: int = 0
+    pixel_updates: int = 0
+    pixels_skipped: int = 0
 
 
 def readonly(array: np.ndarray) -> np.ndarray:

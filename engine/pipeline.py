@@ -129,7 +129,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     t = time.perf_counter()
     if executor is None:
         early_stops = EarlyStops()
-        # EarlyStops has no on_iteration: without an observer the engine still builds no iteration events
+        # EarlyStops sums every iteration's work (its events share the maps: no copies)
         watch = early_stops if observer is None else ObserverList([observer, early_stops])
         maps = run_patchmatch(views, options.patchmatch, observer=watch, progress=progress, checkpoint=checkpoint,
                               probe=probe, history=history)
@@ -227,7 +227,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         "seconds": seconds,
         "fused_points": len(cloud),
     }
-    if options.patchmatch.converge_ratio > 0 and executor is None:  # tasks report no stage events
+    pm = options.patchmatch
+    if (pm.converge_ratio > 0 or pm.active_share >= 0) and executor is None:  # tasks report no stage events
         metrics["patchmatch_early_stops"] = early_stops.summary()
     if scene.has_gt_points:
         metrics["eval"] = evaluate_cloud(scene, cloud, options.evaluation).to_dict()

@@ -213,6 +213,9 @@ class RerunStream(NullObserver):
         rec.log(f"{stats}/mean_cost", rr.Scalars(mean_cost))
         rec.log(f"{stats}/changed_pct", rr.Scalars(changed))
         rec.log(f"{stats}/seconds", rr.Scalars(event.seconds))
+        if event.pixels_skipped:  # the active set (PatchMatchOptions.active_share)
+            rec.log(f"{stats}/skipped_pct", rr.Scalars(100.0 * event.pixels_skipped / max(
+                event.pixels_skipped + event.pixel_updates, 1)))
         rec.log(f"{stats}/level", rr.Scalars(event.level))
         rec.log(f"{stats}/pass", rr.Scalars(event.pass_index))
         gt = self._gt_at(view, depth.shape)

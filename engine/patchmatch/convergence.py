@@ -36,11 +36,17 @@ class Convergence:
 
 
 class EarlyStops:
-    """An observer of ``run_patchmatch``'s stage events that keeps the view passes which ended early
-    (``patchmatch_view_converged``)."""
+    """An observer of ``run_patchmatch`` that keeps the view passes which ended early (stage events
+    ``patchmatch_view_converged``) and sums the iterations' work (pixel updates, those the active set skipped,
+    NCC windows)."""
 
     def __init__(self) -> None:
         self.stops: list[dict[str, int]] = []
+        self.work = {"pixel_updates": 0, "pixels_skipped": 0, "ncc_windows": 0}
+
+    def on_iteration(self, event: Any) -> None:
+        for key in self.work:
+            self.work[key] += int(getattr(event, key))
 
     def on_stage(self, name: str, **info: Any) -> None:
         if name == "patchmatch_view_converged":
@@ -48,9 +54,10 @@ class EarlyStops:
 
     def summary(self) -> dict[str, Any]:
         """``{"view_passes_ended_early", "iterations_saved", "by_pass": {"L<level>_P<pass>": [[view,
-        iterations], ...]}}`` for metrics.json."""
+        iterations], ...]}, "pixel_updates", "pixels_skipped", "ncc_windows"}`` for metrics.json."""
         by_pass: dict[str, list[list[int]]] = {}
         for s in self.stops:
             by_pass.setdefault(f"L{s['level']}_P{s['pass_index']}", []).append([s["view"], s["iterations"]])
         return {"view_passes_ended_early": len(self.stops),
-                "iterations_saved": sum(s["planned"] - s["iterations"] for s in self.stops), "by_pass": by_pass}
+                "iterations_saved": sum(s["planned"] - s["iterations"] for s in self.stops), "by_pass": by_pass,
+                **self.work}

@@ -368,7 +368,8 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                                    iteration=t, step=first_step + t, depth=readonly(st.depth),
                                    normal=readonly(st.normal), cost=readonly(st.cost),
                                    selected_views=readonly(st.selected_views), seconds=seconds,
-                                   ncc_windows=int(counts[: K.CNT_PIXELS].sum())))
+                                   ncc_windows=int(counts[: K.CNT_PIXELS].sum()),
+                                   pixel_updates=int(counts[K.CNT_PIXELS]), pixels_skipped=int(counts[K.CNT_SKIPPED])))
 
     run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
                    pass_index=pass_index, detail=detail, done_before=done_before, on_iteration=event, pool=pool,
