@@ -18,8 +18,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from engine.heap import release_free_memory
 from engine.interrupt import check_interrupt
 from engine.options import Options, option
+from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.engine import PatchMatchView, ViewMaps
 from engine.patchmatch.geometry import plane_vector, ray, reprojection
@@ -109,6 +111,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
     if len(views) != len(maps):
         raise ValueError(f"{len(views)} views but {len(maps)} maps")
     out = []
+    pool = BufferPool()  # one view's window terms (113 MB at 768x512), reused by the next view of the same size
     for i, v in enumerate(views):
         check_interrupt()  # between kernels (engine/interrupt.py)
         m = maps[i]
@@ -123,7 +126,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
         ctx = build_context(np.asarray(v.image_gray, np.float32), v.camera,
                             [np.asarray(views[j].image_gray, np.float32) for j in src_idx],
                             [views[j].camera for j in src_idx], ncc_options, [maps[j].depth for j in src_idx],
-                            fine_window_region(m.depth, m.normal, v.camera, ncc_options))
+                            fine_window_region(m.depth, m.normal, v.camera, ncc_options), pool)
         counter_kernel(np.ascontiguousarray(m.depth, np.float32), np.ascontiguousarray(m.normal, np.float32),
                        ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.centers,
                        ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy,
@@ -131,5 +134,8 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
                        1.0 - float(options.ncc_min),
                        math.cos(math.radians(options.tri_angle_min_deg)), bool(options.check_facing),
                        float(options.rel_depth or 0.0), int(options.cap), counter)
+        ctx.release(pool)
         out.append(counter)
+    pool.clear()
+    release_free_memory()  # the window terms and PatchMatch's arrays, before fusion packs the maps (engine/heap.py)
     return out

@@ -8,11 +8,14 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
 - PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (2·S window weights, moments, padded source images and
-  source depths: 4·(2·S + 2 + 2·sources) B/px) and its checkpoint buffers (3 × 24 B/px), and between the
-  passes of a level every view's photometric costs for the next pass (float32 per source + 1 B/px);
-- after PatchMatch: counter maps (4 B/px), fusion (per view depth, normal, colour, masks ~ 40 B/px and a
-  cloud of up to one point per pixel at 31 B) and evaluation (GT points as float64 and float32 plus a
-  KD-tree, ~64 B per point, and the fused points).
+  source depths: 4·(2·S + 2 + 2·sources) B/px), its cost caches (``ViewState.prepare_caches``) and the float32
+  copy of its photometric costs at the end of a pass (the engine drops it: ``patchmatch/engine.py``);
+- after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px), the fused cloud (up to one point per
+  pixel at 55 B: float64 position, float32 normal, uint8 colour, four 4-byte attributes) and the largest of
+  fusion (packed maps 19 B/px and the kernel's output before its trimmed copy, 55 B/point), writing
+  ``fused.ply`` (its 43-byte records twice, bytes and table, and float32 positions: 98 B/point) and the
+  evaluation (k-d tree pieces, Morton and voxel keys: ~44 B/point, plus the GT points' index, ~64 B each;
+  ``engine/evaluation/point_index.py``).
 
 The compiled kernels (numba, and the LLVM runtime it links them with) take tens of MiB the first time
 one runs; :func:`load_kernels` runs a 2-view 24×24 PatchMatch first so that this is part of the measured
@@ -130,18 +133,23 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     largest = max(pixels)
     original_largest = max(w * h for w, h in (v.original_size for v in scene.views))
     sources = max((len(v.source_views) for v in scene.views), default=0)
-    offsets = len(pm.window_offsets())
+    # window samples per pixel: the square of the 1-D offsets, the larger of the two windows (ncc.window_offsets_2d)
+    offsets = max(len(pm.window_offsets()), len(pm.fine_window_offsets())) ** 2
 
     cached = sum(sorted(pixels, reverse=True)[:_MAX_CACHED_VIEWS])
     inputs = 12 * cached + 4 * total + 27 * original_largest
     per_view_context = 4 * (2 * offsets + 2 + 2 * sources) * largest
-    patchmatch = (4 * 4 // 3 + 24 + 4 + 6 + 4 * sources + 1) * total + per_view_context + 3 * 24 * largest
+    patchmatch = (4 * 4 // 3 + 24 + 4 + 6) * total + per_view_context + 3 * 24 * largest
     # the view being processed keeps per-pass cost caches (ViewState.prepare_caches): current
-    # hypothesis costs (float64 per source), versions and, below ROW_CACHE_MAX_BYTES, the candidate rows
+    # hypothesis costs (float64 per source), versions and, below ROW_CACHE_MAX_BYTES, the candidate rows;
+    # at the end of its pass their float32 copy (ViewState.known_costs, dropped by the engine)
     rows = row_cache_bytes(largest, 1, pm.k_update, sources)
-    patchmatch += (8 * sources + 4) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
+    patchmatch += (12 * sources + 4) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
-    after = 4 * total + 40 * total + 31 * total + 64 * gt_points + 24 * total
+    fusion = 19 * total + 55 * total
+    write_cloud = 98 * total
+    evaluation = 44 * total + 64 * gt_points
+    after = (24 + 1 + 55) * total + max(fusion, write_cloud, evaluation)
     baseline = current_rss() if baseline is None else baseline
     if available == -1:
         free = available_memory()

@@ -34,6 +34,7 @@ from engine.fusion import (
     views_from_scene,
     write_fused_ply,
 )
+from engine.heap import release_free_memory
 from engine.interrupt import check_interrupt
 from engine.io.ply import read_points
 from engine.meshing import MeshOptions, evaluate_mesh, mesh_run, write_mesh_ply
@@ -203,6 +204,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     t = time.perf_counter()
     fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
     cloud = fuse(fusion_views, options.fusion)
+    release_free_memory()  # fusion's packed maps, before the cloud's records are written (engine/heap.py)
     check_interrupt()
     write_fused_ply(out_dir / "fused.ply", cloud)
     seconds["fusion"] = time.perf_counter() - t

@@ -1,13 +1,15 @@
 """Estimated vs measured peak memory of `deepc run` (issue 9 target: within 30 %).
 
     .venv/bin/python benchmarks/performance/bench_memory.py [--scenes tiny,small,fountain_p11] [--iterations 1]
-                                                [--large] [--out benchmarks/results/bench_memory.json]
+                                                [--large] [--args "--num-source-views 5 --schedule acmm"]
+                                                [--out benchmarks/results/bench_memory.json]
 
 Each scene runs headless in a child process; its estimate is the ``memory: estimated peak`` line that
 `deepc run` prints before PatchMatch (engine/memory.py), its measured peak the child's ru_maxrss.
 ``--iterations 1`` keeps it short: the arrays PatchMatch holds do not depend on the iteration count
 (checked with ``--check-iterations``, which runs tiny with 1 and 3). ``--large`` adds
-../shared/data/fountain_p11 at 768 px (several minutes).
+../shared/data/fountain_p11 at 768 px (several minutes); ``--args`` adds `deepc run` flags to every run (issue 34
+compares with OpenMVS at ``--pipeline vanilla --num-source-views 5 --schedule acmm``).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -60,11 +63,13 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=1)
     parser.add_argument("--large", action="store_true", help="also ../shared/data/fountain_p11 at 768 px")
     parser.add_argument("--check-iterations", action="store_true")
+    parser.add_argument("--args", default="", help="extra `deepc run` flags for every run")
     parser.add_argument("--out", default=bench.results_path(__file__))
     args = parser.parse_args()
-    cases = [(name, REPO / "sample_scenes" / name, []) for name in args.scenes.split(",") if name]
+    flags = shlex.split(args.args)
+    cases = [(name, REPO / "sample_scenes" / name, flags) for name in args.scenes.split(",") if name]
     if args.large:
-        cases.append(("fountain_p11@768", bench.SHARED_DATA / "fountain_p11", ["--max-image-size", "768"]))
+        cases.append(("fountain_p11@768", bench.SHARED_DATA / "fountain_p11", ["--max-image-size", "768", *flags]))
     rows = {}
     print(f"{'scene':<18} {'estimated MiB':>14} {'measured MiB':>13} {'ratio':>6} {'s':>7}")
     for name, scene, extra in cases:
@@ -73,13 +78,14 @@ def main() -> None:
         print(f"{name:<18} {row['estimated_mb']:>14.0f} {row['measured_mb']:>13.0f} {row['ratio']:>6.2f} "
               f"{row['seconds']:>7.1f}")
     if args.check_iterations:
-        three = measure(REPO / "sample_scenes" / "tiny", 3, [])
+        three = measure(REPO / "sample_scenes" / "tiny", 3, flags)
         rows["tiny_3_iterations"] = three
         print(f"{'tiny, 3 iterations':<18} {three['estimated_mb']:>14.0f} {three['measured_mb']:>13.0f} "
               f"{three['ratio']:>6.2f} {three['seconds']:>7.1f}")
     worst = max(abs(r["ratio"] - 1) for r in rows.values())
     print(f"worst |estimate/measured - 1| = {worst:.2f} (target <= 0.30)")
-    bench.write_result({"iterations": args.iterations, "rows": rows, "worst_relative_error": worst}, args.out)
+    bench.write_result({"iterations": args.iterations, "args": flags, "rows": rows, "worst_relative_error": worst},
+                       args.out)
 
 
 if __name__ == "__main__":

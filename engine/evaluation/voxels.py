@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from engine.errors import DeepCError
@@ -20,19 +21,68 @@ def as_points(xyz: np.ndarray, what: str) -> np.ndarray:
 
 
 
-def _cell_ids(points: np.ndarray, voxel_size: float, shift: float) -> np.ndarray:
-    """(N,) int64 dense ids (0..cells-1) of each point's voxel; float32 arithmetic as the official code."""
-    inv = np.float32(1.0 / float(np.float32(voxel_size)))
-    cells = np.floor(points.astype(np.float32) * inv + np.float32(shift)).astype(np.int64)
-    lo = cells.min(axis=0)
-    span = cells.max(axis=0) - lo + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) < 2 ** 62:
-        key = ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
-        _, ids = np.unique(key, return_inverse=True)
-    else:  # astronomically large extent for the voxel size
-        _, ids = np.unique(cells, axis=0, return_inverse=True)
-    return ids.ravel()
+@numba.njit(cache=True, nogil=True)
+def _cell(p: float, inv: np.float32, shift: np.float32) -> int:
+    # float32 arithmetic as the official code: float32(p) * inv + shift, then floor
+    return int(np.floor(np.float32(p) * inv + shift))
 
+
+@numba.njit(cache=True, nogil=True)
+def _cell_bounds(points: np.ndarray, inv: np.float32, shift: np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) int64 smallest and largest cell index per axis (at least one point)."""
+    lo = np.empty(3, np.int64)
+    for k in range(3):
+        lo[k] = _cell(points[0, k], inv, shift)
+    hi = lo.copy()
+    for i in range(1, points.shape[0]):
+        for k in range(3):
+            c = _cell(points[i, k], inv, shift)
+            lo[k] = min(lo[k], c)
+            hi[k] = max(hi[k], c)
+    return lo, hi
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_keys(points: np.ndarray, inv: np.float32, shift: np.float32, lo: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """(N,) int64 row-major key of each point's cell in the box ``lo`` .. ``lo + span``."""
+    key = np.empty(points.shape[0], np.int64)
+    for i in range(points.shape[0]):
+        key[i] = (((_cell(points[i, 0], inv, shift) - lo[0]) * span[1] + (_cell(points[i, 1], inv, shift) - lo[1]))
+                  * span[2] + (_cell(points[i, 2], inv, shift) - lo[2]))
+    return key
+
+
+@numba.njit(cache=True, nogil=True)
+def _ranks(key: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """(N,) int64 rank of each key among the distinct keys (``order`` sorts ``key``): ``np.unique``'s inverse."""
+    ids = np.empty(key.shape[0], np.int64)
+    rank = -1
+    for j in range(order.shape[0]):
+        i = order[j]
+        if j == 0 or key[i] != key[order[j - 1]]:
+            rank += 1
+        ids[i] = rank
+    return ids
+
+
+def _cell_ids(points: np.ndarray, voxel_size: float, shift: float) -> np.ndarray:
+    """(N,) int64 dense ids (0..cells-1, in the order of the cells' row-major keys) of each point's voxel;
+    float32 arithmetic as the official code. Computed point by point (no (N, 3) temporaries: 3.5 M points
+    of a fused cloud would take 84 MB per copy)."""
+    inv = np.float32(1.0 / float(np.float32(voxel_size)))
+    shift32 = np.float32(shift)
+    points = np.asarray(points)
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    lo, hi = _cell_bounds(points, inv, shift32)
+    span = hi - lo + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) < 2 ** 62:
+        key = _cell_keys(points, inv, shift32, lo, span)
+        return _ranks(key, np.argsort(key))
+    # astronomically large extent for the voxel size
+    cells = np.floor(points.astype(np.float32) * inv + shift32).astype(np.int64)
+    _, ids = np.unique(cells, axis=0, return_inverse=True)
+    return ids.ravel()
 
 
 def voxel_completeness(gt: np.ndarray, first_ok: np.ndarray, n_tol: int, voxel_size: float) -> np.ndarray:
@@ -60,7 +110,9 @@ def voxel_accuracy(recon: np.ndarray, first_ok: np.ndarray, inaccurate: np.ndarr
     n_tol = inaccurate.shape[1]
     sums = np.zeros(n_tol)
     counts = np.zeros(n_tol)
+    ids = None
     for shift in _GRID_SHIFTS:
+        del ids  # the last grid's ids go before this grid's are made
         ids = _cell_ids(recon, voxel_size, shift)
         m = int(ids.max()) + 1 if len(ids) else 0
         for t in range(n_tol):
