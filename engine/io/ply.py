@@ -197,4 +197,4 @@ def write_ply(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = No
     header.append("end_header")
     with atomic_write(path) as handle:
         handle.write(("\n".join(header) + "\n").encode("ascii"))
-        handle.write(table.tobytes())
+        handle.write(memoryview(table.view(np.uint8)))  # not tobytes(): no second copy of the table
