@@ -21,6 +21,7 @@ from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions
 from engine.distributed.executor import Executor
+from engine.distributed.streamed import read_view_map
 from engine.distributed.tasks import (
     ConfidenceJob,
     FinishJob,
@@ -42,7 +43,6 @@ from engine.patchmatch.pyramid import level_size
 from engine.per_view import SceneView
 from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import RefinedMap
-from engine.run_folder import read_map
 from engine.scene import Scene
 
 ProgressFn = Callable[[str, int, int], Any]
@@ -61,16 +61,18 @@ def pass_schedule(options: PatchMatchOptions, n_levels: int) -> list[tuple[int, 
 
 def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchOptions, counter: CounterOptions,
                          executor: Executor, observer: Any = None, progress: ProgressFn | None = None,
-                         checkpoint: PatchMatchCheckpoint | None = None) -> tuple[list[ViewMaps], list[np.ndarray]]:
+                         checkpoint: PatchMatchCheckpoint | None = None, read_back: bool = True
+                         ) -> tuple[list[ViewMaps], list[np.ndarray]] | None:
     """PatchMatch and counter maps of every view as tasks on ``executor``; the tasks write the depth, normal, cost
     and counter maps into ``out_dir``. Returns the maps and counter maps (read back), like ``run_patchmatch`` and
-    ``compute_counter_maps``. ``observer``, ``progress`` and ``checkpoint`` as for ``run_patchmatch``; the observer
-    gets one ``on_iteration`` per view and pass (when its task ends) instead of one per iteration. Without a
-    checkpoint the states go through ``out_dir/.deepc-resume`` all the same (removed at the end)."""
+    ``compute_counter_maps``, or None without ``read_back`` (the driver then holds no map). ``observer``, ``progress``
+    and ``checkpoint`` as for ``run_patchmatch``; the observer gets one ``on_iteration`` per view and pass (when its
+    task ends) instead of one per iteration. Without a checkpoint the states go through ``out_dir/.deepc-resume`` all
+    the same (removed at the end)."""
     options = options.validate()
     views = [SceneView(scene, i) for i in range(len(scene.views))]
     if not views:
-        return [], []
+        return ([], []) if read_back else None
     active = _check_views(views, options)
     n_levels = effective_levels(views, options)
     if n_levels < options.levels:
@@ -133,15 +135,17 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     executor.map(finish_view, [FinishJob(ref, folder, str(out_dir), i, last[1], active[i],
                                          _inputs(checkpoint, last, [i, *views[i].source_views]), counter,
                                          executor.threads) for i in range(n)])
-    reader = state_reader(folder, checkpoint.entries)
-    maps = [final_maps(load_state(reader, *last, i, (v.camera.height, v.camera.width)), active[i])
-            for i, v in enumerate(views)]
-    counters = [_read(out_dir, "counter", v.name).astype(np.uint8) for v in views]
+    result = None
+    if read_back:
+        reader = state_reader(folder, checkpoint.entries)
+        result = ([final_maps(load_state(reader, *last, i, (v.camera.height, v.camera.width)), active[i])
+                   for i, v in enumerate(views)],
+                  [read_view_map(out_dir, "counter", v.name).astype(np.uint8) for v in views])
     if own:
         checkpoint.clear()
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n)
-    return maps, counters
+    return result
 
 
 def _inputs(checkpoint: PatchMatchCheckpoint, at: tuple[int, int] | None, views: list[int]) -> dict[str, str]:
@@ -152,22 +156,17 @@ def _inputs(checkpoint: PatchMatchCheckpoint, at: tuple[int, int] | None, views:
     return {name: checkpoint.entries[name] for name in names if name in checkpoint.entries}
 
 
-def _read(out_dir: str | Path, kind: str, name: str) -> np.ndarray:
-    array = read_map(out_dir, kind, name)
-    if array is None:
-        raise FileNotFoundError(f"{kind} map of {name} missing in {out_dir}")
-    return array
-
-
 def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceOptions, executor: Executor,
-                         want_raw: bool) -> tuple[list[np.ndarray], list[np.ndarray] | None]:
+                         want_raw: bool, read_back: bool = True) -> tuple[list[np.ndarray] | None,
+                                                                       list[np.ndarray] | None]:
     """Confidence maps of every view (one task each, from the maps the PatchMatch tasks wrote into ``out_dir``;
-    they write the confidence maps). Returns them (read back) and, with ``want_raw``, the maps before the
-    back-facing rule (the refinement's weights)."""
+    they write the confidence maps). Returns them (read back; None without ``read_back``) and, with ``want_raw``,
+    the maps before the back-facing rule (the refinement's weights)."""
     jobs = [ConfidenceJob(SceneRef.of(scene), str(out_dir), i, options, options.weights or None, want_raw,
                           executor.threads) for i in range(len(scene.views))]
     raw = executor.map(confidence_view, jobs)
-    return [_read(out_dir, "confidence", v.name) for v in scene.views], (raw if want_raw else None)
+    confidence = [read_view_map(out_dir, "confidence", v.name) for v in scene.views] if read_back else None
+    return confidence, (raw if want_raw else None)
 
 
 def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: list[np.ndarray], options: RefinementOptions,
