@@ -4,6 +4,7 @@ unreachable scheduler is one line and exit 2. Every wait has a timeout; the clus
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 import time
@@ -57,12 +58,19 @@ def _outputs(out: Path) -> dict[str, bytes]:
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
 
 
-def _assert_same(out: Path, reference: Path) -> None:
+#: metrics.json entries that say how good the run is (the driver of an executor run streams them from the run folder)
+QUALITY = ("fused_points", "eval", "depth", "depth_per_view", "confidence_auc", "confidence_auc_per_view",
+           "confidence_kept_pct")
+
+
+def _assert_same(out: Path, reference: Path, maps: int = 5 * 5) -> None:
     got, want = _outputs(out), _outputs(reference)
-    assert sorted(got) == sorted(want) and len(want) >= 5 * 5 + 1  # depth, normal, cost, counter, confidence
-    assert [k for k in want if got[k] != want[k]] == []
+    assert sorted(got) == sorted(want) and len(want) >= maps + 1  # depth, normal, cost, counter (, confidence)
+    assert [k for k in want if got[k] != want[k]] == []  # maps and fused.ply
     assert not list(out.rglob("*.tmp")), "a partial file was left"
     assert not (out / CHECKPOINT_DIR).exists()
+    got, want = (json.loads((folder / "metrics.json").read_text()) for folder in (out, reference))
+    assert "depth" in want and [k for k in QUALITY if json.dumps(got.get(k)) != json.dumps(want.get(k))] == []
 
 
 def test_local_executor_tasks_give_the_same_maps(scene, reference, tmp_path):
@@ -86,6 +94,15 @@ def test_two_dask_workers_give_the_same_maps_and_progress(scene, reference, clus
                                                   for k in ("photometric", "geometric")]
     assert sorted(events) == sorted((lv, p, i) for lv in (1, 0) for p in (0, 1) for i in range(5))
     assert cluster.dashboard and cluster.dashboard.startswith("http")
+
+
+def test_vanilla_on_two_workers_streams_the_same_cloud_and_metrics(scene, cluster, tmp_path):
+    """The driver reads no map back: fusion goes through its bounded cache of views, the metrics view by view."""
+    vanilla = PipelineOptions(pipeline="vanilla", patchmatch=OPTIONS.patchmatch)
+    run_pipeline(scene, tmp_path / "local", vanilla)
+    result = run_pipeline(scene, tmp_path / "dask", vanilla, executor=cluster)
+    assert result.maps == [] and result.counter == [] and len(result.cloud) > 100
+    _assert_same(tmp_path / "dask", tmp_path / "local", maps=5 * 4)
 
 
 def test_confidence_tasks_return_the_refinement_weights(scene, reference, cluster, tmp_path):
