@@ -17,7 +17,7 @@ from engine.distributed.pooled import PooledRankSum, pairwise_sum
 from engine.errors import DeepCError
 from engine.filtering import filter_by_confidence
 from engine.fusion import FusedCloud, FusionOptions, FusionView
-from engine.fusion.cached import DEFAULT_CACHE_VIEWS, CacheStats, fuse_cached
+from engine.fusion.cached import CacheStats, fuse_cached
 from engine.fusion.views import scene_view
 from engine.metrics import depth_metrics
 from engine.run_folder import read_map
@@ -54,8 +54,9 @@ def fused_view_loader(scene: Scene, out_dir: str | Path, tau: float | None) -> C
 
 
 def fuse_run_folder(scene: Scene, out_dir: str | Path, options: FusionOptions, tau: float | None,
-                    cache_views: int = DEFAULT_CACHE_VIEWS, stats: CacheStats | None = None) -> FusedCloud:
-    """The fused cloud of the maps in ``out_dir``, with at most ``cache_views`` views in memory; equal to
+                    cache_views: int | None = None, stats: CacheStats | None = None) -> FusedCloud:
+    """The fused cloud of the maps in ``out_dir``, with at most ``cache_views`` views in memory (None: 1 + the
+    longest overlap list, ``engine.fusion.cached``); equal to
     ``fuse(views_from_scene(...))`` of the same maps (the tasks write them at each view's working resolution)."""
     overlaps = [scene.overlapping_views(i, options.check_num_images) for i in range(len(scene.views))]
     return fuse_cached([v.camera for v in scene.views], overlaps, fused_view_loader(scene, out_dir, tau), options,

@@ -7,6 +7,10 @@ the kernel stores its state and returns; this module loads that view (``load(i)`
 slot, evicting the least recently used view other than the seed view, and calls the kernel again. The cloud is the
 one :func:`engine.fusion.fuse` makes of the same views, byte for byte (same traversal, same points).
 
+The cache's size: a seed's traversal goes through the views that see its point, about the seed view's overlap
+list; a cache smaller than that list reloads views over and over (thrashes; correct but slow). The default is 1 +
+the longest overlap list (at most ``check_num_images`` + 1 = 51 views): bounded whatever the number of views.
+
 Memory: ``cache_views`` x (largest view's pixels) x 23 bytes (depth 4, normal 12, colour 3, confidence 4) for the
 slots; what stays for every view is small: its camera, its overlap list, and, for a view evicted before it was
 fused, which of its pixels are consumed (1 bit a pixel, as COLMAP's ``fused_pixel_masks_`` keep 1 byte).
@@ -26,6 +30,8 @@ from engine.fusion.kernel import (
     _FUSED,
     _IMG,
     _N_OUT,
+    _SP,
+    _ST_IMG,
     _fuse_kernel,
     cloud_of,
     kernel_options,
@@ -36,7 +42,6 @@ from engine.fusion.kernel import (
 from engine.fusion.options import FusionOptions
 from engine.fusion.packing import check_view, fill_rgb, pack_geometry
 
-DEFAULT_CACHE_VIEWS = 32  # views resident at once (COLMAP sizes its cache in GB: cache_size)
 _FIRST_CAPACITY = 1 << 16  # points; the kernel doubles it as needed
 
 
@@ -60,7 +65,7 @@ class _Slots:
         self.rgb = np.zeros((size * slot_px, 3), np.uint8)
         self.conf = np.full(size * slot_px if confidence else 1, np.nan, np.float32)
         self.base = np.full(n_views, -1, np.int64)  # view -> first pixel of its slot, -1: not resident
-        self.used = np.zeros(n_views, np.int64)  # view -> the last seed that popped one of its pixels
+        self.used = np.zeros(n_views, np.int64)  # view -> when the traversal last popped one of its pixels
         self.view = [-1] * size  # slot -> view
         self.slot_px = slot_px
         self.consumed: dict[int, np.ndarray] = {}  # evicted, not yet fused view -> its consumed pixels, packed bits
@@ -96,8 +101,24 @@ class _Slots:
         self.view[s] = i
 
 
+def _victim(slots: _Slots, seed: int, stack: np.ndarray) -> int:
+    """The slot to free: not the seed view's; of the others, the view the traversal needs last (Belady's choice
+    over what is known: the stack is popped from its top, so a view deeper in it, or absent, is needed later; the
+    pure LRU order of COLMAP's cache thrashes on the traversal's round trips through the overlapping views), the
+    least recently used one among equals."""
+    best, key = -1, None
+    for s, v in enumerate(slots.view):
+        if v == seed:
+            continue
+        on_stack = np.flatnonzero(stack == v)
+        k = (-(len(stack) - on_stack[-1]) if on_stack.size else -(len(stack) + 1), slots.used[v])
+        if key is None or k < key:
+            best, key = s, k
+    return best
+
+
 def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable[[int], FusionView],
-                options: FusionOptions | None = None, cache_views: int = DEFAULT_CACHE_VIEWS,
+                options: FusionOptions | None = None, cache_views: int | None = None,
                 confidence: bool = False, stats: CacheStats | None = None) -> FusedCloud:
     """Fuse views whose maps are loaded on demand (Schönberger et al. 2016), holding at most ``cache_views``.
 
@@ -107,7 +128,8 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         load: view index -> its maps as a :class:`FusionView` (depth, normal, rgb, confidence at the camera's
             resolution; its camera and overlap are not read). Called again for a view evicted before it was fused.
         options: thresholds; default ``FusionOptions()``.
-        cache_views: views resident at once, at least 2 (the seed view and the one the traversal is in).
+        cache_views: views resident at once, at least 2 (the seed view and the one the traversal is in); None: 1 +
+            the longest overlap list (see the module docstring).
         confidence: whether ``load`` gives confidence maps (the points' ``mean_confidence``; NaN otherwise), as
             :func:`engine.fusion.fuse` reads them when any view has one.
         stats: filled with what the cache did.
@@ -115,7 +137,7 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         The cloud :func:`engine.fusion.fuse` makes of the same views.
     """
     options = (options or FusionOptions()).validate()
-    if cache_views < 2:
+    if cache_views is not None and cache_views < 2:
         raise ValueError(f"cache_views must be at least 2, got {cache_views}")
     if len(overlaps) != len(cameras):
         raise ValueError(f"{len(cameras)} cameras but {len(overlaps)} overlap lists")
@@ -124,6 +146,8 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         return FusedCloud.empty()
     stats = stats if stats is not None else CacheStats()
     geometry = pack_geometry(cameras, overlaps, options)
+    if cache_views is None:
+        cache_views = max(2, 1 + int(np.max(np.diff(geometry[6]))))
     n_px = geometry[0] * geometry[1]
     slots = _Slots(n, min(cache_views, n), int(n_px.max()), confidence)
     work = work_arrays(n, geometry[6], int(options.max_num_pixels))
@@ -137,9 +161,8 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
             return cloud_of(out, int(work[0][_N_OUT]))
         if -1 in slots.view:
             s = slots.view.index(-1)
-        else:  # the least recently used view but the seed view (the one needed is not resident)
-            seed = int(work[0][_IMG])
-            s = min((s for s, v in enumerate(slots.view) if v != seed), key=lambda s: slots.used[slots.view[s]])
+        else:
+            s = _victim(slots, int(work[0][_IMG]), work[_ST_IMG][:int(work[0][_SP])])
             slots.evict(s, fused, int(n_px[slots.view[s]]))
             stats.evictions += 1
         view = load(need)

@@ -103,9 +103,9 @@ def sanitize_depth(dep: np.ndarray) -> int:
 
 
 # The traversal's scalars between calls of the kernel (``FusionState.si`` and ``.sf``).
-_IMG, _P0, _PHASE, _IN_SEED, _SP, _N, _N_VIS, _CONF_N, _SEED_ID, _N_OUT = range(10)
+_IMG, _P0, _PHASE, _IN_SEED, _SP, _N, _N_VIS, _CONF_N, _SEED_ID, _N_OUT, _TICK = range(11)
 _CONF_SUM, _RNX, _RNY, _RNZ = range(4)
-_FUSED = 17  # the per-view fused flags in work_arrays()
+_ST_IMG, _FUSED = 2, 17  # the stack's views and the per-view fused flags in work_arrays()
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -144,6 +144,7 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
     conf_n = si[_CONF_N]
     seed_id = si[_SEED_ID]
     n_out = si[_N_OUT]
+    tick = si[_TICK]
     conf_sum = sf[_CONF_SUM]
     rnx = sf[_RNX]
     rny = sf[_RNY]
@@ -203,7 +204,8 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
                     sp += 1  # popped again once view k is loaded
                     need = k
                     break
-                used[k] = seed_id
+                used[k] = tick  # the least recently used view is evicted first (engine.fusion.cached)
+                tick += 1
                 rel = st_pix[sp]
                 pidx = bk + rel
                 lvl = st_lvl[sp]
@@ -378,6 +380,7 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
     si[_CONF_N] = conf_n
     si[_SEED_ID] = seed_id
     si[_N_OUT] = n_out
+    si[_TICK] = tick
     sf[_CONF_SUM] = conf_sum
     sf[_RNX] = rnx
     sf[_RNY] = rny
@@ -408,7 +411,7 @@ def work_arrays(n_views: int, ov_ptr: np.ndarray, max_px: int) -> tuple:
     max_ov = int(np.max(np.diff(ov_ptr), initial=0))
     n_ov = max(int(ov_ptr[-1]), 1)
     stack_cap = 1 + max_px * max(max_ov, 1)
-    si = np.zeros(10, np.int64)
+    si = np.zeros(11, np.int64)
     return (si, np.zeros(4, np.float64), np.empty(stack_cap, np.int32), np.empty(stack_cap, np.int64),
             np.empty(stack_cap, np.int32), np.empty(stack_cap, np.uint8),
             # fused pixels of the current cluster, one row per attribute: x, y, z, normal x, y, z, r, g, b, view
