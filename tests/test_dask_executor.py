@@ -248,3 +248,45 @@ def test_tasks_read_only_what_the_driver_recorded(scene, tmp_path):
     with pytest.warns(UserWarning, match="checksum"), pytest.raises(DeepCError, match="missing or damaged"):
         load_state(reader, 0, 0, 0, (4, 4))
     assert load_state(state_reader(str(tmp_path), cp.entries), 0, 0, 0, (4, 4)).depth.sum() == 16
+
+
+class _Recording(LocalExecutor):
+    """Tasks in this process; keeps every job."""
+
+    def __init__(self):
+        super().__init__()
+        self.jobs = []
+
+    def map(self, fn, jobs, on_result=None):
+        self.jobs.extend(jobs)
+        return super().map(fn, jobs, on_result)
+
+
+def test_geometric_tasks_read_their_sources_depth_alone(scene, tmp_path):
+    """A geometric pass and the counter maps read their own state whole and only the depth array of their source
+    views' states, verified by its own digest; a damaged depth is an error, not a wrong input."""
+    from engine.distributed.tasks import FinishJob, PassJob, depth_digest, load_depth
+    from engine.errors import DeepCError
+
+    executor = _Recording()
+    run_pipeline(scene, tmp_path, PipelineOptions(pipeline="vanilla", patchmatch=OPTIONS.patchmatch),
+                 executor=executor)
+    geometric = [j for j in executor.jobs if isinstance(j, PassJob) and j.pass_index == 1]
+    finish = [j for j in executor.jobs if isinstance(j, FinishJob)]
+    assert len(geometric) == 10 and len(finish) == 5
+    for job in geometric + finish:
+        # a geometric pass reads the pass before it; the final maps the last pass of level 0
+        at = (job.level, job.pass_index - 1) if isinstance(job, PassJob) else (0, job.pass_index)
+        own = PatchMatchCheckpoint._name(*at, job.view)
+        assert list(job.inputs) == [own]
+        assert sorted(job.depths) == sorted(own.replace(f"/{job.view}.", f"/{j}.")
+                                            for j in scene.views[job.view].source_views)
+    folder = tmp_path / "states"
+    cp = PatchMatchCheckpoint(folder)
+    depth = np.arange(16, dtype=np.float32).reshape(4, 4)
+    cp.save(0, 0, 3, {"Z": depth, "N": np.zeros((4, 4, 3), np.float32), "C": np.zeros((4, 4), np.float32),
+                      "S": np.zeros((4, 4), np.uint32)})
+    good = {"L0_P0/3.npz": depth_digest(depth)}
+    assert np.array_equal(load_depth(str(folder), {}, good, 0, 0, 3, (4, 4)), depth)
+    with pytest.raises(DeepCError, match="damaged"):
+        load_depth(str(folder), {}, {"L0_P0/3.npz": depth_digest(depth + 1)}, 0, 0, 3, (4, 4))

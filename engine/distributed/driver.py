@@ -4,7 +4,10 @@ geometric passes, every view of a pass before the next pass), then one task per 
 map, then one per view for its confidence. Maps equal ``--executor local``'s byte for byte.
 
 The driver holds no image and no map while the tasks run: it records each state's SHA-256 in the checkpoint's
-manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run with either executor.
+manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run with either executor, and the SHA-256
+of each state's depth array, so that a geometric pass (and the counter maps) read only their source views' depth
+from the state files (a sixth of their bytes; whole states, verified by the manifest, after a resume). After the
+tasks, ``engine.distributed.streamed`` fuses and scores the maps from the run folder without reading them all back.
 """
 
 from __future__ import annotations
@@ -89,6 +92,7 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     first = 0 if resume is None else next((k + 1 for k, (lv, p, _) in enumerate(schedule) if (lv, p) == resume), 0)
     step = sum(options.pass_iterations(p) for _, p, _ in schedule[:first]) * sum(active)
     flushed = time.monotonic()
+    known: dict[str, str] = {}  # depth digests of the previous pass's states (none for passes before a resume)
     for k in range(first, len(schedule)):
         level, p, done = schedule[k]
         shapes = [level_size(v.camera.width, v.camera.height, level)[::-1] for v in views]
@@ -105,18 +109,22 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
         if progress is not None and finished:
             progress(description, finished, n)
         previous = None if k == 0 else schedule[k - 1][:2]
-        jobs = [PassJob(ref, folder, i, level, p, n_levels, active[i], options,
-                        _inputs(checkpoint, previous, [i, *(views[i].source_views if p else [])]), done,
-                        executor.threads) for i in todo]
+        jobs = []
+        for i in todo:
+            whole, depths = _inputs(checkpoint, known, previous, i, views[i].source_views if p else [])
+            jobs.append(PassJob(ref, folder, i, level, p, n_levels, active[i], options, whole, done, executor.threads,
+                                depths))
+        written: dict[str, str] = {}  # the depth digests of this pass's states (the next pass reads depth alone)
 
         def ended(index: int, result: PassResult, level=level, p=p, description=description, todo=todo,
-                  shapes=shapes, n_iter=n_iter) -> None:
+                  shapes=shapes, n_iter=n_iter, written=written) -> None:
             nonlocal finished, step
             nonlocal flushed
             i = todo[index]
             # the manifest (every entry) at most once a second: a stopped driver loses at most a second of tasks
             flush = time.monotonic() - flushed > MANIFEST_EVERY_S
             checkpoint.record(level, p, i, result.sha256, write=flush)
+            written[PatchMatchCheckpoint._name(level, p, i)] = result.depth_sha256
             flushed = time.monotonic() if flush else flushed
             finished += 1
             if on_iter is not None and active[i]:
@@ -131,10 +139,14 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
         finally:  # a stopped run keeps every state its tasks finished (--resume)
             checkpoint.flush()
         checkpoint.pass_complete(level, p)
+        known = written
     last = (0, options.geom_passes)
-    executor.map(finish_view, [FinishJob(ref, folder, str(out_dir), i, last[1], active[i],
-                                         _inputs(checkpoint, last, [i, *views[i].source_views]), counter,
-                                         executor.threads) for i in range(n)])
+    finish = []
+    for i in range(n):
+        whole, depths = _inputs(checkpoint, known, last, i, views[i].source_views)
+        finish.append(FinishJob(ref, folder, str(out_dir), i, last[1], active[i], whole, counter, executor.threads,
+                                depths))
+    executor.map(finish_view, finish)
     result = None
     if read_back:
         reader = state_reader(folder, checkpoint.entries)
@@ -148,12 +160,21 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     return result
 
 
-def _inputs(checkpoint: PatchMatchCheckpoint, at: tuple[int, int] | None, views: list[int]) -> dict[str, str]:
-    """Checkpoint file name -> SHA-256 of the states of ``views`` after pass ``at`` (none before the first pass)."""
+def _inputs(checkpoint: PatchMatchCheckpoint, known: dict[str, str], at: tuple[int, int] | None, view: int,
+            sources: list[int]) -> tuple[dict[str, str], dict[str, str]]:
+    """What a task after pass ``at`` reads (nothing before the first pass): (checkpoint file name -> SHA-256 of the
+    states it reads whole: ``view``'s, and a source's whose depth digest is not ``known``; file name -> depth
+    digest of the sources whose depth it reads alone)."""
     if at is None:
-        return {}
-    names = [PatchMatchCheckpoint._name(*at, j) for j in views]
-    return {name: checkpoint.entries[name] for name in names if name in checkpoint.entries}
+        return {}, {}
+    whole, depths = {}, {}
+    for j in [view, *sources]:
+        name = PatchMatchCheckpoint._name(*at, j)
+        if j != view and known.get(name):
+            depths[name] = known[name]
+        elif name in checkpoint.entries:
+            whole[name] = checkpoint.entries[name]
+    return whole, depths
 
 
 def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceOptions, executor: Executor,
