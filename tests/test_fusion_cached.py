@@ -88,16 +88,16 @@ def test_a_cache_holding_every_view_loads_each_once(tiny_views, cache):
 
 def test_cached_fusion_of_views_with_and_without_confidence_and_sizes(monkeypatch):
     """Views of different sizes share the slots; a view without confidence reads NaN like the packed fusion; the
-    output grows past its first capacity."""
+    output fills chunks of max_num_pixels points."""
     views, _, _ = _plane_views(n=6, w=40, h=30, noise=0.003, seed=5, drop=0.1)
     small, _, _ = _plane_views(n=6, w=24, h=18, noise=0.003, seed=6, drop=0.1)
     views[1], views[4] = small[1], small[4]
+    options = FusionOptions(min_num_pixels=1, point_per_pixel=True, max_num_pixels=20)
     for k, v in enumerate(views):
         h, w = v.depth.shape
         v.confidence = None if k % 3 == 0 else np.linspace(0, 1, h * w, dtype=np.float32).reshape(h, w)
-    options = FusionOptions(min_num_pixels=1, point_per_pixel=True)
     want = fuse(views, options)
-    monkeypatch.setattr("engine.fusion.cached._FIRST_CAPACITY", 8)
+    monkeypatch.setattr("engine.fusion.cached.CHUNK_POINTS", 8)  # the output fills many chunks
     got, stats = _cached(views, options, 2, True)
     _same_bytes(got, want)
     assert stats.evictions > 0

@@ -16,9 +16,10 @@ local) / tasks (one per view and pass, one per view for the final and counter ma
 into ``--scenes``), the pipeline on a LocalCluster: wall time, peak RSS of each worker and of the driver, and the
 driver's peak during fusion alone with its growth over the RSS fusion started from. The driver of an executor run
 holds no per-view maps (``engine.distributed.streamed``): fusion reads them through a cache of at most
-``--fusion-cache`` views (default 1 + the longest overlap list, ``engine.fusion.cached``), so its peak must not grow
-with N; the cache's loads and evictions are recorded. Per-pass map I/O (states written and read through the run
-folder). A plot of both against N goes beside the JSON.
+``--fusion-cache`` views (default 1 + the longest overlap list, at most check_num_images + 1 = 51,
+``engine.fusion.cached``), so past 50 views its growth is the cache's slots (``cache_mb``, bounded) and the cloud it
+makes (``cloud_mb``, proportional to the points, as COLMAP's); the cache's loads and evictions are recorded.
+Per-pass map I/O (states written and read through the run folder). A plot of both against N goes beside the JSON.
 
 The pipeline and its options: ``--pipeline``, ``--set SECTION.NAME=VALUE`` as ``deepc run --set`` (sections scene,
 patchmatch, confidence, fusion), and shortcuts for cheap PatchMatch settings (``--schedule``, ``--levels``,
@@ -156,6 +157,9 @@ def run_one(config: dict) -> dict:
             "pass_written_mb": n * w * h * PASS_STATE_BYTES / 2**20,
             "pass_read_mb": (n + sources) * w * h * PASS_STATE_BYTES / 2**20,
             "fused_points": result.metrics["fused_points"], "pipeline": options.pipeline,
+            # what fusion's peak must hold whatever it does: the cloud, and the cache's slots (23 bytes a pixel)
+            "cloud_mb": sum(getattr(result.cloud, f.name).nbytes for f in dataclasses.fields(result.cloud)) / 2**20,
+            "cache_mb": cache.stats.peak_resident * w * h * 23 / 2**20 if executor else None,
             "options": {"scene": scene_options.to_dict(), **options.to_dict()}}
 
 
@@ -177,6 +181,7 @@ def summary(result: dict) -> list[dict]:
              "fusion MiB": r["driver_fusion_peak_mb"],
              "fusion +MiB": (r["driver_fusion_peak_mb"] - r["driver_fusion_start_mb"]
                              if r.get("driver_fusion_start_mb") and r["driver_fusion_peak_mb"] else None),
+             "cloud MiB": r.get("cloud_mb"), "cache MiB": r.get("cache_mb"),
              "cache loads": (r.get("fusion_cache") or {}).get("loads"),
              "worker MiB": max(r["worker_peak_mb"], default=None),
              "pass write MiB": r["pass_written_mb"], "pass read MiB": r["pass_read_mb"]} for r in result["rows"]]

@@ -105,6 +105,7 @@ def sanitize_depth(dep: np.ndarray) -> int:
 # The traversal's scalars between calls of the kernel (``FusionState.si`` and ``.sf``).
 _IMG, _P0, _PHASE, _IN_SEED, _SP, _N, _N_VIS, _CONF_N, _SEED_ID, _N_OUT, _TICK = range(11)
 _CONF_SUM, _RNX, _RNY, _RNZ = range(4)
+NEED_ROOM = -2  # the kernel's answer when the output arrays are full
 _ST_IMG, _FUSED = 2, 17  # the stack's views and the per-view fused flags in work_arrays()
 
 
@@ -126,7 +127,9 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
     rejects the same pixels (a pixel's |depth| and the seed's projection do not change while the seed's stack
     lives, a consumed pixel stays consumed). A pop from a non-resident view puts the entry back, stores the
     traversal in ``work`` and returns that view; called again once it is resident, the kernel goes on where it
-    stopped. Returns (-1 when done or the view it needs, the output arrays, grown when they were full).
+    stopped. The points go into ``out`` from ``si[_N_OUT]`` on; when a cluster does not fit, the kernel returns
+    ``NEED_ROOM`` with the cluster pending (the caller takes the points and resets ``si[_N_OUT]``). Returns -1 when
+    done, the view it needs, or ``NEED_ROOM``.
     """
     dep, nrm, rgb, conf, base, used = maps
     widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx = geometry
@@ -307,6 +310,9 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
                     sp += 1
             if need >= 0:
                 break
+            if n >= min_px and n > 0 and n_out + (n if per_pixel else 1) > out_xyz.shape[0]:
+                need = NEED_ROOM  # the seed stays pending: emitted when called again with room
+                break
             in_seed = False
             p0 += 1
             if n < min_px or n == 0:
@@ -317,16 +323,6 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
             norm = math.sqrt(mnx * mnx + mny * mny + mnz * mnz)
             if norm < 1.1920929e-07:  # FLT_EPSILON, as COLMAP
                 continue
-            wanted = n_out + (n if per_pixel else 1)
-            if wanted > out_xyz.shape[0]:  # only where the caller could not size the output (cached views)
-                cap = max(wanted, 2 * out_xyz.shape[0])
-                out_xyz = _grown(out_xyz, cap)
-                out_nrm = _grown(out_nrm, cap)
-                out_rgb = _grown(out_rgb, cap)
-                out_nv = _grown(out_nv, cap)
-                out_np = _grown(out_np, cap)
-                out_conf = _grown(out_conf, cap)
-                out_src = _grown(out_src, cap)
             mean_conf = conf_sum / conf_n if conf_n > 0 else np.nan
             if per_pixel:
                 for q in range(n):
@@ -354,7 +350,7 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
             out_conf[n_out] = mean_conf
             out_src[n_out] = img
             n_out += 1
-        if need >= 0:
+        if need != -1:
             break
         fused[img] = True
         phase = 0
@@ -385,14 +381,7 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
     sf[_RNX] = rnx
     sf[_RNY] = rny
     sf[_RNZ] = rnz
-    return need, (out_xyz, out_nrm, out_rgb, out_nv, out_np, out_conf, out_src)
-
-
-@numba.njit(cache=True, nogil=True)
-def _grown(a, cap):
-    b = np.empty((cap,) + a.shape[1:], a.dtype)
-    b[:a.shape[0]] = a
-    return b
+    return need
 
 
 
@@ -423,7 +412,7 @@ def work_arrays(n_views: int, ov_ptr: np.ndarray, max_px: int) -> tuple:
 
 
 def output_arrays(cap: int) -> tuple:
-    """Room for ``cap`` points (the kernel grows it when a cached fusion could not size it)."""
+    """Room for ``cap`` points."""
     return (np.empty((cap, 3), np.float64), np.empty((cap, 3), np.float32), np.empty((cap, 3), np.uint8),
             np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, np.float32), np.empty(cap, np.int32))
 
@@ -435,9 +424,17 @@ def kernel_options(options: FusionOptions) -> tuple:
             bool(options.point_per_pixel))
 
 
-def cloud_of(out: tuple, n_out: int) -> FusedCloud:
-    """The first ``n_out`` points of the kernel's output arrays as a cloud (copies)."""
-    xyz, nrm, rgb, nv, npx, conf, src = (a[:n_out].copy() for a in out)
+def cloud_of(chunks: list[tuple]) -> FusedCloud:
+    """The cloud of the kernel's output chunks in order, each (output arrays, points in them); an attribute's chunks
+    are released as soon as that attribute is joined (peak: the cloud and one attribute's chunks)."""
+    parts = [[a[:n] for a in out] for out, n in chunks]
+    chunks.clear()
+    fields = []
+    for f in range(7):
+        fields.append(np.concatenate([p[f] for p in parts]))
+        for p in parts:
+            p[f] = None
+    xyz, nrm, rgb, nv, npx, conf, src = fields
     return FusedCloud(xyz, nrm, rgb, nv, conf, src, npx)
 
 
@@ -459,8 +456,8 @@ def fuse(views: list[FusionView], options: FusionOptions | None = None) -> Fused
     # every view resident: view k's pixels start at offsets[k]
     maps = (dep, nrm, rgb, conf, offsets[:-1].copy(), np.zeros(len(views), np.int64))
     work = work_arrays(len(views), ov_ptr, int(max_px))
-    need, out = _fuse_kernel(maps, (widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx), work,
-                             output_arrays(n_valid + 1 if per_pixel else n_valid // max(min_px, 1) + 1),
-                             *kernel_options(options), conf.shape[0] == dep.shape[0])
-    assert need < 0, "a view packed in memory was reported missing"
-    return cloud_of(out, int(work[0][_N_OUT]))
+    out = output_arrays(n_valid + 1 if per_pixel else n_valid // max(min_px, 1) + 1)  # room for every point
+    need = _fuse_kernel(maps, (widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx), work, out,
+                        *kernel_options(options), conf.shape[0] == dep.shape[0])
+    assert need == -1, "a view packed in memory was reported missing"
+    return cloud_of([(out, int(work[0][_N_OUT]))])
