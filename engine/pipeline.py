@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 
 from engine import __version__
-from engine.confidence.data import view_labels
 from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
@@ -43,7 +42,7 @@ from engine.observer import ObserverList
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.patchmatch.convergence import EarlyStops
-from engine.per_view import SceneView, patchmatch_view, view_confidence
+from engine.per_view import SceneView, patchmatch_view, view_auc, view_confidence
 from engine.probe_output import finish_probe
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
@@ -343,19 +342,6 @@ def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.n
             labels.append(auc[2])
     pooled = 100 * roc_auc(np.concatenate(scores), np.concatenate(labels)) if scores else float("nan")
     return {"pooled": pooled, "per_view": per_view}
-
-
-def view_auc(scene: Scene, view: Any, depth: np.ndarray, confidence: np.ndarray
-             ) -> tuple[dict[str, Any], np.ndarray, np.ndarray] | None:
-    """One view's entry of ``confidence_auc_per_view`` and its labelled scores and labels (what the pooled AUC
-    pools); None without GT depth."""
-    y = view_labels(scene, view.index, depth)
-    if y is None:
-        return None
-    keep = y >= 0
-    entry = {"view": view.name, "auc": 100 * roc_auc(confidence[keep], y[keep]), "labelled": int(keep.sum()),
-             "inliers": int((y == 1).sum())}
-    return entry, confidence[keep], y[keep]
 
 
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):

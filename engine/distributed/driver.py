@@ -41,7 +41,7 @@ from engine.distributed.tasks import (
     state_reader,
 )
 from engine.patchmatch import PatchMatchOptions, ViewMaps
-from engine.patchmatch.engine import _check_views, effective_levels, final_maps
+from engine.patchmatch.engine import check_views, effective_levels, final_maps
 from engine.patchmatch.pyramid import level_size
 from engine.per_view import SceneView
 from engine.refinement.options import RefinementOptions
@@ -76,7 +76,7 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     views = [SceneView(scene, i) for i in range(len(scene.views))]
     if not views:
         return ([], []) if read_back else None
-    active = _check_views(views, options)
+    active = check_views(views, options)
     n_levels = effective_levels(views, options)
     if n_levels < options.levels:
         warnings.warn(f"PatchMatch: images too small for {options.levels} levels; using {n_levels}", stacklevel=2)

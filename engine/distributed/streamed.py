@@ -20,6 +20,7 @@ from engine.fusion import FusedCloud, FusionOptions, FusionView
 from engine.fusion.cached import CacheStats, fuse_cached
 from engine.fusion.views import scene_view
 from engine.metrics import depth_metrics
+from engine.per_view import view_auc
 from engine.run_folder import read_map
 from engine.scene import Scene
 
@@ -76,8 +77,6 @@ def streamed_metrics(scene: Scene, out_dir: str | Path, tau: float | None) -> di
     """The metrics.json entries an in-process run computes from its maps, read view by view from ``out_dir``, in its
     order: ``depth`` and ``depth_per_view`` (with GT depth), ``confidence_auc`` and ``confidence_auc_per_view`` (with
     GT depth and a confidence filter ``tau``), ``confidence_kept_pct`` (with ``tau``)."""
-    from engine.pipeline import view_auc  # lazy: the pipeline imports this module
-
     out: dict[str, Any] = {}
     with_gt = [v for v in scene.views if scene.gt_depth_paths[v.index] is not None]
     if with_gt:

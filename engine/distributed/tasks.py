@@ -29,7 +29,7 @@ from engine.consistency import CounterOptions
 from engine.errors import DeepCError
 from engine.observer import IterationEvent
 from engine.patchmatch import PatchMatchOptions, ViewMaps
-from engine.patchmatch.engine import _run_view_pass, final_maps, level_start_state
+from engine.patchmatch.engine import final_maps, level_start_state, run_view_pass
 from engine.patchmatch.pyramid import area_resize, level_size
 from engine.patchmatch.state import ViewState
 from engine.per_view import patchmatch_view, view_confidence, view_counter
@@ -223,11 +223,9 @@ def patchmatch_view_pass(job: PassJob) -> PassResult:
                 snapshot = {j: load_depth(job.folder, job.inputs, job.depths, level, p - 1, j, images[j][level].shape)
                             for j in v.source_views}
         windows = []
-        if job.active:
-            detail = p == 0 and not coarsest and options.detail_restorer
-            _run_view_pass(i, v, st, images, cameras, snapshot, level, p, detail, options,
-                           lambda event: windows.append(event.ncc_windows), 0, job.done_before,
-                           random_start=coarsest and p == 0)
+        if job.active:  # as run_patchmatch runs it (detail restorer, random start at the coarsest level)
+            run_view_pass({i: v}, i, st, images, cameras, snapshot, level, p, job.n_levels, options, job.done_before,
+                          on_iter=lambda event: windows.append(event.ncc_windows))
         arrays = st.checkpoint_arrays()
         sha = write_state(job.folder, level, p, i, arrays)
     return PassResult(sha, time.perf_counter() - t0, int(sum(windows)), depth_digest(arrays["Z"]))
