@@ -1,5 +1,5 @@
-"""The per-view bodies of the stages after PatchMatch (counter map, confidence): the in-process pipeline loops
-over views with them, and ``engine.distributed`` runs them as one task per view."""
+"""The per-view bodies of the stages after PatchMatch (counter map, confidence, a view's confidence AUC): the
+in-process pipeline loops over views with them, and ``engine.distributed`` runs them one view at a time."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from engine.confidence.data import view_labels
 from engine.confidence.inputs import network_inputs
+from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.patchmatch import PatchMatchView, ViewMaps
@@ -67,3 +69,17 @@ def view_counter(view: PatchMatchView, sources: list[PatchMatchView], maps: View
     empty = [ViewMaps(d, np.zeros((*d.shape, 3), np.float32), np.zeros_like(d), np.zeros(d.shape, np.uint32))
              for d in source_depths]
     return compute_counter_maps([ref, *others], [maps, *empty], options)[0]
+
+
+def view_auc(scene: Scene, view: Any, depth: np.ndarray, confidence: np.ndarray
+             ) -> tuple[dict[str, Any], np.ndarray, np.ndarray] | None:
+    """One view's entry of metrics.json's ``confidence_auc_per_view`` (ROC-AUC x 100 of ``confidence`` against the
+    label map of ``depth``, Kuhn et al. 2020, §3.2) and its labelled scores and labels (what the pooled AUC pools);
+    None without GT depth."""
+    y = view_labels(scene, view.index, depth)
+    if y is None:
+        return None
+    keep = y >= 0
+    entry = {"view": view.name, "auc": 100 * roc_auc(confidence[keep], y[keep]), "labelled": int(keep.sum()),
+             "inliers": int((y == 1).sum())}
+    return entry, confidence[keep], y[keep]

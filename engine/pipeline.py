@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 
 from engine import __version__
-from engine.confidence.data import view_labels
 from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.distributed import Executor
 from engine.distributed.driver import run_confidence_tasks, run_patchmatch_tasks, run_refinement_tasks
+from engine.distributed.streamed import filtered_maps, fuse_run_folder, streamed_metrics
 from engine.errors import DeepCError
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.filtering import filter_by_confidence
@@ -43,7 +43,7 @@ from engine.observer import ObserverList
 from engine.options import Options, option
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.patchmatch.convergence import EarlyStops
-from engine.per_view import SceneView, patchmatch_view, view_confidence
+from engine.per_view import SceneView, patchmatch_view, view_auc, view_confidence
 from engine.probe_output import finish_probe
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
@@ -108,6 +108,10 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     (``engine.probe_run``).
     ``executor`` (an :class:`engine.distributed.Executor`) runs PatchMatch, counter maps and confidence as per-view
     tasks on it (``engine/distributed/``; same maps; no probe, no pass history); None keeps them in this process.
+    With an executor, ``vanilla`` and ``fast`` stream the later stages from the run folder
+    (``engine.distributed.streamed``: fusion through a bounded cache of views, metrics view by view; same cloud
+    and numbers) and the result holds no maps (empty lists); ``full`` reads the maps back (its refined maps'
+    counter and confidence stages run in this process).
     """
     options = (options or PipelineOptions()).validate()
     out_dir = Path(out_dir)
@@ -125,6 +129,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         if options.pipeline == "full":
             refined_model = load_weights(options.confidence.refined_weights or DEFAULT_REFINED_WEIGHTS)
 
+    # An executor's driver of vanilla or fast never holds every view's maps (engine/distributed/streamed.py)
+    streamed = executor is not None and options.pipeline != "full"
     # images read when needed in the driver of per-view tasks
     views = patchmatch_views(scene) if executor is None else [SceneView(scene, i) for i in range(len(scene.views))]
     t = time.perf_counter()
@@ -145,11 +151,13 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     else:  # one task per view and pass, then per view (engine/distributed); the tasks write the maps
         if probe is not None or history is not None:
             raise DeepCError("the pixel probe and the pass history need --executor local")
-        maps, counter = run_patchmatch_tasks(scene, out_dir, options.patchmatch, options.counter, executor,
-                                             observer=observer, progress=progress, checkpoint=checkpoint)
+        maps = run_patchmatch_tasks(scene, out_dir, options.patchmatch, options.counter, executor,
+                                    observer=observer, progress=progress, checkpoint=checkpoint,
+                                    read_back=not streamed)
+        maps, counter = maps if maps is not None else ([], [])  # streamed: the maps stay in the run folder
         seconds["patchmatch"] = time.perf_counter() - t
     if notify:
-        notify("patchmatch", maps=maps, counter=counter)
+        notify("patchmatch", **({} if streamed else {"maps": maps, "counter": counter}))
 
     confidence = refined = fusion_confidence = None
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
@@ -163,15 +171,15 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
                 write_map(out_dir, "confidence", view.name, c)
         else:  # the tasks write the maps
             confidence, raw_confidence = run_confidence_tasks(scene, out_dir, options.confidence, executor,
-                                                              options.pipeline == "full")
+                                                              options.pipeline == "full", read_back=not streamed)
         fusion_confidence = confidence
-        if options.pipeline == "fast":
+        if options.pipeline == "fast" and not streamed:  # streamed: each view is filtered as fusion loads it
             filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
                         for m, c in zip(maps, confidence, strict=True)]
             depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         seconds["confidence"] = time.perf_counter() - t
         if notify:
-            notify("confidence", confidence=confidence, depth=[m.depth for m in maps])
+            notify("confidence", **({} if streamed else {"confidence": confidence, "depth": [m.depth for m in maps]}))
     if options.pipeline == "full":
         t = time.perf_counter()
         refined = refinement_stage(scene, maps, refinement_confidence(confidence, raw_confidence, options.refinement),
@@ -202,8 +210,12 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
 
     check_interrupt()
     t = time.perf_counter()
-    fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
-    cloud = fuse(fusion_views, options.fusion)
+    tau = options.confidence.tau if options.pipeline == "fast" else None
+    if streamed:
+        cloud = fuse_run_folder(scene, out_dir, options.fusion, tau)
+    else:
+        fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
+        cloud = fuse(fusion_views, options.fusion)
     release_free_memory()  # fusion's packed maps, before the cloud's records are written (engine/heap.py)
     check_interrupt()
     write_fused_ply(out_dir / "fused.ply", cloud)
@@ -213,6 +225,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     surface = mesh_info = None
     if mesh is not None and mesh.method != "none":
         check_interrupt()
+        if streamed:  # the maps fusion used (TSDF reads them; Poisson does not)
+            depths = [filtered_maps(out_dir, v.name, tau)[0] for v in scene.views] if mesh.method == "tsdf" else []
         surface, mesh_info = mesh_run(scene, cloud, depths, mesh)
         write_mesh_ply(out_dir / "mesh.ply", surface)
         seconds["mesh"] = mesh_info["seconds"]
@@ -238,7 +252,9 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             mesh_info["eval"] = evaluate_mesh(scene, surface, options.evaluation).to_dict()
     if mesh_info is not None:
         metrics["mesh"] = mesh_info
-    if scene.has_gt_depth:
+    if streamed:  # the same entries, view by view from the run folder
+        metrics.update(streamed_metrics(scene, out_dir, tau))
+    elif scene.has_gt_depth:
         metrics["depth"], metrics["depth_per_view"] = _depth_block(scene, maps)
         if confidence is not None:
             auc = confidence_auc(scene, [m.depth for m in maps], confidence)
@@ -251,7 +267,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             auc = confidence_auc(scene, [r.depth for r in refined], refined_confidence)
             metrics["refined_confidence_auc"] = auc["pooled"]
             metrics["refined_confidence_auc_per_view"] = auc["per_view"]
-    if confidence is not None:
+    if confidence is not None and not streamed:
         kept = sum(int((d > 0).sum()) for d in depths)
         before = refined if refined is not None else maps
         metrics["confidence_kept_pct"] = 100.0 * kept / max(1, sum(int((m.depth > 0).sum()) for m in before))
@@ -322,14 +338,11 @@ def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.n
 
     scores, labels, per_view = [], [], []
     for view, depth, c in zip(scene.views, depths, confidence, strict=True):
-        y = view_labels(scene, view.index, depth)
-        if y is None:
-            continue
-        keep = y >= 0
-        scores.append(c[keep])
-        labels.append(y[keep])
-        per_view.append({"view": view.name, "auc": 100 * roc_auc(c[keep], y[keep]),
-                         "labelled": int(keep.sum()), "inliers": int((y == 1).sum())})
+        auc = view_auc(scene, view, depth, c)
+        if auc is not None:
+            per_view.append(auc[0])
+            scores.append(auc[1])
+            labels.append(auc[2])
     pooled = 100 * roc_auc(np.concatenate(scores), np.concatenate(labels)) if scores else float("nan")
     return {"pooled": pooled, "per_view": per_view}
 

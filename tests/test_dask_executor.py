@@ -4,6 +4,7 @@ unreachable scheduler is one line and exit 2. Every wait has a timeout; the clus
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 import time
@@ -57,12 +58,19 @@ def _outputs(out: Path) -> dict[str, bytes]:
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
 
 
-def _assert_same(out: Path, reference: Path) -> None:
+#: metrics.json entries that say how good the run is (the driver of an executor run streams them from the run folder)
+QUALITY = ("fused_points", "eval", "depth", "depth_per_view", "confidence_auc", "confidence_auc_per_view",
+           "confidence_kept_pct")
+
+
+def _assert_same(out: Path, reference: Path, maps: int = 5 * 5) -> None:
     got, want = _outputs(out), _outputs(reference)
-    assert sorted(got) == sorted(want) and len(want) >= 5 * 5 + 1  # depth, normal, cost, counter, confidence
-    assert [k for k in want if got[k] != want[k]] == []
+    assert sorted(got) == sorted(want) and len(want) >= maps + 1  # depth, normal, cost, counter (, confidence)
+    assert [k for k in want if got[k] != want[k]] == []  # maps and fused.ply
     assert not list(out.rglob("*.tmp")), "a partial file was left"
     assert not (out / CHECKPOINT_DIR).exists()
+    got, want = (json.loads((folder / "metrics.json").read_text()) for folder in (out, reference))
+    assert "depth" in want and [k for k in QUALITY if json.dumps(got.get(k)) != json.dumps(want.get(k))] == []
 
 
 def test_local_executor_tasks_give_the_same_maps(scene, reference, tmp_path):
@@ -86,6 +94,15 @@ def test_two_dask_workers_give_the_same_maps_and_progress(scene, reference, clus
                                                   for k in ("photometric", "geometric")]
     assert sorted(events) == sorted((lv, p, i) for lv in (1, 0) for p in (0, 1) for i in range(5))
     assert cluster.dashboard and cluster.dashboard.startswith("http")
+
+
+def test_vanilla_on_two_workers_streams_the_same_cloud_and_metrics(scene, cluster, tmp_path):
+    """The driver reads no map back: fusion goes through its bounded cache of views, the metrics view by view."""
+    vanilla = PipelineOptions(pipeline="vanilla", patchmatch=OPTIONS.patchmatch)
+    run_pipeline(scene, tmp_path / "local", vanilla)
+    result = run_pipeline(scene, tmp_path / "dask", vanilla, executor=cluster)
+    assert result.maps == [] and result.counter == [] and len(result.cloud) > 100
+    _assert_same(tmp_path / "dask", tmp_path / "local", maps=5 * 4)
 
 
 def test_confidence_tasks_return_the_refinement_weights(scene, reference, cluster, tmp_path):
@@ -231,3 +248,45 @@ def test_tasks_read_only_what_the_driver_recorded(scene, tmp_path):
     with pytest.warns(UserWarning, match="checksum"), pytest.raises(DeepCError, match="missing or damaged"):
         load_state(reader, 0, 0, 0, (4, 4))
     assert load_state(state_reader(str(tmp_path), cp.entries), 0, 0, 0, (4, 4)).depth.sum() == 16
+
+
+class _Recording(LocalExecutor):
+    """Tasks in this process; keeps every job."""
+
+    def __init__(self):
+        super().__init__()
+        self.jobs = []
+
+    def map(self, fn, jobs, on_result=None):
+        self.jobs.extend(jobs)
+        return super().map(fn, jobs, on_result)
+
+
+def test_geometric_tasks_read_their_sources_depth_alone(scene, tmp_path):
+    """A geometric pass and the counter maps read their own state whole and only the depth array of their source
+    views' states, verified by its own digest; a damaged depth is an error, not a wrong input."""
+    from engine.distributed.tasks import FinishJob, PassJob, depth_digest, load_depth
+    from engine.errors import DeepCError
+
+    executor = _Recording()
+    run_pipeline(scene, tmp_path, PipelineOptions(pipeline="vanilla", patchmatch=OPTIONS.patchmatch),
+                 executor=executor)
+    geometric = [j for j in executor.jobs if isinstance(j, PassJob) and j.pass_index == 1]
+    finish = [j for j in executor.jobs if isinstance(j, FinishJob)]
+    assert len(geometric) == 10 and len(finish) == 5
+    for job in geometric + finish:
+        # a geometric pass reads the pass before it; the final maps the last pass of level 0
+        at = (job.level, job.pass_index - 1) if isinstance(job, PassJob) else (0, job.pass_index)
+        own = PatchMatchCheckpoint._name(*at, job.view)
+        assert list(job.inputs) == [own]
+        assert sorted(job.depths) == sorted(own.replace(f"/{job.view}.", f"/{j}.")
+                                            for j in scene.views[job.view].source_views)
+    folder = tmp_path / "states"
+    cp = PatchMatchCheckpoint(folder)
+    depth = np.arange(16, dtype=np.float32).reshape(4, 4)
+    cp.save(0, 0, 3, {"Z": depth, "N": np.zeros((4, 4, 3), np.float32), "C": np.zeros((4, 4), np.float32),
+                      "S": np.zeros((4, 4), np.uint32)})
+    good = {"L0_P0/3.npz": depth_digest(depth)}
+    assert np.array_equal(load_depth(str(folder), {}, good, 0, 0, 3, (4, 4)), depth)
+    with pytest.raises(DeepCError, match="damaged"):
+        load_depth(str(folder), {}, {"L0_P0/3.npz": depth_digest(depth + 1)}, 0, 0, 3, (4, 4))

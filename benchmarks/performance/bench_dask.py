@@ -5,15 +5,27 @@ number of views.
         [--workers 1 2] [--json benchmarks/results/bench_dask_fountain.json]
     .venv/bin/python benchmarks/performance/bench_dask.py sequence [--views 50 100 200 400] [--size 320 240]
         [--workers 2] [--scenes DIR] [--json benchmarks/results/bench_dask_sequence.json]
+        [--pipeline vanilla] [--schedule acmm] [--levels 1] [--iterations 2] [--geom-passes 1]
+        [--num-source-views 4] [--set patchmatch.NAME=VALUE ...] [--fusion-cache VIEWS]
 
 ``fountain``: the vanilla pipeline on fountain_p11 in this process (``--executor local``) and on a LocalCluster of
 each ``--workers`` count (cores / workers numba threads each). Overhead per task = (wall with 1 worker - wall
 local) / tasks (one per view and pass, one per view for the final and counter maps).
 
 ``sequence``: street scenes of N views one metre apart (``engine.synthetic.sequence.street_scene``, rendered once
-into ``--scenes``), the vanilla pipeline on a LocalCluster: wall time, peak RSS of each worker and of the driver,
-and the driver's peak during fusion alone (fusion holds every view's maps today: it grows with N); per-pass map
-I/O (states written and read through the run folder). A plot of both against N goes beside the JSON.
+into ``--scenes``), the pipeline on a LocalCluster: wall time, peak RSS of each worker and of the driver, and the
+driver's peak during the fusion stage with its growth over the RSS the stage started from (fusion and writing
+fused.ply), and the growth during the cached fusion alone (``driver_fuse_*``). The driver of an executor run
+holds no per-view maps (``engine.distributed.streamed``): fusion reads them through a cache of at most
+``--fusion-cache`` views (default 1 + the longest overlap list, at most check_num_images + 1 = 51,
+``engine.fusion.cached``), so its growth is the cache's slots (``cache_mb``, bounded whatever N) and the cloud it
+makes (``cloud_mb``, proportional to the points, as COLMAP's; joined from chunks, about 1.4x at its peak); the cache's
+loads and evictions are recorded.
+Per-pass map I/O (states written and read through the run folder). A plot of both against N goes beside the JSON.
+
+The pipeline and its options: ``--pipeline``, ``--set SECTION.NAME=VALUE`` as ``deepc run --set`` (sections scene,
+patchmatch, confidence, fusion), and shortcuts for cheap PatchMatch settings (``--schedule``, ``--levels``,
+``--iterations``, ``--geom-passes``, ``--num-source-views``); the options used are recorded in the JSON.
 
 Every configuration runs in a fresh process (``--one``), so peak memory belongs to it alone.
 """
@@ -21,6 +33,7 @@ Every configuration runs in a fresh process (``--one``), so peak memory belongs 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import resource
@@ -40,25 +53,88 @@ def worker_peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def rss_mb_now() -> float:
+    """Resident memory (MiB) of this process now (Linux; 0 elsewhere)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
 class _StagePeaks:
-    """An observer that measures the driver's peak RSS up to PatchMatch's end and during the stages after it."""
+    """An observer that measures the driver's peak RSS up to PatchMatch's end, and during fusion alone (from the end of
+    the stage before it) with the RSS fusion started from."""
 
     def __init__(self):
         self.peaks: dict[str, float] = {}
 
     def on_stage(self, name: str, **info) -> None:
-        if name in ("patchmatch", "fusion"):
+        if name in ("patchmatch", "confidence", "refinement", "fusion"):
             self.peaks[name] = bench.peak_rss_mb_now()
+            if name != "fusion":
+                self.peaks["before_fusion"] = rss_mb_now()
             bench.reset_peak_rss()
+
+
+class _CountingCache:
+    """Records the cache statistics of the run's streamed fusion (``engine.distributed.streamed``)."""
+
+    def __init__(self, cache_views: int | None):
+        import engine.distributed.streamed as streamed
+        from engine.fusion.cached import CacheStats
+
+        self.stats, self.cache_views, self.module = CacheStats(), cache_views, streamed
+        self.original = streamed.fuse_cached
+        self.start_mb = self.peak_mb = None
+
+        def counted(*args, **kwargs):
+            kwargs["stats"] = self.stats
+            if self.cache_views is not None:
+                kwargs["cache_views"] = self.cache_views
+            # fuse_cached alone (the fusion stage also writes fused.ply: engine.io.ply's table and its bytes)
+            bench.reset_peak_rss()
+            self.start_mb = rss_mb_now()
+            cloud = self.original(*args, **kwargs)
+            self.peak_mb = bench.peak_rss_mb_now()
+            return cloud
+
+        streamed.fuse_cached = counted
+
+    def close(self) -> None:
+        self.module.fuse_cached = self.original
+
+
+def pipeline_options(config: dict):
+    """(SceneOptions, PipelineOptions) of a configuration: its pipeline, ``set`` items and image size."""
+    from engine.confidence.options import ConfidenceOptions
+    from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
+    from engine.patchmatch import PatchMatchOptions
+    from engine.pipeline import PipelineOptions
+    from engine.scene import SceneOptions
+    from workbench.flags import section_overrides
+
+    items = config.get("set", [])
+    scene = SceneOptions(**{"max_image_size": config["max_image_size"],
+                            **section_overrides(items, "scene", SceneOptions)}).validate()
+    options = PipelineOptions(
+        pipeline=config.get("pipeline", "vanilla"),
+        patchmatch=PatchMatchOptions(**section_overrides(items, "patchmatch", PatchMatchOptions)),
+        confidence=ConfidenceOptions(**section_overrides(items, "confidence", ConfidenceOptions)),
+        fusion=FUSION_PRESETS[DEFAULT_PRESET].replace(**section_overrides(items, "fusion", FusionOptions)))
+    return scene, options.validate()
 
 
 def run_one(config: dict) -> dict:
     """One pipeline run as ``config`` says; the numbers of :func:`main`'s rows."""
-    from engine.pipeline import PipelineOptions, run_pipeline
-    from engine.scene import SceneOptions, load_scene
+    from engine.pipeline import run_pipeline
+    from engine.scene import load_scene
 
-    scene = load_scene(config["scene"], SceneOptions(max_image_size=config["max_image_size"]))
-    options = PipelineOptions(pipeline="vanilla")
+    scene_options, options = pipeline_options(config)
+    scene = load_scene(config["scene"], scene_options)
+    cache = _CountingCache(config.get("fusion_cache"))
     executor = None
     if config["workers"]:
         from engine.distributed.dask_executor import DaskExecutor
@@ -70,6 +146,7 @@ def run_one(config: dict) -> dict:
             result = run_pipeline(scene, out, options, observer=peaks, executor=executor)
         workers = sorted(executor.client.run(worker_peak_mb).values()) if executor else []
     finally:
+        cache.close()
         if executor is not None:
             executor.close()
     n = len(scene.views)
@@ -81,11 +158,18 @@ def run_one(config: dict) -> dict:
             "threads": executor.threads if executor else None, "wall_s": watch.wall,
             "seconds": result.metrics["seconds"], "tasks": n * passes + n if executor else 0,
             "driver_peak_mb": bench.peak_rss_mb(), "driver_patchmatch_peak_mb": peaks.peaks.get("patchmatch"),
-            "driver_fusion_peak_mb": peaks.peaks.get("fusion"), "worker_peak_mb": workers,
+            "driver_fusion_peak_mb": peaks.peaks.get("fusion"),
+            "driver_fusion_start_mb": peaks.peaks.get("before_fusion"),
+            "driver_fuse_start_mb": cache.start_mb, "driver_fuse_peak_mb": cache.peak_mb,
+            "fusion_cache": dataclasses.asdict(cache.stats) if executor else None, "worker_peak_mb": workers,
             # level-0 pass: every view writes its state and reads its own and its sources' (geometric passes)
             "pass_written_mb": n * w * h * PASS_STATE_BYTES / 2**20,
             "pass_read_mb": (n + sources) * w * h * PASS_STATE_BYTES / 2**20,
-            "fused_points": result.metrics["fused_points"]}
+            "fused_points": result.metrics["fused_points"], "pipeline": options.pipeline,
+            # what fusion's peak must hold whatever it does: the cloud, and the cache's slots (23 bytes a pixel)
+            "cloud_mb": sum(getattr(result.cloud, f.name).nbytes for f in dataclasses.fields(result.cloud)) / 2**20,
+            "cache_mb": cache.stats.peak_resident * w * h * 23 / 2**20 if executor else None,
+            "options": {"scene": scene_options.to_dict(), **options.to_dict()}}
 
 
 def _spawn(config: dict, timeout: float) -> dict:
@@ -98,11 +182,19 @@ def _spawn(config: dict, timeout: float) -> dict:
 
 def summary(result: dict) -> list[dict]:
     """One row per configuration: wall time, speed-up over local and overhead per task (fountain), peak RSS of the
-    driver (all of the run and fusion alone) and of the busiest worker, map I/O of one level-0 pass."""
+    driver (all of the run; fusion alone, and its growth over the RSS fusion started from: bounded by the cache of
+    views with an executor), the cache's loads, the busiest worker's peak RSS, map I/O of one level-0 pass."""
     return [{"views": r["views"], "size": r["size"], "workers": r["workers"] or "local", "threads": r["threads"],
              "wall s": r["wall_s"], "tasks": r["tasks"], "speed-up": r.get("speedup"),
              "overhead/task s": r.get("overhead_per_task_s"), "driver MiB": r["driver_peak_mb"],
-             "fusion MiB": r["driver_fusion_peak_mb"], "worker MiB": max(r["worker_peak_mb"], default=None),
+             "fusion MiB": r["driver_fusion_peak_mb"],
+             "fusion +MiB": (r["driver_fusion_peak_mb"] - r["driver_fusion_start_mb"]
+                             if r.get("driver_fusion_start_mb") and r["driver_fusion_peak_mb"] else None),
+             "fuse +MiB": (r["driver_fuse_peak_mb"] - r["driver_fuse_start_mb"]
+                           if r.get("driver_fuse_peak_mb") else None),
+             "cloud MiB": r.get("cloud_mb"), "cache MiB": r.get("cache_mb"),
+             "cache loads": (r.get("fusion_cache") or {}).get("loads"),
+             "worker MiB": max(r["worker_peak_mb"], default=None),
              "pass write MiB": r["pass_written_mb"], "pass read MiB": r["pass_read_mb"]} for r in result["rows"]]
 
 
@@ -134,10 +226,23 @@ def sequence(args: argparse.Namespace) -> dict:
             start = time.perf_counter()
             write_scene(street_scene(n, *args.size), folder)
             print(f"rendered {folder} ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
-        rows.append(_spawn({"scene": str(folder), "max_image_size": max(args.size), "workers": args.workers},
+        rows.append(_spawn({"scene": str(folder), "max_image_size": max(args.size), "workers": args.workers,
+                            "pipeline": args.pipeline, "set": settings(args), "fusion_cache": args.fusion_cache},
                            args.timeout))
         print(json.dumps(rows[-1]), file=sys.stderr)
-    return {"size": list(args.size), "workers": args.workers, "rows": rows}
+    return {"size": list(args.size), "workers": args.workers, "pipeline": args.pipeline, "set": settings(args),
+            "fusion_cache": args.fusion_cache, "rows": rows}
+
+
+#: shortcut flag -> the --set item it stands for
+SHORTCUTS = {"schedule": "patchmatch.schedule", "levels": "patchmatch.levels", "iterations": "patchmatch.iterations",
+             "geom_passes": "patchmatch.geom_passes", "num_source_views": "scene.num_source_views"}
+
+
+def settings(args: argparse.Namespace) -> list[str]:
+    """The --set items of a run: the shortcut flags given, then --set (which wins)."""
+    items = [f"{key}={getattr(args, flag)}" for flag, key in SHORTCUTS.items() if getattr(args, flag) is not None]
+    return items + list(args.set)
 
 
 def plot(result: dict, path: Path) -> None:
@@ -183,6 +288,16 @@ def main(argv=None) -> int:
     s.add_argument("--scenes", default=str(Path(tempfile.gettempdir()) / "deepc_street_scenes"))
     s.add_argument("--json", default=None)
     s.add_argument("--timeout", type=float, default=7200)
+    s.add_argument("--pipeline", choices=("vanilla", "fast", "full"), default="vanilla")
+    s.add_argument("--set", action="append", default=[], metavar="SECTION.NAME=VALUE",
+                   help="an option as deepc run --set (sections scene, patchmatch, confidence, fusion); repeatable")
+    s.add_argument("--schedule", default=None, help="patchmatch.schedule (paper, acmm)")
+    s.add_argument("--levels", type=int, default=None, help="patchmatch.levels")
+    s.add_argument("--iterations", type=int, default=None, help="patchmatch.iterations (every pass)")
+    s.add_argument("--geom-passes", type=int, default=None, help="patchmatch.geom_passes")
+    s.add_argument("--num-source-views", type=int, default=None, help="scene.num_source_views")
+    s.add_argument("--fusion-cache", type=int, default=None, metavar="VIEWS",
+                   help="views the driver's fusion holds at once (default: 1 + the longest overlap list)")
     args = ap.parse_args(argv)
     if args.one:
         print(json.dumps(run_one(json.loads(args.one))))

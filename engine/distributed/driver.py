@@ -4,7 +4,10 @@ geometric passes, every view of a pass before the next pass), then one task per 
 map, then one per view for its confidence. Maps equal ``--executor local``'s byte for byte.
 
 The driver holds no image and no map while the tasks run: it records each state's SHA-256 in the checkpoint's
-manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run with either executor.
+manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run with either executor, and the SHA-256
+of each state's depth array, so that a geometric pass (and the counter maps) read only their source views' depth
+from the state files (a sixth of their bytes; whole states, verified by the manifest, after a resume). After the
+tasks, ``engine.distributed.streamed`` fuses and scores the maps from the run folder without reading them all back.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions
 from engine.distributed.executor import Executor
+from engine.distributed.streamed import read_view_map
 from engine.distributed.tasks import (
     ConfidenceJob,
     FinishJob,
@@ -37,12 +41,11 @@ from engine.distributed.tasks import (
     state_reader,
 )
 from engine.patchmatch import PatchMatchOptions, ViewMaps
-from engine.patchmatch.engine import _check_views, effective_levels, final_maps
+from engine.patchmatch.engine import check_views, effective_levels, final_maps
 from engine.patchmatch.pyramid import level_size
 from engine.per_view import SceneView
 from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import RefinedMap
-from engine.run_folder import read_map
 from engine.scene import Scene
 
 ProgressFn = Callable[[str, int, int], Any]
@@ -61,17 +64,19 @@ def pass_schedule(options: PatchMatchOptions, n_levels: int) -> list[tuple[int, 
 
 def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchOptions, counter: CounterOptions,
                          executor: Executor, observer: Any = None, progress: ProgressFn | None = None,
-                         checkpoint: PatchMatchCheckpoint | None = None) -> tuple[list[ViewMaps], list[np.ndarray]]:
+                         checkpoint: PatchMatchCheckpoint | None = None, read_back: bool = True
+                         ) -> tuple[list[ViewMaps], list[np.ndarray]] | None:
     """PatchMatch and counter maps of every view as tasks on ``executor``; the tasks write the depth, normal, cost
     and counter maps into ``out_dir``. Returns the maps and counter maps (read back), like ``run_patchmatch`` and
-    ``compute_counter_maps``. ``observer``, ``progress`` and ``checkpoint`` as for ``run_patchmatch``; the observer
-    gets one ``on_iteration`` per view and pass (when its task ends) instead of one per iteration. Without a
-    checkpoint the states go through ``out_dir/.deepc-resume`` all the same (removed at the end)."""
+    ``compute_counter_maps``, or None without ``read_back`` (the driver then holds no map). ``observer``, ``progress``
+    and ``checkpoint`` as for ``run_patchmatch``; the observer gets one ``on_iteration`` per view and pass (when its
+    task ends) instead of one per iteration. Without a checkpoint the states go through ``out_dir/.deepc-resume`` all
+    the same (removed at the end)."""
     options = options.validate()
     views = [SceneView(scene, i) for i in range(len(scene.views))]
     if not views:
-        return [], []
-    active = _check_views(views, options)
+        return ([], []) if read_back else None
+    active = check_views(views, options)
     n_levels = effective_levels(views, options)
     if n_levels < options.levels:
         warnings.warn(f"PatchMatch: images too small for {options.levels} levels; using {n_levels}", stacklevel=2)
@@ -87,6 +92,7 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     first = 0 if resume is None else next((k + 1 for k, (lv, p, _) in enumerate(schedule) if (lv, p) == resume), 0)
     step = sum(options.pass_iterations(p) for _, p, _ in schedule[:first]) * sum(active)
     flushed = time.monotonic()
+    known: dict[str, str] = {}  # depth digests of the previous pass's states (none for passes before a resume)
     for k in range(first, len(schedule)):
         level, p, done = schedule[k]
         shapes = [level_size(v.camera.width, v.camera.height, level)[::-1] for v in views]
@@ -103,18 +109,22 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
         if progress is not None and finished:
             progress(description, finished, n)
         previous = None if k == 0 else schedule[k - 1][:2]
-        jobs = [PassJob(ref, folder, i, level, p, n_levels, active[i], options,
-                        _inputs(checkpoint, previous, [i, *(views[i].source_views if p else [])]), done,
-                        executor.threads) for i in todo]
+        jobs = []
+        for i in todo:
+            whole, depths = _inputs(checkpoint, known, previous, i, views[i].source_views if p else [])
+            jobs.append(PassJob(ref, folder, i, level, p, n_levels, active[i], options, whole, done, executor.threads,
+                                depths))
+        written: dict[str, str] = {}  # the depth digests of this pass's states (the next pass reads depth alone)
 
         def ended(index: int, result: PassResult, level=level, p=p, description=description, todo=todo,
-                  shapes=shapes, n_iter=n_iter) -> None:
+                  shapes=shapes, n_iter=n_iter, written=written) -> None:
             nonlocal finished, step
             nonlocal flushed
             i = todo[index]
             # the manifest (every entry) at most once a second: a stopped driver loses at most a second of tasks
             flush = time.monotonic() - flushed > MANIFEST_EVERY_S
             checkpoint.record(level, p, i, result.sha256, write=flush)
+            written[PatchMatchCheckpoint._name(level, p, i)] = result.depth_sha256
             flushed = time.monotonic() if flush else flushed
             finished += 1
             if on_iter is not None and active[i]:
@@ -129,45 +139,55 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
         finally:  # a stopped run keeps every state its tasks finished (--resume)
             checkpoint.flush()
         checkpoint.pass_complete(level, p)
+        known = written
     last = (0, options.geom_passes)
-    executor.map(finish_view, [FinishJob(ref, folder, str(out_dir), i, last[1], active[i],
-                                         _inputs(checkpoint, last, [i, *views[i].source_views]), counter,
-                                         executor.threads) for i in range(n)])
-    reader = state_reader(folder, checkpoint.entries)
-    maps = [final_maps(load_state(reader, *last, i, (v.camera.height, v.camera.width)), active[i])
-            for i, v in enumerate(views)]
-    counters = [_read(out_dir, "counter", v.name).astype(np.uint8) for v in views]
+    finish = []
+    for i in range(n):
+        whole, depths = _inputs(checkpoint, known, last, i, views[i].source_views)
+        finish.append(FinishJob(ref, folder, str(out_dir), i, last[1], active[i], whole, counter, executor.threads,
+                                depths))
+    executor.map(finish_view, finish)
+    result = None
+    if read_back:
+        reader = state_reader(folder, checkpoint.entries)
+        result = ([final_maps(load_state(reader, *last, i, (v.camera.height, v.camera.width)), active[i])
+                   for i, v in enumerate(views)],
+                  [read_view_map(out_dir, "counter", v.name).astype(np.uint8) for v in views])
     if own:
         checkpoint.clear()
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n)
-    return maps, counters
+    return result
 
 
-def _inputs(checkpoint: PatchMatchCheckpoint, at: tuple[int, int] | None, views: list[int]) -> dict[str, str]:
-    """Checkpoint file name -> SHA-256 of the states of ``views`` after pass ``at`` (none before the first pass)."""
+def _inputs(checkpoint: PatchMatchCheckpoint, known: dict[str, str], at: tuple[int, int] | None, view: int,
+            sources: list[int]) -> tuple[dict[str, str], dict[str, str]]:
+    """What a task after pass ``at`` reads (nothing before the first pass): (checkpoint file name -> SHA-256 of the
+    states it reads whole: ``view``'s, and a source's whose depth digest is not ``known``; file name -> depth
+    digest of the sources whose depth it reads alone)."""
     if at is None:
-        return {}
-    names = [PatchMatchCheckpoint._name(*at, j) for j in views]
-    return {name: checkpoint.entries[name] for name in names if name in checkpoint.entries}
-
-
-def _read(out_dir: str | Path, kind: str, name: str) -> np.ndarray:
-    array = read_map(out_dir, kind, name)
-    if array is None:
-        raise FileNotFoundError(f"{kind} map of {name} missing in {out_dir}")
-    return array
+        return {}, {}
+    whole, depths = {}, {}
+    for j in [view, *sources]:
+        name = PatchMatchCheckpoint._name(*at, j)
+        if j != view and known.get(name):
+            depths[name] = known[name]
+        elif name in checkpoint.entries:
+            whole[name] = checkpoint.entries[name]
+    return whole, depths
 
 
 def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceOptions, executor: Executor,
-                         want_raw: bool) -> tuple[list[np.ndarray], list[np.ndarray] | None]:
+                         want_raw: bool, read_back: bool = True) -> tuple[list[np.ndarray] | None,
+                                                                       list[np.ndarray] | None]:
     """Confidence maps of every view (one task each, from the maps the PatchMatch tasks wrote into ``out_dir``;
-    they write the confidence maps). Returns them (read back) and, with ``want_raw``, the maps before the
-    back-facing rule (the refinement's weights)."""
+    they write the confidence maps). Returns them (read back; None without ``read_back``) and, with ``want_raw``,
+    the maps before the back-facing rule (the refinement's weights)."""
     jobs = [ConfidenceJob(SceneRef.of(scene), str(out_dir), i, options, options.weights or None, want_raw,
                           executor.threads) for i in range(len(scene.views))]
     raw = executor.map(confidence_view, jobs)
-    return [_read(out_dir, "confidence", v.name) for v in scene.views], (raw if want_raw else None)
+    confidence = [read_view_map(out_dir, "confidence", v.name) for v in scene.views] if read_back else None
+    return confidence, (raw if want_raw else None)
 
 
 def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: list[np.ndarray], options: RefinementOptions,

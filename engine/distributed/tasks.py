@@ -11,6 +11,7 @@ view, level, pass, iteration, pixel) (``engine.patchmatch.rng``), so a view's pa
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import time
 from contextlib import contextmanager
@@ -28,7 +29,7 @@ from engine.consistency import CounterOptions
 from engine.errors import DeepCError
 from engine.observer import IterationEvent
 from engine.patchmatch import PatchMatchOptions, ViewMaps
-from engine.patchmatch.engine import _run_view_pass, final_maps, level_start_state
+from engine.patchmatch.engine import final_maps, level_start_state, run_view_pass
 from engine.patchmatch.pyramid import area_resize, level_size
 from engine.patchmatch.state import ViewState
 from engine.per_view import patchmatch_view, view_confidence, view_counter
@@ -64,8 +65,10 @@ def _load_scene(root: str, options: str) -> Scene:
 class PassJob:
     """Pass ``pass_index`` of view ``view`` at ``level`` (of ``n_levels``).
 
-    ``inputs``: checkpoint file name -> SHA-256 of every state the task reads (its own state after the previous
-    pass, or after the coarser level's last pass; the source views' after the previous pass in geometric passes).
+    ``inputs``: checkpoint file name -> SHA-256 of every state the task reads whole (its own state after the
+    previous pass, or after the coarser level's last pass; in geometric passes the source views' states whose depth
+    digest the driver does not know, after a resume). ``depths``: checkpoint file name -> SHA-256 of the depth
+    array alone, for the source views whose depth it reads alone (a sixth of the state's bytes).
     ``done_before``: iterations of all earlier passes (the 'global' perturbation schedule). ``threads``: numba
     threads (0 = the worker's default; ``options.num_threads`` wins when set)."""
 
@@ -80,21 +83,25 @@ class PassJob:
     inputs: dict[str, str]
     done_before: int
     threads: int = 0
+    depths: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
 class PassResult:
-    """What a PatchMatch task returns: the SHA-256 of the state it wrote, its seconds and NCC windows."""
+    """What a PatchMatch task returns: the SHA-256 of the state it wrote and of its depth array alone, its seconds
+    and NCC windows."""
 
     sha256: str
     seconds: float
     ncc_windows: int
+    depth_sha256: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
 class FinishJob:
     """The final maps and the counter map of ``view``: reads the states after pass ``pass_index`` of level 0 of the
-    view and its sources (``inputs`` as in :class:`PassJob`), writes depth, normal, cost and counter maps to ``out``."""
+    view and its sources' depth (``inputs`` and ``depths`` as in :class:`PassJob`), writes depth, normal, cost and
+    counter maps to ``out``."""
 
     scene: SceneRef
     folder: str
@@ -105,6 +112,7 @@ class FinishJob:
     inputs: dict[str, str]
     counter: CounterOptions
     threads: int = 0
+    depths: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,6 +160,29 @@ def load_state(reader: PatchMatchCheckpoint, level: int, pass_index: int, view: 
     return ViewState.from_checkpoint(saved)
 
 
+def depth_digest(depth: np.ndarray) -> str:
+    """SHA-256 of a depth map's float32 bytes (what :func:`load_depth` verifies)."""
+    return hashlib.sha256(np.ascontiguousarray(depth, np.float32).tobytes()).hexdigest()
+
+
+def load_depth(folder: str, inputs: dict[str, str], depths: dict[str, str], level: int, pass_index: int, view: int,
+               shape: tuple[int, int]) -> np.ndarray:
+    """A view's depth after a pass: only the depth array of its state file when ``depths`` holds its digest (the
+    archive's other members are not read), else from the whole state verified against ``inputs``."""
+    name = PatchMatchCheckpoint._name(level, pass_index, view)
+    if name not in depths:
+        return load_state(state_reader(folder, inputs), level, pass_index, view, shape).depth
+    try:
+        with np.load(Path(folder) / name, allow_pickle=False) as archive:
+            depth = archive["Z"]
+    except Exception as exc:  # noqa: BLE001  (np.load raises assorted types on a damaged archive)
+        raise DeepCError(f"depth of view {view} after level {level} pass {pass_index} is unreadable ({exc})",
+                         folder) from None
+    if depth.dtype != np.float32 or depth.shape != tuple(shape) or depth_digest(depth) != depths[name]:
+        raise DeepCError(f"depth of view {view} after level {level} pass {pass_index} is damaged", folder)
+    return depth
+
+
 def level_input(scene: Scene, j: int, level: int) -> tuple[np.ndarray, Camera]:
     """View ``j``'s grey image (H, W) f32 and camera at pyramid ``level`` (as ``engine.patchmatch.engine._run``
     builds its pyramid: each level area-resized from the working resolution)."""
@@ -189,16 +220,15 @@ def patchmatch_view_pass(job: PassJob) -> PassResult:
         else:
             st = load_state(reader, level, p - 1, i, shape)
             if job.active:
-                snapshot = {j: load_state(reader, level, p - 1, j, images[j][level].shape).depth
+                snapshot = {j: load_depth(job.folder, job.inputs, job.depths, level, p - 1, j, images[j][level].shape)
                             for j in v.source_views}
         windows = []
-        if job.active:
-            detail = p == 0 and not coarsest and options.detail_restorer
-            _run_view_pass(i, v, st, images, cameras, snapshot, level, p, detail, options,
-                           lambda event: windows.append(event.ncc_windows), 0, job.done_before,
-                           random_start=coarsest and p == 0)
-        sha = write_state(job.folder, level, p, i, st.checkpoint_arrays())
-    return PassResult(sha, time.perf_counter() - t0, int(sum(windows)))
+        if job.active:  # as run_patchmatch runs it (detail restorer, random start at the coarsest level)
+            run_view_pass({i: v}, i, st, images, cameras, snapshot, level, p, job.n_levels, options, job.done_before,
+                          on_iter=lambda event: windows.append(event.ncc_windows))
+        arrays = st.checkpoint_arrays()
+        sha = write_state(job.folder, level, p, i, arrays)
+    return PassResult(sha, time.perf_counter() - t0, int(sum(windows)), depth_digest(arrays["Z"]))
 
 
 def finish_view(job: FinishJob) -> None:
@@ -210,7 +240,7 @@ def finish_view(job: FinishJob) -> None:
         reader = state_reader(job.folder, job.inputs)
         maps = final_maps(load_state(reader, 0, job.pass_index, i, v.image_gray.shape), job.active)
         sources = [patchmatch_view(scene, j) for j in v.source_views]
-        depths = [load_state(reader, 0, job.pass_index, j, s.image_gray.shape).depth
+        depths = [load_depth(job.folder, job.inputs, job.depths, 0, job.pass_index, j, s.image_gray.shape)
                   for j, s in zip(v.source_views, sources, strict=True)]
         counter = view_counter(v, sources, maps, depths, job.counter)
         for kind, array in (("depth", maps.depth), ("normal", maps.normal), ("cost", maps.cost),

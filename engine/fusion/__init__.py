@@ -1,7 +1,8 @@
 """COLMAP-style fusion of depth maps into one point cloud (Schönberger et al., ECCV 2016).
 
 ``options`` holds the thresholds and presets, ``cloud`` the input and output records, ``packing`` and
-``kernel`` the numba implementation, ``ply`` the cloud's file format and ``views`` the scene adapter.
+``kernel`` the numba implementation, ``cached`` the same fusion reading views on demand through a bounded cache
+(COLMAP's workspace cache), ``ply`` the cloud's file format and ``views`` the scene adapter.
 """
 
 from engine.fusion.cloud import FusedCloud, FusionView

@@ -90,9 +90,28 @@ def _backproject(Kinv, Rt, tvec, k, row, col, d):
 
 
 
+@numba.njit(cache=True, nogil=True)
+def sanitize_depth(dep: np.ndarray) -> int:
+    """Zero every depth that is not > 0 (NaN, negative) in place; returns how many stay valid."""
+    n_valid = 0
+    for i in range(dep.shape[0]):
+        if dep[i] > 0.0:
+            n_valid += 1
+        else:
+            dep[i] = 0.0
+    return n_valid
+
+
+# The traversal's scalars between calls of the kernel (``FusionState.si`` and ``.sf``).
+_IMG, _P0, _PHASE, _IN_SEED, _SP, _N, _N_VIS, _CONF_N, _SEED_ID, _N_OUT, _TICK = range(11)
+_CONF_SUM, _RNX, _RNY, _RNZ = range(4)
+NEED_ROOM = -2  # the kernel's answer when the output arrays are full
+_ST_IMG, _FUSED = 2, 17  # the stack's views and the per-view fused flags in work_arrays()
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx,
-                 max_reproj_sq, max_depth_err, min_cos, min_px, max_px, max_trav, per_pixel):
+def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_cos, min_px, max_px, max_trav,
+                 per_pixel, has_conf):
     """COLMAP's traversal with two equivalent reorganisations for speed (memory traffic dominates):
 
     - ``dep`` is a private copy of the depths whose sign marks consumed pixels (d < 0), so one read answers
@@ -101,94 +120,103 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
       done before pushing, using the seed's projection into every view computed once per seed;
       a failing pixel would have been rejected at pop time without side effects. The consumed
       test and the normal check stay at pop time, so the accepted sequence is COLMAP's.
+
+    Views live in slots: view k's pixel p is at ``base[k] + p`` of the map arrays, ``base[k] < 0`` when k is not
+    resident (``engine.fusion.cached``; with every view packed in memory all are). A push into a non-resident
+    view skips the depth checks and marks the entry (``st_chk`` 0): they are done when it is popped, which
+    rejects the same pixels (a pixel's |depth| and the seed's projection do not change while the seed's stack
+    lives, a consumed pixel stays consumed). A pop from a non-resident view puts the entry back, stores the
+    traversal in ``work`` and returns that view; called again once it is resident, the kernel goes on where it
+    stopped. The points go into ``out`` from ``si[_N_OUT]`` on; when a cluster does not fit, the kernel returns
+    ``NEED_ROOM`` with the cluster pending (the caller takes the points and resets ``si[_N_OUT]``). Returns -1 when
+    done, the view it needs, or ``NEED_ROOM``.
     """
+    dep, nrm, rgb, conf, base, used = maps
+    widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx = geometry
+    (si, sf, st_img, st_pix, st_lvl, st_chk, cluster, scratch, seed_u, seed_v, seed_w, act_ptr, act_idx, pov,
+     pw, pc, pr, fused, stamp) = work
+    out_xyz, out_nrm, out_rgb, out_nv, out_np, out_conf, out_src = out
     n_views = len(widths)
-    total = dep.shape[0]
-    n_valid = 0
-    for i in range(total):
-        if dep[i] > 0.0:
-            n_valid += 1
-        else:
-            dep[i] = 0.0  # NaN / negative -> invalid
-    cap = n_valid + 1 if per_pixel else n_valid // max(min_px, 1) + 1
-    out_xyz = np.empty((cap, 3), np.float64)
-    out_nrm = np.empty((cap, 3), np.float32)
-    out_rgb = np.empty((cap, 3), np.uint8)
-    out_nv = np.empty(cap, np.int32)
-    out_np = np.empty(cap, np.int32)
-    out_conf = np.empty(cap, np.float32)
-    out_src = np.empty(cap, np.int32)
-    n_out = 0
+    img = si[_IMG]
+    p0 = si[_P0]
+    phase = si[_PHASE]  # 0: the seed view's overlap lists are not built yet
+    in_seed = si[_IN_SEED] != 0
+    sp = si[_SP]
+    n = si[_N]
+    n_vis = si[_N_VIS]
+    conf_n = si[_CONF_N]
+    seed_id = si[_SEED_ID]
+    n_out = si[_N_OUT]
+    tick = si[_TICK]
+    conf_sum = sf[_CONF_SUM]
+    rnx = sf[_RNX]
+    rny = sf[_RNY]
+    rnz = sf[_RNZ]
+    need = -1
 
-    max_ov = 0
-    for i in range(n_views):
-        max_ov = max(max_ov, ov_ptr[i + 1] - ov_ptr[i])
-    stack_cap = 1 + max_px * max(max_ov, 1)
-    st_img = np.empty(stack_cap, np.int32)
-    st_pix = np.empty(stack_cap, np.int64)
-    st_lvl = np.empty(stack_cap, np.int32)
-
-    # fused pixels of the current cluster, one row per attribute: x, y, z, normal x, y, z, r, g, b, view
-    cluster = np.empty((10, max_px), np.float64)
-    scratch = np.empty(max_px, np.float64)
-    seed_u = np.empty(n_views, np.float64)  # the seed point projected into every view
-    seed_v = np.empty(n_views, np.float64)
-    seed_w = np.empty(n_views, np.float64)
-    # The overlap lists without the views already fused (those only change between seed views), with
-    # P of each entry as one row per matrix element (12, len(ov_idx)), and per-entry projections
-    act_ptr = np.zeros(n_views + 1, np.int64)
-    act_idx = np.empty(max(ov_idx.shape[0], 1), np.int64)
-    pov = np.empty((12, max(ov_idx.shape[0], 1)), np.float64)
-    pw = np.empty(max(max_ov, 1), np.float64)
-    pc = np.empty(max(max_ov, 1), np.float64)
-    pr = np.empty(max(max_ov, 1), np.float64)
-
-    has_conf = conf.shape[0] == total  # else no view has confidence (see _pack): no read per fused pixel
-    fused = np.zeros(n_views, np.bool_)
-    stamp = np.full(n_views, -1, np.int64)
-    seed_id = 0
-
-    img = 0
     while img >= 0:
-        m = 0
-        for k in range(n_views):
-            act_ptr[k] = m
-            for oi in range(ov_ptr[k], ov_ptr[k + 1]):
-                j = ov_idx[oi]
-                if not fused[j]:
-                    act_idx[m] = j
-                    for r in range(3):
-                        for cc in range(4):
-                            pov[4 * r + cc, m] = P[j, r, cc]
-                    m += 1
-        act_ptr[n_views] = m
-        W = widths[img]
-        H = heights[img]
-        base = offsets[img]
-        for p0 in range(base, base + W * H):
-            if dep[p0] <= 0.0:
-                continue
-            # ---- Fuse(seed) ----
-            seed_id += 1
-            sp = 1
-            st_img[0] = img
-            st_pix[0] = p0
-            st_lvl[0] = 0
-            n = 0
-            n_vis = 0
-            conf_sum = 0.0
-            conf_n = 0
-            rnx = 0.0
-            rny = 0.0
-            rnz = 0.0
+        if phase == 0:
+            if base[img] < 0:
+                need = img
+                break
+            # The overlap lists without the views already fused (those only change between seed views), with
+            # P of each entry as one row per matrix element (12, len(ov_idx)), and per-entry projections
+            m = 0
+            for k in range(n_views):
+                act_ptr[k] = m
+                for oi in range(ov_ptr[k], ov_ptr[k + 1]):
+                    j = ov_idx[oi]
+                    if not fused[j]:
+                        act_idx[m] = j
+                        for r in range(3):
+                            for cc in range(4):
+                                pov[4 * r + cc, m] = P[j, r, cc]
+                        m += 1
+            act_ptr[n_views] = m
+            p0 = 0
+            phase = 1
+        n_px = widths[img] * heights[img]
+        while p0 < n_px:
+            if not in_seed:
+                if base[img] < 0:
+                    need = img
+                    break
+                if dep[base[img] + p0] <= 0.0:
+                    p0 += 1
+                    continue
+                # ---- Fuse(seed) ----
+                in_seed = True
+                seed_id += 1
+                sp = 1
+                st_img[0] = img
+                st_pix[0] = p0
+                st_lvl[0] = 0
+                st_chk[0] = 1
+                n = 0
+                n_vis = 0
+                conf_sum = 0.0
+                conf_n = 0
+                rnx = 0.0
+                rny = 0.0
+                rnz = 0.0
             while sp > 0:
                 sp -= 1
                 k = st_img[sp]
-                pidx = st_pix[sp]
+                bk = base[k]
+                if bk < 0:
+                    sp += 1  # popped again once view k is loaded
+                    need = k
+                    break
+                used[k] = tick  # the least recently used view is evicted first (engine.fusion.cached)
+                tick += 1
+                rel = st_pix[sp]
+                pidx = bk + rel
                 lvl = st_lvl[sp]
                 d = dep[pidx]
                 if d <= 0.0:
                     continue  # consumed meanwhile (or invalid)
+                if st_chk[sp] == 0 and abs((seed_w[k] - d) / d) > max_depth_err:
+                    continue  # the push-time depth check of a view that was not resident then
                 n0 = nrm[pidx, 0]
                 n1 = nrm[pidx, 1]
                 n2 = nrm[pidx, 2]
@@ -197,7 +225,6 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
                 wnz = Rt[k, 2, 0] * n0 + Rt[k, 2, 1] * n1 + Rt[k, 2, 2] * n2
                 if lvl > 0 and rnx * wnx + rny * wny + rnz * wnz < min_cos:
                     continue
-                rel = pidx - offsets[k]
                 row = rel // widths[k]
                 col = rel - row * widths[k]
                 x, y, z = _backproject(Kinv, Rt, tvec, k, row, col, d)
@@ -233,6 +260,7 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
                         seed_w[j] = sw
                 n += 1
                 if n >= max_px:
+                    sp = 0  # the rest of the stack is dropped
                     break
                 if lvl >= max_trav - 1:
                     continue
@@ -265,16 +293,28 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
                     dv = seed_v[j] - nr
                     if du * du + dv * dv > max_reproj_sq:
                         continue
-                    q = offsets[j] + nr * widths[j] + nc
-                    dq = dep[q]
-                    if dq <= 0.0:
-                        continue  # invalid or consumed: it would be skipped at pop time
-                    if abs((seed_w[j] - dq) / dq) > max_depth_err:
-                        continue
+                    q = nr * widths[j] + nc
+                    bj = base[j]
+                    if bj >= 0:
+                        dq = dep[bj + q]
+                        if dq <= 0.0:
+                            continue  # invalid or consumed: it would be skipped at pop time
+                        if abs((seed_w[j] - dq) / dq) > max_depth_err:
+                            continue
+                        st_chk[sp] = 1
+                    else:
+                        st_chk[sp] = 0
                     st_img[sp] = j
                     st_pix[sp] = q
                     st_lvl[sp] = lvl + 1
                     sp += 1
+            if need >= 0:
+                break
+            if n >= min_px and n > 0 and n_out + (n if per_pixel else 1) > out_xyz.shape[0]:
+                need = NEED_ROOM  # the seed stays pending: emitted when called again with room
+                break
+            in_seed = False
+            p0 += 1
             if n < min_px or n == 0:
                 continue
             mnx = median_inplace(cluster[3], n, scratch)
@@ -310,7 +350,10 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
             out_conf[n_out] = mean_conf
             out_src[n_out] = img
             n_out += 1
+        if need != -1:
+            break
         fused[img] = True
+        phase = 0
         # Next view: first unfused view in this view's overlap list, else the lowest unfused index.
         nxt = -1
         for oi in range(ov_ptr[img], ov_ptr[img + 1]):
@@ -323,8 +366,22 @@ def _fuse_kernel(dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tve
                     nxt = j
                     break
         img = nxt
-    return (out_xyz[:n_out].copy(), out_nrm[:n_out].copy(), out_rgb[:n_out].copy(), out_nv[:n_out].copy(),
-            out_conf[:n_out].copy(), out_src[:n_out].copy(), out_np[:n_out].copy())
+    si[_IMG] = img
+    si[_P0] = p0
+    si[_PHASE] = phase
+    si[_IN_SEED] = 1 if in_seed else 0
+    si[_SP] = sp
+    si[_N] = n
+    si[_N_VIS] = n_vis
+    si[_CONF_N] = conf_n
+    si[_SEED_ID] = seed_id
+    si[_N_OUT] = n_out
+    si[_TICK] = tick
+    sf[_CONF_SUM] = conf_sum
+    sf[_RNX] = rnx
+    sf[_RNY] = rny
+    sf[_RNZ] = rnz
+    return need
 
 
 
@@ -334,6 +391,51 @@ def reprojection_limit_sq(options: FusionOptions) -> float:
     # A relative margin far above float64 noise makes "error <= limit" hold exactly as written.
     return options.max_reproj_error ** 2 * (1.0 + 1e-9) + 1e-12
 
+
+
+def work_arrays(n_views: int, ov_ptr: np.ndarray, max_px: int) -> tuple:
+    """The traversal's state that lives across calls of the kernel: its scalars (``si``, ``sf``), the stack,
+    the cluster, the seed's projections, the overlap lists without fused views, and per view whether it is
+    fused and the last seed it joined. Small: O(views + max_num_pixels x longest overlap list)."""
+    max_ov = int(np.max(np.diff(ov_ptr), initial=0))
+    n_ov = max(int(ov_ptr[-1]), 1)
+    stack_cap = 1 + max_px * max(max_ov, 1)
+    si = np.zeros(11, np.int64)
+    return (si, np.zeros(4, np.float64), np.empty(stack_cap, np.int32), np.empty(stack_cap, np.int64),
+            np.empty(stack_cap, np.int32), np.empty(stack_cap, np.uint8),
+            # fused pixels of the current cluster, one row per attribute: x, y, z, normal x, y, z, r, g, b, view
+            np.empty((10, max_px), np.float64), np.empty(max_px, np.float64),
+            np.empty(n_views, np.float64), np.empty(n_views, np.float64), np.empty(n_views, np.float64),
+            np.zeros(n_views + 1, np.int64), np.empty(n_ov, np.int64), np.empty((12, n_ov), np.float64),
+            np.empty(max(max_ov, 1), np.float64), np.empty(max(max_ov, 1), np.float64),
+            np.empty(max(max_ov, 1), np.float64), np.zeros(n_views, np.bool_), np.full(n_views, -1, np.int64))
+
+
+def output_arrays(cap: int) -> tuple:
+    """Room for ``cap`` points."""
+    return (np.empty((cap, 3), np.float64), np.empty((cap, 3), np.float32), np.empty((cap, 3), np.uint8),
+            np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, np.float32), np.empty(cap, np.int32))
+
+
+def kernel_options(options: FusionOptions) -> tuple:
+    """The kernel's thresholds from ``options`` (validated)."""
+    return (reprojection_limit_sq(options), options.max_depth_error, math.cos(math.radians(options.max_normal_error)),
+            int(options.min_num_pixels), int(options.max_num_pixels), int(options.max_traversal_depth),
+            bool(options.point_per_pixel))
+
+
+def cloud_of(chunks: list[tuple]) -> FusedCloud:
+    """The cloud of the kernel's output chunks in order, each (output arrays, points in them); an attribute's chunks
+    are released as soon as that attribute is joined (peak: the cloud and one attribute's chunks)."""
+    parts = [[a[:n] for a in out] for out, n in chunks]
+    chunks.clear()
+    fields = []
+    for f in range(7):
+        fields.append(np.concatenate([p[f] for p in parts]))
+        for p in parts:
+            p[f] = None
+    xyz, nrm, rgb, nv, npx, conf, src = fields
+    return FusedCloud(xyz, nrm, rgb, nv, conf, src, npx)
 
 
 def fuse(views: list[FusionView], options: FusionOptions | None = None) -> FusedCloud:
@@ -348,10 +450,14 @@ def fuse(views: list[FusionView], options: FusionOptions | None = None) -> Fused
     options = (options or FusionOptions()).validate()
     if not views:
         return FusedCloud.empty()
-    packed = pack_views(list(views), options)
-    xyz, nrm, rgb, nv, conf, src, npx = _fuse_kernel(
-        *packed, reprojection_limit_sq(options), options.max_depth_error,
-        math.cos(math.radians(options.max_normal_error)), int(options.min_num_pixels),
-        int(options.max_num_pixels), int(options.max_traversal_depth), bool(options.point_per_pixel))
-    return FusedCloud(xyz, nrm, rgb, nv, conf, src, npx)
-
+    dep, nrm, rgb, conf, offsets, widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx = pack_views(list(views), options)
+    n_valid = sanitize_depth(dep)  # NaN / negative -> invalid
+    min_px, max_px, per_pixel = options.min_num_pixels, options.max_num_pixels, options.point_per_pixel
+    # every view resident: view k's pixels start at offsets[k]
+    maps = (dep, nrm, rgb, conf, offsets[:-1].copy(), np.zeros(len(views), np.int64))
+    work = work_arrays(len(views), ov_ptr, int(max_px))
+    out = output_arrays(n_valid + 1 if per_pixel else n_valid // max(min_px, 1) + 1)  # room for every point
+    need = _fuse_kernel(maps, (widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx), work, out,
+                        *kernel_options(options), conf.shape[0] == dep.shape[0])
+    assert need == -1, "a view packed in memory was reported missing"
+    return cloud_of([(out, int(work[0][_N_OUT]))])

@@ -87,7 +87,7 @@ class ViewMaps:
                    np.zeros((height, width), np.float32), np.zeros((height, width), np.uint32))
 
 
-def _check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
+def check_views(views: list[PatchMatchView], options: PatchMatchOptions) -> list[bool]:
     """Validate inputs; returns which views are processed (others are skipped with a warning)."""
     active = []
     for i, v in enumerate(views):
@@ -164,7 +164,7 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
     options = (options or PatchMatchOptions()).validate()
     if not views:
         return []
-    active = _check_views(views, options)
+    active = check_views(views, options)
     n_levels = effective_levels(views, options)
     if n_levels < options.levels:
         warnings.warn(f"PatchMatch: images too small for {options.levels} levels; using {n_levels}", stacklevel=2)
@@ -403,7 +403,7 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
     from) and "end" after each level's last pass (``images``, ``cameras``: every view's pyramid, None for views
     the replay does not need); the state must not be kept without a copy."""
     options = (options or PatchMatchOptions()).validate()
-    active = _check_views(views, options)
+    active = check_views(views, options)
     if not 0 <= view < len(views):
         raise DeepCError(f"view {view} does not exist (the scene has {len(views)} views)")
     if not active[view]:
@@ -454,17 +454,17 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
 def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: list, cameras: list,
                   snapshot: list | None, level: int, pass_index: int, n_levels: int, options: PatchMatchOptions,
                   done_before: int, probe: PixelProbe | None = None, pool: BufferPool | None = None,
-                  origin: tuple[int, int] = (0, 0)) -> None:
+                  origin: tuple[int, int] = (0, 0), on_iter: Callable | None = None) -> None:
     """Pass ``pass_index`` of view ``i`` at ``level`` on ``st`` in place, as :func:`run_patchmatch` runs it (detail
     restorer in a finer level's photometric pass, random start at the coarsest's): ``images``, ``cameras``: every
     view's pyramid (``images[i][level]`` may be a crop of the level's image at ``origin`` (x, y), with its camera;
     ``probe`` then traces the probed pixels inside it); ``snapshot``: the views' depth maps a geometric pass reads;
-    ``done_before``: iterations of all earlier passes."""
+    ``done_before``: iterations of all earlier passes; ``on_iter(event)`` after each iteration."""
     coarsest = level == n_levels - 1
     detail = pass_index == 0 and not coarsest and options.detail_restorer
     pass_probe = None
     if probe is not None and probe.view == i:
         w, h = level_size(views[i].camera.width, views[i].camera.height, level)
         pass_probe = probe.pass_probe(level, pass_index, w, h, detail, origin, st.depth.shape)
-    _run_view_pass(i, views[i], st, images, cameras, snapshot, level, pass_index, detail, options, None, 0, done_before,
-                   random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe)
+    _run_view_pass(i, views[i], st, images, cameras, snapshot, level, pass_index, detail, options, on_iter, 0,
+                   done_before, random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe)
