@@ -103,6 +103,25 @@ def test_explainer_follows_other_settings(small_scene, changes):
             assert sum(c.get("refinement") is not None for c in t["iterations"][0]["candidates"]) <= 8
 
 
+def test_probe_marks_the_pixels_the_active_set_skips(small_scene):
+    """With the active set on, a skipped pixel's entry says so and keeps its hypothesis; every entry still
+    follows the kernel."""
+    views, _ = small_scene
+    opts = PatchMatchOptions(iterations=6, levels=1, geom_passes=0, active_share=0.0)
+    block = [(x, y) for y in range(20, 28) for x in range(28, 36)]
+    probe = PixelProbe(1, block)
+    maps = run_patchmatch(views, opts, probe=probe)
+    skipped = 0
+    for t in probe.traces():
+        for e in t["iterations"]:
+            assert e["explained"], (t["x"], t["y"], e["iteration"])
+            if e["skipped"]:
+                skipped += 1
+                assert e["decided_by"] == "active_set" and e["iteration"] >= 2 and e["after"] == e["before"]
+        assert t["iterations"][-1]["after"]["depth"] == float(maps[1].depth[t["y"], t["x"]])
+    assert skipped > 0
+
+
 def test_level_pixel_maps_centres():
     assert level_pixel(0, 0, 64, 48, 32, 24) == (0, 0)
     assert level_pixel(63, 47, 64, 48, 32, 24) == (31, 23)

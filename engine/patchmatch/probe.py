@@ -19,7 +19,9 @@ import numpy as np
 from engine.errors import DeepCError
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.explain import explain_pixel
+from engine.patchmatch.kernels import ACTIVE_DRAW, neighbourhood_changed
 from engine.patchmatch.records import KernelParams, SamplingPattern
+from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.state import ViewState
 
 MAX_PROBE_PIXELS = 64
@@ -35,6 +37,20 @@ def level_pixel(x: int, y: int, width: int, height: int, level_width: int, level
 def _hypothesis(state: ViewState, x: int, y: int) -> dict[str, Any]:
     return {"depth": float(state.depth[y, x]), "normal": [float(c) for c in state.normal[y, x]],
             "cost": float(state.cost[y, x])}
+
+
+def _skipped(state: ViewState, pattern: SamplingPattern, key: np.uint64, params: KernelParams, x: int, y: int
+             ) -> bool:
+    """Whether the half-step kernel's active set leaves pixel (x, y) alone (``kernels.half_step_kernel``): the
+    active set is on in this iteration, neither the pixel nor a pixel it reads moved in its last update, and the
+    pixel's random draw is not in the share still updated."""
+    changed = state.changed
+    if params.active_share < 0 or changed is None or changed[y, x]:
+        return False
+    pixel_key = np.uint64(combine(key, y * state.depth.shape[1] + x))  # a Python int from outside numba
+    if uniform(pixel_key, ACTIVE_DRAW) < params.active_share:
+        return False
+    return not neighbourhood_changed(changed, pattern.offsets, x, y)
 
 
 def parse_pixels(pixels: Any) -> list[tuple[int, int]]:
@@ -163,12 +179,16 @@ class PassProbe:
             for c in ex["candidates"]:
                 c["selected_views"] = selected
                 c["view_weights"] = ex["view_weights"]
+            skipped = _skipped(state, pattern, key, params, x, y)
+            if skipped:  # the kernel leaves the pixel alone: its hypothesis stays, whatever the candidates cost
+                ex["winner"], ex["decided_by"] = 0, "active_set"
             self._pending[(x, y)] = {
                 "level": self.level, "pass": self.pass_index, "pass_kind": "geometric" if params.geometric
                 else "photometric", "iteration": iteration, "colour": colour, "x_level": x + self.origin[0],
                 "y_level": y + self.origin[1],
                 "before": _hypothesis(state, x, y), "after": None, "candidates": ex["candidates"],
-                "winner": ex["winner"], "decided_by": ex["decided_by"], "source_views": list(names),
+                "winner": ex["winner"], "decided_by": ex["decided_by"], "skipped": skipped,
+                "source_views": list(names),
                 "view_weights": ex["view_weights"], "selected_views": selected,
                 "detail_restorer_reference": ex["restorer_reference"], "perturbation": params.perturbation,
                 "min_improvement": params.min_improvement}
