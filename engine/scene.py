@@ -277,9 +277,12 @@ def _shared_counts(model: SparseModel, n: int) -> np.ndarray:
     """(n, n) number of sparse points observed by both views."""
     if len(model.track_point) == 0:
         return np.zeros((n, n), np.int64)
-    incidence = np.zeros((len(model.points), n), np.float32)
-    incidence[model.track_point, model.track_image] = 1.0
-    return np.rint(incidence.T @ incidence).astype(np.int64)
+    from scipy.sparse import csr_matrix  # lazy: only scene loading needs it
+
+    # sparse points x views: a dense one grows with points x views (160 MB at 400 views of a street sequence)
+    pairs = np.unique(np.stack([model.track_point, model.track_image], axis=1), axis=0)  # a point once per view
+    incidence = csr_matrix((np.ones(len(pairs), np.int64), (pairs[:, 0], pairs[:, 1])), shape=(len(model.points), n))
+    return np.asarray((incidence.T @ incidence).toarray(), np.int64)
 
 
 def _source_views(model: SparseModel, cameras: list[Camera], shared: np.ndarray,
