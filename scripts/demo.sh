@@ -7,7 +7,7 @@
 #     within 1 % so far, the stage after PatchMatch). When the run ends the same page becomes the tuning
 #     viewer of the run, on the run's own settings: keep the tab open from the start.
 # Uses ACMM's 3/2/2 schedule so the demo takes a few minutes on 2 cores; extra arguments go to
-# `deepc run` (e.g. --schedule paper for the paper's 8 iterations per pass, --port 8081, or --headless
+# `deepc run` (e.g. --schedule paper for the paper's up to 8 iterations per pass, --port 8081, or --headless
 # for neither viewer).
 set -euo pipefail
 cd "$(dirname "$0")/.."
