@@ -82,7 +82,8 @@ def check_no_partial(out: Path) -> int:
 
 
 def differences(reference: Path, out: Path) -> list[str]:
-    """Files that differ between two run folders (checkpoint folder ignored, metrics without seconds)."""
+    """Files that differ between two run folders (checkpoint folder ignored; metrics without seconds and without the
+    PatchMatch work this process did, which a resumed run counts only for the passes it recomputed)."""
     def files(root: Path) -> set[str]:
         return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and CHECKPOINT_DIR not in p.parts}
 
@@ -96,6 +97,7 @@ def differences(reference: Path, out: Path) -> list[str]:
             ma, mb = json.loads(a.read_text()), json.loads(b.read_text())
             for m in (ma, mb):
                 m.pop("seconds", None)
+                m.pop("patchmatch_early_stops", None)
             if ma != mb:
                 diff.append(name)
         elif a.read_bytes() != b.read_bytes():

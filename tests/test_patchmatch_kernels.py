@@ -751,7 +751,7 @@ def test_a_converged_pass_ends_early_with_its_last_iteration() -> None:
     """With ``converge_ratio`` a pass stops once an iteration changes nearly as many pixels as the one before:
     fewer iterations than the schedule, the same first iterations as the full pass (same streams), and the
     stopping iteration run as the pass's last (any lower cost accepted). Off (0), the schedule's count runs."""
-    full = PatchMatchOptions(schedule="paper")
+    full = PatchMatchOptions(schedule="paper", converge_ratio=0, active_share=-1)
     ctx, _, st = _tiny_problem(12, False, full)
     start = st.copy_maps()
     ran_full: list[int] = []

@@ -38,7 +38,7 @@ class Convergence:
 class EarlyStops:
     """An observer of ``run_patchmatch`` that keeps the view passes which ended early (stage events
     ``patchmatch_view_converged``) and sums the iterations' work (pixel updates, those the active set skipped,
-    NCC windows)."""
+    NCC windows). It sees the passes this process ran: a ``--resume`` run leaves out the restored ones."""
 
     def __init__(self) -> None:
         self.stops: list[dict[str, int]] = []
