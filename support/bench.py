@@ -78,16 +78,27 @@ def reset_peak_rss() -> bool:
         return False
 
 
-def peak_rss_mb_now() -> float:
-    """Peak resident memory (MiB) of this process since start or the last :func:`reset_peak_rss` (getrusage's
-    peak ignores the reset)."""
+def _status_mb(key: str) -> float | None:
+    """A memory line of /proc/self/status (``VmHWM``, ``VmRSS``) in MiB; None where there is none."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
+            if line.startswith(key + ":"):
                 return int(line.split()[1]) / 1024
     except OSError:
         pass
-    return peak_rss_mb()
+    return None
+
+
+def peak_rss_mb_now() -> float:
+    """Peak resident memory (MiB) of this process since start or the last :func:`reset_peak_rss` (getrusage's
+    peak ignores the reset)."""
+    peak = _status_mb("VmHWM")
+    return peak_rss_mb() if peak is None else peak
+
+
+def rss_mb_now() -> float:
+    """Resident memory (MiB) of this process now (Linux; 0 elsewhere)."""
+    return _status_mb("VmRSS") or 0.0
 
 
 # ---- provenance ----------------------------------------------------------------------------------

@@ -53,17 +53,6 @@ def worker_peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def rss_mb_now() -> float:
-    """Resident memory (MiB) of this process now (Linux; 0 elsewhere)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return 0.0
-
-
 class _StagePeaks:
     """An observer that measures the driver's peak RSS up to PatchMatch's end, and during fusion alone (from the end of
     the stage before it) with the RSS fusion started from."""
@@ -75,7 +64,7 @@ class _StagePeaks:
         if name in ("patchmatch", "confidence", "refinement", "fusion"):
             self.peaks[name] = bench.peak_rss_mb_now()
             if name != "fusion":
-                self.peaks["before_fusion"] = rss_mb_now()
+                self.peaks["before_fusion"] = bench.rss_mb_now()
             bench.reset_peak_rss()
 
 
@@ -96,7 +85,7 @@ class _CountingCache:
                 kwargs["cache_views"] = self.cache_views
             # fuse_cached alone (the fusion stage also writes fused.ply: engine.io.ply's table and its bytes)
             bench.reset_peak_rss()
-            self.start_mb = rss_mb_now()
+            self.start_mb = bench.rss_mb_now()
             cloud = self.original(*args, **kwargs)
             self.peak_mb = bench.peak_rss_mb_now()
             return cloud
