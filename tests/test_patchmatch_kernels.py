@@ -738,7 +738,7 @@ def test_run_view_level_runs_a_pass_and_reports_every_iteration() -> None:
     np.testing.assert_array_equal(total, sum(c for _, c, _ in seen))
     assert (st.depth != start.depth).mean() > 0.5
     assert st.view_costs is None and st.row_count is None
-    assert st.known_costs is not None and st.known_costs.shape == st.depth.shape + (ctx.num_sources,)
+    assert st.known_costs is None  # not carried to the next pass: its init_cost recomputes them (memory)
     again = start.copy_maps()
     run_view_level(again, ctx, opts, 2.0, 5.0, iterations=3)
     for a, b in zip(st.maps(), again.maps(), strict=True):

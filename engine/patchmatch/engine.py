@@ -376,11 +376,6 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
     run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
                    pass_index=pass_index, detail=detail, done_before=done_before, on_iteration=event, pool=pool,
                    probe=probe)
-    # The photometric costs a pass leaves for the next one (ViewState.known_costs) would hold 20 B/px for every
-    # view until its next pass (79 MB of fountain_p11's 768x512 peak); they spare under 1 % of PatchMatch's time
-    # (the next init_cost recomputes them: the photometric cost is computed in float32, so the maps are the same bit
-    # for bit, checked by md5 on tiny and small).
-    st.known_costs = st.known_window_set = None
     if pool is not None:
         ctx.release(pool)
     planned = options.pass_iterations(pass_index)
