@@ -113,16 +113,21 @@ def _fmt(x: float) -> str:
     return str(x) if isinstance(x, int) else f"{x:g}"
 
 
+_UNSET = object()  # ``option(absent=...)`` not given
+
+
 def option(default: Any, help: str, *, source: str | None = None, unit: str | None = None,
            low: float | None = None, high: float | None = None, above: float | None = None,
            below: float | None = None, odd: bool = False, multiple_of: int | None = None,
            choices: tuple | None = None, off: Any = None, ordered: str | None = None, nonempty: bool = False,
-           aliases: tuple[str, ...] = (), cli: bool = True, metavar: str | None = None) -> Any:
+           aliases: tuple[str, ...] = (), cli: bool = True, metavar: str | None = None,
+           absent: Any = _UNSET) -> Any:
     """A dataclass field: default, one line of help, unit, source of the default and declared constraints.
 
     ``aliases`` are former names that :meth:`Options.from_dict` and ``--set`` still accept (saved runs);
-    ``cli=False`` keeps the field off the command line. Nested options (an :class:`Options` default) need
-    no source: their own fields carry one.
+    ``absent`` is the value that reproduces a run saved before the option existed (``from_dict(saved=True)``
+    gives it to such a run; the default when unset); ``cli=False`` keeps the field off the command line. Nested
+    options (an :class:`Options` default) need no source: their own fields carry one.
     """
     nested = isinstance(default, Options)
     if "\n" in help:
@@ -134,7 +139,7 @@ def option(default: Any, help: str, *, source: str | None = None, unit: str | No
     constraint = Constraint(low, high, above, below, odd, multiple_of, choices and tuple(choices), off, ordered,
                             nonempty)
     meta = {"help": help, "source": source, "unit": unit, "constraint": constraint, "choices": choices,
-            "aliases": tuple(aliases), "cli": cli, "metavar": metavar}
+            "aliases": tuple(aliases), "cli": cli, "metavar": metavar, "absent": absent}
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
     if nested:  # each instance gets its own copy
@@ -211,9 +216,10 @@ class Options:
         return None
 
     @classmethod
-    def from_dict(cls: type[T], data: dict[str, Any]) -> T:
+    def from_dict(cls: type[T], data: dict[str, Any], saved: bool = False) -> T:
         """Inverse of :meth:`to_dict`; former names (aliases) are accepted, unknown keys are an error,
-        missing keys take defaults."""
+        missing keys take defaults, or with ``saved`` (the options a run saved: they re-run it) the value that
+        reproduces a run made before the option existed (``option(absent=...)``), in nested options too."""
         renamed = {key: cls.field_name(key) for key in data}
         unknown = sorted(key for key, name in renamed.items() if name is None)
         if unknown:
@@ -229,8 +235,12 @@ class Options:
             if isinstance(value, list) and (origin is tuple or _optional_of(hint, tuple)):
                 value = tuple(value)
             elif isinstance(hint, type) and issubclass(hint, Options) and isinstance(value, dict):
-                value = hint.from_dict(value)
+                value = hint.from_dict(value, saved)
             kwargs[name] = value
+        if saved:
+            for f in dataclasses.fields(cls):
+                if f.name not in kwargs and f.metadata.get("absent", _UNSET) is not _UNSET:
+                    kwargs[f.name] = f.metadata["absent"]
         return cls(**kwargs).validate()
 
     def replace(self: T, **changes: Any) -> T:

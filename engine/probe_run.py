@@ -116,7 +116,7 @@ def _open_run(run_dir: str | Path) -> _Run:
 
 def _load_run(run_dir: Path) -> _Run:
     metrics = read_run_metrics(run_dir)
-    options = PipelineOptions.from_dict({k: v for k, v in metrics.options.items() if k != "scene"})
+    options = PipelineOptions.from_dict({k: v for k, v in metrics.options.items() if k != "scene"}, saved=True)
     scene = run_scene(run_dir)
     views = patchmatch_views(scene)
     pm = options.patchmatch

@@ -203,3 +203,18 @@ def test_saved_regression_baselines_load_without_loss(path):
     scene = SceneOptions.from_dict(saved["scene"])
     options = PipelineOptions.from_dict({k: v for k, v in saved.items() if k != "scene"})
     assert {"scene": scene.to_dict(), **options.to_dict()} == saved
+
+
+def test_a_run_saved_before_an_option_existed_is_re_run_as_it_was_made():
+    """A probe or region re-run of a run saved before the active set and convergence-driven pass ends existed must
+    not switch them on (``from_dict(saved=True)``), while a new configuration takes today's defaults."""
+    old = PipelineOptions().to_dict()
+    for key in ("active_share", "converge_ratio"):
+        del old["patchmatch"][key]
+    again = PipelineOptions.from_dict(old, saved=True).patchmatch
+    assert (again.active_share, again.converge_ratio) == (-1.0, 0.0)
+    fresh = PipelineOptions.from_dict(old).patchmatch
+    assert (fresh.active_share, fresh.converge_ratio) == (PatchMatchOptions().active_share,
+                                                         PatchMatchOptions().converge_ratio)
+    # a saved value always wins, and a run saved with every key loads exactly
+    assert PipelineOptions.from_dict(PipelineOptions().to_dict(), saved=True) == PipelineOptions()

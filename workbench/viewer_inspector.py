@@ -134,7 +134,8 @@ class InspectorPanel:
         self.run_dir: Path | None = session.out_dir if session.has_maps else None
         run_options = (session.run.options or {}) if session.run is not None else {}
         try:
-            self.options = PatchMatchOptions.from_dict(run_options.get("patchmatch") or {})
+            saved = run_options.get("patchmatch")
+            self.options = PatchMatchOptions.from_dict(saved, saved=True) if saved else PatchMatchOptions()
         except DeepCError:
             self.options = PatchMatchOptions()
         self._build_gui()

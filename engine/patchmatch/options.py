@@ -29,9 +29,10 @@ class PatchMatchOptions(Options):
     iterations: int | None = option(None, "this many red-black iterations in every pass; unset = the schedule's",
                                     source="ours", low=1)
     converge_ratio: float = option(0.8, "end a pass once an iteration's changed share exceeds this x the last "
-                                   "one's; 0 = off", source="ours", low=0, below=1)
+                                   "one's; 0 = off", source="ours", low=0, below=1, absent=0.0)
     active_share: float = option(0.1, "from a pass's 3rd iteration update only pixels near moved ones, and this "
-                                 "random share; -1 = off", source="ours", off=-1.0, low=0, high=1)
+                                 "random share; -1 = off", source="ours", off=-1.0, low=0, high=1,
+                                 absent=-1.0)
     converge_depth: float = option(0.01, "a pixel has changed (convergence, active set) when its depth moves more "
                                    "than this",
                                    unit="relative depth", source="ours", above=0)
