@@ -121,7 +121,8 @@ def _victim(slots: _Slots, seed: int, stack: np.ndarray) -> int:
 
 def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable[[int], FusionView],
                 options: FusionOptions | None = None, cache_views: int | None = None,
-                confidence: bool = False, stats: CacheStats | None = None) -> FusedCloud:
+                confidence: bool = False, stats: CacheStats | None = None,
+                sink: Callable[[tuple, int], None] | None = None) -> FusedCloud | None:
     """Fuse views whose maps are loaded on demand (Schönberger et al. 2016), holding at most ``cache_views``.
 
     Args:
@@ -135,8 +136,11 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         confidence: whether ``load`` gives confidence maps (the points' ``mean_confidence``; NaN otherwise), as
             :func:`engine.fusion.fuse` reads them when any view has one.
         stats: filled with what the cache did.
+        sink: called with each filled chunk of the output, ``(the kernel's output arrays, points in them)``, in the
+            cloud's order, instead of joining them (:mod:`engine.fusion.stream` writes them into ``fused.ply``);
+            the arrays are filled again once it returns.
     Returns:
-        The cloud :func:`engine.fusion.fuse` makes of the same views.
+        The cloud :func:`engine.fusion.fuse` makes of the same views; None with a ``sink``.
     """
     options = (options or FusionOptions()).validate()
     if cache_views is not None and cache_views < 2:
@@ -145,7 +149,7 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         raise ValueError(f"{len(cameras)} cameras but {len(overlaps)} overlap lists")
     n = len(cameras)
     if not n:
-        return FusedCloud.empty()
+        return None if sink is not None else FusedCloud.empty()
     stats = stats if stats is not None else CacheStats()
     geometry = pack_geometry(cameras, overlaps, options)
     if cache_views is None:
@@ -160,12 +164,16 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
     while True:
         stats.calls += 1
         need = _fuse_kernel(slots.maps(), geometry, work, out, *thresholds, confidence)
-        if need == -1:
-            chunks.append((out, int(work[0][_N_OUT])))
-            return cloud_of(chunks)
-        if need == NEED_ROOM:
-            chunks.append((out, int(work[0][_N_OUT])))
-            out, work[0][_N_OUT] = output_arrays(room), 0
+        if need in (-1, NEED_ROOM):  # done, or the chunk is full
+            if sink is not None:
+                sink(out, int(work[0][_N_OUT]))
+            else:
+                chunks.append((out, int(work[0][_N_OUT])))
+            if need == -1:
+                return None if sink is not None else cloud_of(chunks)
+            if sink is None:
+                out = output_arrays(room)
+            work[0][_N_OUT] = 0
             continue
         if -1 in slots.view:
             s = slots.view.index(-1)
