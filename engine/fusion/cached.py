@@ -14,8 +14,12 @@ the longest overlap list (at most ``check_num_images`` + 1 = 51 views): bounded 
 Memory: ``cache_views`` x (largest view's pixels) x 23 bytes (depth 4, normal 12, colour 3, confidence 4) for the
 slots; what stays for every view is small: its camera, its overlap list, and, for a view evicted before it was
 fused, which of its pixels are consumed (1 bit a pixel, as COLMAP's ``fused_pixel_masks_`` keep 1 byte).
-The cloud itself grows with the number of points: it is written into chunks of ``CHUNK_POINTS`` points, joined at
-the end one attribute at a time (peak about 1.4 x the cloud, as COLMAP holds its fused points).
+The cloud is written into chunks of ``CHUNK_POINTS`` points. Without a ``sink`` they are joined at the end one
+attribute at a time (peak about 1.4 x the cloud, as COLMAP holds its fused points). With one, each chunk is handed to
+it as it fills and its arrays are filled again: :mod:`engine.fusion.stream` writes it into ``fused.ply`` (records,
+and the float64 positions into a temporary file) and returns the cloud as memory maps of the files, so that the
+memory of fusion is the cache's and one chunk's whatever the number of views and points (the streamed stages of an
+executor run, ``engine.distributed.streamed``).
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from engine.fusion.kernel import (
 from engine.fusion.options import FusionOptions
 from engine.fusion.packing import check_view, fill_rgb, pack_geometry
 
-CHUNK_POINTS = 1 << 18  # points a chunk of the output holds (14 MiB); the cloud is joined from the chunks at the end
+CHUNK_POINTS = 1 << 18  # points a chunk of the output holds (14 MiB); joined at the end, or handed to a sink
 
 
 @dataclasses.dataclass
