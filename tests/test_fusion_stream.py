@@ -186,3 +186,18 @@ def test_chunked_evaluation_holds_no_copy_of_the_cloud(monkeypatch):
     finally:
         tracemalloc.stop()
     assert got == want and peak < recon.nbytes / 2 and peak < in_memory / 4, (peak, in_memory, recon.nbytes)
+
+
+def test_the_rerun_stream_logs_a_cloud_on_disk(cloud, tmp_path):
+    """The fusion stage's observers get the DiskCloud (a streamed run with --stream)."""
+    pytest.importorskip("rerun")
+    from workbench.recording import Recording
+    from workbench.stream import RerunStream
+
+    recording = Recording(tmp_path / "run.rrd")
+    scene = load_scene(SAMPLES / "tiny")
+    views = [(v.name, v.camera, np.zeros((v.camera.height, v.camera.width, 3), np.float32), []) for v in scene.views]
+    RerunStream(recording.rec, views, None, pass_iterations=lambda p: 1).on_stage("fusion", cloud=cloud,
+                                                                                     pipeline="vanilla")
+    recording.finish()
+    assert (tmp_path / "run.rrd").stat().st_size > len(cloud) * 12  # float32 positions at least
