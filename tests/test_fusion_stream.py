@@ -147,7 +147,7 @@ def cloud(run, tmp_path_factory):
 
 
 @pytest.mark.parametrize("views", [False, True])
-@pytest.mark.parametrize("sizes", [(1 << 18, 1 << 21), (4000, 9000), (777, 5000)])  # chunk, slab
+@pytest.mark.parametrize("sizes", [(1 << 18, 1 << 19), (4000, 9000), (777, 5000)])  # chunk, slab
 def test_chunked_evaluation_is_the_in_memory_one(run, cloud, monkeypatch, views, sizes):
     scene = run[0]
     monkeypatch.setattr(chunked, "CHUNK_POINTS", sizes[0])
@@ -163,7 +163,9 @@ def test_chunked_evaluation_is_the_in_memory_one(run, cloud, monkeypatch, views,
 def test_chunked_evaluation_of_nothing_and_of_far_points():
     rng = np.random.default_rng(3)
     gt = rng.random((500, 3))
-    for recon in (np.zeros((0, 3)), gt[:50] + 100.0, np.concatenate([gt[:50] + 0.003, gt[50:60] + 100.0])):
+    far = np.array([[1e6, -1e6, 1e6]])  # the voxel box has more than 2^62 cells: no row-major keys
+    for recon in (np.zeros((0, 3)), gt[:50] + 100.0, np.concatenate([gt[:50] + 0.003, gt[50:60] + 100.0]),
+                  np.concatenate([gt[:50] + 0.003, far])):
         assert evaluate_point_chunks(len(recon), lambda s, c, r=recon: r[s:s + c], gt) == evaluate_points(recon, gt)
 
 

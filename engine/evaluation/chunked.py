@@ -31,11 +31,20 @@ from engine.evaluation.free_space import free_space_margin, pack_gt_views
 from engine.evaluation.options import EvaluationOptions
 from engine.evaluation.point_index import QUERY_CHUNK, PointIndex, first_within
 from engine.evaluation.result import EvaluationResult, make_result, overlap_notes
-from engine.evaluation.voxels import _GRID_SHIFTS, as_points, cell_coords, cell_ranks, cell_ratios, voxel_completeness
+from engine.evaluation.voxels import (
+    _GRID_SHIFTS,
+    as_points,
+    cell_coords,
+    cell_keys,
+    cell_ranks,
+    cell_ratios,
+    key_ranks,
+    voxel_completeness,
+)
 from engine.heap import release_free_memory
 
 CHUNK_POINTS = 1 << 18  # points read at once (6 MiB of float64 positions)
-SLAB_POINTS = 1 << 21  # points of one slab of the voxel grid (about 100 MiB while its voxels are counted)
+SLAB_POINTS = 1 << 19  # points of one slab of the voxel grid (about 30 MiB while its voxels are counted)
 
 
 class _Completeness:
@@ -66,17 +75,23 @@ class _Completeness:
 
 
 class _Slabs:
-    """One voxel grid's x cells: points per x cell, and each chunk's range of them."""
+    """One voxel grid's cells: points per x cell, each chunk's range of them, and the box of all cells."""
 
     def __init__(self, voxel_size: float, shift: float):
         self.voxel_size, self.shift = voxel_size, shift
         self.values: list[np.ndarray] = []
         self.counts: list[np.ndarray] = []
         self.ranges: list[tuple[int, int]] = []
+        self.lo = np.full(3, np.iinfo(np.int64).max)
+        self.hi = np.full(3, np.iinfo(np.int64).min)
+
+    def cells(self, xyz: np.ndarray) -> np.ndarray:
+        return cell_coords(xyz, self.voxel_size, self.shift)
 
     def add(self, xyz: np.ndarray) -> None:
-        cx = cell_coords(xyz, self.voxel_size, self.shift, axes=1)[:, 0]
-        values, counts = np.unique(cx, return_counts=True)
+        cells = self.cells(xyz)
+        self.lo, self.hi = np.minimum(self.lo, cells.min(axis=0)), np.maximum(self.hi, cells.max(axis=0))
+        values, counts = np.unique(cells[:, 0], return_counts=True)
         self.values.append(values)
         self.counts.append(counts)
         self.ranges.append((int(values[0]), int(values[-1])))
@@ -93,6 +108,16 @@ class _Slabs:
             held += int(c)
         out.append((int(values[first]), int(values[-1])))
         return out
+
+    def ids(self, parts: list[np.ndarray]) -> np.ndarray:
+        """Dense ids of the cells of a slab in their lexicographic order; ``parts``: what :meth:`keys` gave."""
+        whole = np.concatenate(parts)
+        return key_ranks(whole) if whole.ndim == 1 else cell_ranks(whole)
+
+    def keys(self, cells: np.ndarray) -> np.ndarray:
+        """The cells' row-major keys in the box of all cells (8 bytes a point), or the cells where it has too many."""
+        key = cell_keys(cells, self.lo, self.hi - self.lo + 1)
+        return cells if key is None else key
 
 
 def evaluate_point_chunks(n: int, read: Callable[[int, int], np.ndarray], gt_xyz: np.ndarray | PointIndex,
@@ -161,13 +186,14 @@ def _voxel_accuracy(n: int, read: Callable[[int, int], np.ndarray], classes, cod
                         continue
                     start = c * CHUNK_POINTS
                     xyz = read(start, CHUNK_POINTS)
-                    cell = cell_coords(xyz, grid.voxel_size, grid.shift)
+                    cell = grid.cells(xyz)
                     inside = (cell[:, 0] >= lo) & (cell[:, 0] <= hi)
                     classes.seek(start * width)
                     pairs = np.frombuffer(classes.read(len(xyz) * width), code).reshape(-1, 2)
-                    cells.append(cell[inside])
+                    cells.append(grid.keys(cell[inside]))
                     ab.append(pairs[inside])
-                ids = cell_ranks(np.concatenate(cells))
+                ids = grid.ids(cells)
+                del cells
                 a, b = np.concatenate(ab).T.astype(np.int64)
                 m = int(ids.max()) + 1
                 for t in range(n_tol):

@@ -88,11 +88,24 @@ def cell_ranks(cells: np.ndarray) -> np.ndarray:
         return np.zeros(0, np.int64)
     lo = cells.min(axis=0)
     span = cells.max(axis=0) - lo + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) < 2 ** 62:
-        key = ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
-        return _ranks(key, np.argsort(key))
+    key = cell_keys(cells, lo, span)
+    if key is not None:
+        return key_ranks(key)
     _, ids = np.unique(cells, axis=0, return_inverse=True)
     return ids.ravel()
+
+
+def cell_keys(cells: np.ndarray, lo: np.ndarray, span: np.ndarray) -> np.ndarray | None:
+    """(N,) int64 row-major keys of (N, 3) int64 cells in the box ``lo`` .. ``lo + span - 1`` (ordered as the cells
+    lexicographically), or None where the box has 2^62 cells or more (the keys would overflow)."""
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2 ** 62:
+        return None
+    return ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
+
+
+def key_ranks(key: np.ndarray) -> np.ndarray:
+    """(N,) int64 dense ids of the keys in their order (``np.unique``'s inverse)."""
+    return _ranks(key, np.argsort(key))
 
 
 def cell_ratios(ids: np.ndarray, cells: int, accurate: np.ndarray, inaccurate: np.ndarray) -> np.ndarray:
