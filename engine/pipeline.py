@@ -354,7 +354,7 @@ def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     points at a time (``engine.evaluation.chunked``: the same numbers)."""
     gt, gt_views = read_points(scene.gt_points_path), scene.gt_views() or None
     if isinstance(cloud, DiskCloud):
-        return evaluate_point_chunks(len(cloud), cloud.read_xyz, gt, options, gt_views)
+        return evaluate_point_chunks(len(cloud), cloud.read_xyz, gt, options, gt_views, scratch=cloud.path.parent)
     return evaluate_points(np.asarray(cloud.xyz, np.float64), gt, options, gt_views)
 
 

@@ -131,7 +131,7 @@ def evaluate_point_chunks(n: int, read: Callable[[int, int], np.ndarray], gt_xyz
         n: the points.
         read: the points ``start`` .. ``start + count - 1``, e.g. :meth:`engine.fusion.cloud.DiskCloud.read_xyz`.
         gt_xyz, options, gt_views: as :func:`engine.evaluation.evaluate_points`.
-        scratch: the folder of the temporary files (default: the system's).
+        scratch: the folder of the temporary files (2 bytes a point, and the slabs' ratios; default: the system's).
     """
     options = (options or EvaluationOptions()).validate()
     release_free_memory()

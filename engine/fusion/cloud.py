@@ -80,9 +80,12 @@ class DiskCloud(FusedCloud):
 
     Attributes (besides the cloud's):
         xyz_file: the open binary file of the (N, 3) float64 positions (``engine.fusion.stream``).
+        path: the PLY file (its folder also holds the positions' nameless file).
     """
 
-    xyz_file = None  # not a field: ``subset`` and the fields' loops see the cloud's seven arrays only
+    # not fields: ``subset`` and the loops over the fields see the cloud's seven arrays only
+    xyz_file = None
+    path = None
 
     def read_xyz(self, start: int, count: int) -> np.ndarray:
         """(count, 3) float64 positions of points ``start`` .. ``start + count - 1``, read from the file (not through

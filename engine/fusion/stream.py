@@ -118,5 +118,5 @@ def disk_cloud(path: Path, header_len: int, n: int, xyz_file: IO[bytes]) -> Fuse
 
         cloud = DiskCloud(np.memmap(xyz_file, np.float64, mode="r", shape=(n, 3)), triple("nx"), triple("red"),
                           records["num_views"], records["confidence"], records["source_view"], records["num_pixels"])
-    cloud.xyz_file = xyz_file
+    cloud.xyz_file, cloud.path = xyz_file, path
     return cloud
