@@ -23,11 +23,12 @@ from engine.distributed import Executor
 from engine.distributed.driver import run_confidence_tasks, run_patchmatch_tasks, run_refinement_tasks
 from engine.distributed.streamed import filtered_maps, fuse_run_folder, streamed_metrics
 from engine.errors import DeepCError
-from engine.evaluation import EvaluationOptions, evaluate_points
+from engine.evaluation import EvaluationOptions, evaluate_point_chunks, evaluate_points
 from engine.filtering import filter_by_confidence
 from engine.fusion import (
     DEFAULT_PRESET,
     FUSION_PRESETS,
+    DiskCloud,
     FusedCloud,
     FusionOptions,
     fuse,
@@ -211,14 +212,14 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     check_interrupt()
     t = time.perf_counter()
     tau = options.confidence.tau if options.pipeline == "fast" else None
-    if streamed:
-        cloud = fuse_run_folder(scene, out_dir, options.fusion, tau)
+    if streamed:  # fused.ply written as fusion goes; the cloud stays in it (engine/fusion/stream.py)
+        cloud = fuse_run_folder(scene, out_dir, options.fusion, tau, ply=out_dir / "fused.ply")
     else:
         fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
         cloud = fuse(fusion_views, options.fusion)
-    release_free_memory()  # fusion's packed maps, before the cloud's records are written (engine/heap.py)
-    check_interrupt()
-    write_fused_ply(out_dir / "fused.ply", cloud)
+        release_free_memory()  # fusion's packed maps, before the cloud's records are written (engine/heap.py)
+        check_interrupt()
+        write_fused_ply(out_dir / "fused.ply", cloud)
     seconds["fusion"] = time.perf_counter() - t
     if notify:
         notify("fusion", cloud=cloud, pipeline=options.pipeline)
@@ -349,9 +350,12 @@ def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.n
 
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     """ETH3D-style scores of a fused cloud against the scene's GT points; GT depth maps, when present,
-    enable the unobserved-space rule (Schöps et al. 2017)."""
-    return evaluate_points(np.asarray(cloud.xyz, np.float64), read_points(scene.gt_points_path), options,
-                           scene.gt_views() or None)
+    enable the unobserved-space rule (Schöps et al. 2017). A cloud on disk (a streamed run's) is scored a chunk of
+    points at a time (``engine.evaluation.chunked``: the same numbers)."""
+    gt, gt_views = read_points(scene.gt_points_path), scene.gt_views() or None
+    if isinstance(cloud, DiskCloud):
+        return evaluate_point_chunks(len(cloud), cloud.read_xyz, gt, options, gt_views, scratch=cloud.path.parent)
+    return evaluate_points(np.asarray(cloud.xyz, np.float64), gt, options, gt_views)
 
 
 def _depth_block(scene: Scene, maps: list[ViewMaps]) -> tuple[dict[str, float], list[dict[str, Any]]]:

@@ -1,8 +1,9 @@
 """The stages of a ``--executor dask`` run after its per-view tasks, streamed from the run folder the tasks wrote,
 so that the driver holds no list of per-view maps: fusion reads the views through a bounded cache
 (:mod:`engine.fusion.cached`, COLMAP's workspace cache) and filters each one as it is loaded (DeepC-MVS_fast's
-confidence filter, Kuhn et al. 2020, §4.1); the metrics are accumulated view by view (:mod:`engine.distributed.pooled`).
-Cloud and metrics equal those of the in-process pipeline on the same maps.
+confidence filter, Kuhn et al. 2020, §4.1), writing its points into ``fused.ply`` as they come
+(:mod:`engine.fusion.stream`: the cloud stays on disk); the metrics are accumulated view by view
+(:mod:`engine.distributed.pooled`). Cloud and metrics equal those of the in-process pipeline on the same maps.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from engine.errors import DeepCError
 from engine.filtering import filter_by_confidence
 from engine.fusion import FusedCloud, FusionOptions, FusionView
 from engine.fusion.cached import CacheStats, fuse_cached
+from engine.fusion.stream import write_fused_stream
 from engine.fusion.views import scene_view
 from engine.metrics import depth_metrics
 from engine.per_view import view_auc
@@ -55,13 +57,22 @@ def fused_view_loader(scene: Scene, out_dir: str | Path, tau: float | None) -> C
 
 
 def fuse_run_folder(scene: Scene, out_dir: str | Path, options: FusionOptions, tau: float | None,
-                    cache_views: int | None = None, stats: CacheStats | None = None) -> FusedCloud:
+                    cache_views: int | None = None, stats: CacheStats | None = None,
+                    ply: str | Path | None = None) -> FusedCloud:
     """The fused cloud of the maps in ``out_dir``, with at most ``cache_views`` views in memory (None: 1 + the
     longest overlap list, ``engine.fusion.cached``); equal to
-    ``fuse(views_from_scene(...))`` of the same maps (the tasks write them at each view's working resolution)."""
+    ``fuse(views_from_scene(...))`` of the same maps (the tasks write them at each view's working resolution).
+    With ``ply``, the points are written into that file as fusion makes them (``write_fused_ply``'s bytes) and
+    the cloud returned lives there (a :class:`engine.fusion.cloud.DiskCloud`): the memory does not grow with the
+    points."""
     overlaps = [scene.overlapping_views(i, options.check_num_images) for i in range(len(scene.views))]
-    return fuse_cached([v.camera for v in scene.views], overlaps, fused_view_loader(scene, out_dir, tau), options,
-                       cache_views, confidence=tau is not None, stats=stats)
+    cameras = [v.camera for v in scene.views]
+    load = fused_view_loader(scene, out_dir, tau)
+    if ply is None:
+        return fuse_cached(cameras, overlaps, load, options, cache_views, confidence=tau is not None, stats=stats)
+    return write_fused_stream(ply, lambda sink: fuse_cached(cameras, overlaps, load, options, cache_views,
+                                                            confidence=tau is not None, stats=stats, sink=sink),
+                              max_points=sum(c.width * c.height for c in cameras))  # a point consumes a pixel
 
 
 def _relative_errors(depth: np.ndarray, gt: np.ndarray) -> tuple[int, np.ndarray]:

@@ -19,10 +19,12 @@ Every score is a mean over occupied voxels of two grids (cell ``floor(p / voxel 
 and 0.5 voxel), each voxel weighted equally, which cancels point density. Accuracy skips voxels
 without classified points. F1 = 2 A C / (A + C), 0 when both are 0. All scores are percentages.
 
-Modules: ``options``, ``result``, ``points`` (GT points), ``eth3d`` (laser scans and the beam model),
+Modules: ``options``, ``result``, ``points`` (GT points), ``chunked`` (the same for a cloud read a chunk at a time),
+``eth3d`` (laser scans and the beam model),
 ``free_space``, ``point_index`` and ``voxels`` (the shared machinery).
 """
 
+from engine.evaluation.chunked import evaluate_point_chunks
 from engine.evaluation.eth3d import Eth3dScan, classify_beam, evaluate_eth3d, load_eth3d_mlp
 from engine.evaluation.free_space import free_space_margin
 from engine.evaluation.options import EvaluationOptions, parse_tolerances
@@ -31,4 +33,5 @@ from engine.evaluation.points import evaluate_file, evaluate_points
 from engine.evaluation.result import EvaluationResult
 
 __all__ = ["Eth3dScan", "EvaluationOptions", "EvaluationResult", "PointIndex", "classify_beam", "evaluate_eth3d",
-           "evaluate_file", "evaluate_points", "free_space_margin", "load_eth3d_mlp", "parse_tolerances"]
+           "evaluate_file", "evaluate_point_chunks", "evaluate_points", "free_space_margin", "load_eth3d_mlp",
+           "parse_tolerances"]

@@ -60,7 +60,8 @@ def _free_space_margin_kernel(points, E, K, depth, offsets, widths, heights):
 
 
 
-def _pack_gt_views(gt_views) -> tuple:
+def pack_gt_views(gt_views: list[tuple[Camera, np.ndarray]]) -> tuple:
+    """The GT views as the kernel reads them (pass to :func:`free_space_margin` to score many chunks of points)."""
     Es, Ks, depths, offsets, widths, heights = [], [], [], [0], [], []
     for cam, depth in gt_views:
         depth = np.asarray(depth, np.float32)
@@ -77,11 +78,13 @@ def _pack_gt_views(gt_views) -> tuple:
 
 
 
-def free_space_margin(points: np.ndarray, gt_views: list[tuple[Camera, np.ndarray]]) -> np.ndarray:
+def free_space_margin(points: np.ndarray, gt_views: list[tuple[Camera, np.ndarray]] | tuple) -> np.ndarray:
     """(N,) float64: how far each point lies in front of the GT surface, the maximum over GT views
-    (negative = behind or on it, -inf = no GT view has depth at its projection)."""
+    (negative = behind or on it, -inf = no GT view has depth at its projection). ``gt_views``: (camera, GT depth)
+    pairs, or what :func:`pack_gt_views` made of them."""
     points = np.asarray(points, np.float64)
-    if not gt_views or len(points) == 0:
+    if not len(gt_views) or len(points) == 0:
         return np.full(len(points), -np.inf)
-    return _free_space_margin_kernel(points, *_pack_gt_views(gt_views))
+    packed = gt_views if isinstance(gt_views, tuple) else pack_gt_views(gt_views)
+    return _free_space_margin_kernel(points, *packed)
 

@@ -65,6 +65,58 @@ def _ranks(key: np.ndarray, order: np.ndarray) -> np.ndarray:
     return ids
 
 
+@numba.njit(cache=True, nogil=True)
+def _cells_kernel(points: np.ndarray, inv: np.float32, shift: np.float32, axes: int) -> np.ndarray:
+    cells = np.empty((points.shape[0], axes), np.int64)
+    for i in range(points.shape[0]):
+        for k in range(axes):
+            cells[i, k] = _cell(points[i, k], inv, shift)
+    return cells
+
+
+def cell_coords(points: np.ndarray, voxel_size: float, shift: float, axes: int = 3) -> np.ndarray:
+    """(N, axes) int64 cell of each point in the grid of ``voxel_size`` shifted by ``shift`` voxel, the first
+    ``axes`` coordinates (float32 arithmetic as :func:`_cell_ids`)."""
+    return _cells_kernel(np.asarray(points), np.float32(1.0 / float(np.float32(voxel_size))), np.float32(shift),
+                         axes)
+
+
+def cell_ranks(cells: np.ndarray) -> np.ndarray:
+    """(N,) int64 dense ids of (N, 3) int64 cells in their lexicographic order, the order of :func:`_cell_ids`'s
+    row-major keys."""
+    if len(cells) == 0:
+        return np.zeros(0, np.int64)
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    key = cell_keys(cells, lo, span)
+    if key is not None:
+        return key_ranks(key)
+    _, ids = np.unique(cells, axis=0, return_inverse=True)
+    return ids.ravel()
+
+
+def cell_keys(cells: np.ndarray, lo: np.ndarray, span: np.ndarray) -> np.ndarray | None:
+    """(N,) int64 row-major keys of (N, 3) int64 cells in the box ``lo`` .. ``lo + span - 1`` (ordered as the cells
+    lexicographically), or None where the box has 2^62 cells or more (the keys would overflow)."""
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2 ** 62:
+        return None
+    return ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
+
+
+def key_ranks(key: np.ndarray) -> np.ndarray:
+    """(N,) int64 dense ids of the keys in their order (``np.unique``'s inverse)."""
+    return _ranks(key, np.argsort(key))
+
+
+def cell_ratios(ids: np.ndarray, cells: int, accurate: np.ndarray, inaccurate: np.ndarray) -> np.ndarray:
+    """accurate / (accurate + inaccurate) of the voxels (dense ``ids`` 0 .. ``cells`` - 1) holding classified
+    points, in their order: what accuracy averages (the counts, sums of 1.0, are exact)."""
+    acc = np.bincount(ids, weights=accurate.astype(np.float64), minlength=cells)
+    bad = np.bincount(ids, weights=inaccurate.astype(np.float64), minlength=cells)
+    valid = acc + bad > 0
+    return acc[valid] / (acc[valid] + bad[valid])
+
+
 def _cell_ids(points: np.ndarray, voxel_size: float, shift: float) -> np.ndarray:
     """(N,) int64 dense ids (0..cells-1, in the order of the cells' row-major keys) of each point's voxel;
     float32 arithmetic as the official code. Computed point by point (no (N, 3) temporaries: 3.5 M points
@@ -116,10 +168,8 @@ def voxel_accuracy(recon: np.ndarray, first_ok: np.ndarray, inaccurate: np.ndarr
         ids = _cell_ids(recon, voxel_size, shift)
         m = int(ids.max()) + 1 if len(ids) else 0
         for t in range(n_tol):
-            acc = np.bincount(ids, weights=(first_ok <= t).astype(np.float64), minlength=m)
-            bad = np.bincount(ids, weights=inaccurate[:, t].astype(np.float64), minlength=m)
-            valid = acc + bad > 0
-            sums[t] += float(np.sum(acc[valid] / (acc[valid] + bad[valid])))
-            counts[t] += int(valid.sum())
+            ratios = cell_ratios(ids, m, first_ok <= t, inaccurate[:, t])
+            sums[t] += float(np.sum(ratios))
+            counts[t] += len(ratios)
     return np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
 

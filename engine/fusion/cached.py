@@ -14,8 +14,12 @@ the longest overlap list (at most ``check_num_images`` + 1 = 51 views): bounded 
 Memory: ``cache_views`` x (largest view's pixels) x 23 bytes (depth 4, normal 12, colour 3, confidence 4) for the
 slots; what stays for every view is small: its camera, its overlap list, and, for a view evicted before it was
 fused, which of its pixels are consumed (1 bit a pixel, as COLMAP's ``fused_pixel_masks_`` keep 1 byte).
-The cloud itself grows with the number of points: it is written into chunks of ``CHUNK_POINTS`` points, joined at
-the end one attribute at a time (peak about 1.4 x the cloud, as COLMAP holds its fused points).
+The cloud is written into chunks of ``CHUNK_POINTS`` points. Without a ``sink`` they are joined at the end one
+attribute at a time (peak about 1.4 x the cloud, as COLMAP holds its fused points). With one, each chunk is handed to
+it as it fills and its arrays are filled again: :mod:`engine.fusion.stream` writes it into ``fused.ply`` (records,
+and the float64 positions into a temporary file) and returns the cloud as memory maps of the files, so that the
+memory of fusion is the cache's and one chunk's whatever the number of views and points (the streamed stages of an
+executor run, ``engine.distributed.streamed``).
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from engine.fusion.kernel import (
 from engine.fusion.options import FusionOptions
 from engine.fusion.packing import check_view, fill_rgb, pack_geometry
 
-CHUNK_POINTS = 1 << 18  # points a chunk of the output holds (14 MiB); the cloud is joined from the chunks at the end
+CHUNK_POINTS = 1 << 18  # points a chunk of the output holds (14 MiB); joined at the end, or handed to a sink
 
 
 @dataclasses.dataclass
@@ -121,7 +125,8 @@ def _victim(slots: _Slots, seed: int, stack: np.ndarray) -> int:
 
 def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable[[int], FusionView],
                 options: FusionOptions | None = None, cache_views: int | None = None,
-                confidence: bool = False, stats: CacheStats | None = None) -> FusedCloud:
+                confidence: bool = False, stats: CacheStats | None = None,
+                sink: Callable[[tuple, int], None] | None = None) -> FusedCloud | None:
     """Fuse views whose maps are loaded on demand (Schönberger et al. 2016), holding at most ``cache_views``.
 
     Args:
@@ -135,8 +140,11 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         confidence: whether ``load`` gives confidence maps (the points' ``mean_confidence``; NaN otherwise), as
             :func:`engine.fusion.fuse` reads them when any view has one.
         stats: filled with what the cache did.
+        sink: called with each filled chunk of the output, ``(the kernel's output arrays, points in them)``, in the
+            cloud's order, instead of joining them (:mod:`engine.fusion.stream` writes them into ``fused.ply``);
+            the arrays are filled again once it returns.
     Returns:
-        The cloud :func:`engine.fusion.fuse` makes of the same views.
+        The cloud :func:`engine.fusion.fuse` makes of the same views; None with a ``sink``.
     """
     options = (options or FusionOptions()).validate()
     if cache_views is not None and cache_views < 2:
@@ -145,7 +153,7 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
         raise ValueError(f"{len(cameras)} cameras but {len(overlaps)} overlap lists")
     n = len(cameras)
     if not n:
-        return FusedCloud.empty()
+        return None if sink is not None else FusedCloud.empty()
     stats = stats if stats is not None else CacheStats()
     geometry = pack_geometry(cameras, overlaps, options)
     if cache_views is None:
@@ -160,12 +168,16 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
     while True:
         stats.calls += 1
         need = _fuse_kernel(slots.maps(), geometry, work, out, *thresholds, confidence)
-        if need == -1:
-            chunks.append((out, int(work[0][_N_OUT])))
-            return cloud_of(chunks)
-        if need == NEED_ROOM:
-            chunks.append((out, int(work[0][_N_OUT])))
-            out, work[0][_N_OUT] = output_arrays(room), 0
+        if need in (-1, NEED_ROOM):  # done, or the chunk is full
+            if sink is not None:
+                sink(out, int(work[0][_N_OUT]))
+            else:
+                chunks.append((out, int(work[0][_N_OUT])))
+            if need == -1:
+                return None if sink is not None else cloud_of(chunks)
+            if sink is None:
+                out = output_arrays(room)
+            work[0][_N_OUT] = 0
             continue
         if -1 in slots.view:
             s = slots.view.index(-1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 
@@ -68,3 +69,29 @@ class FusedCloud:
         return cls(np.zeros((0, 3)), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8),
                    np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.int32))
 
+
+
+@dataclasses.dataclass(eq=False)
+class DiskCloud(FusedCloud):
+    """A fused cloud that lives on disk (``engine.fusion.stream``): its attributes are read-only memory maps, ``xyz``
+    (float64, as the kernel made it) of a temporary file without a name, the others of ``fused.ply``'s records. Equal,
+    attribute by attribute, to the in-memory cloud of the same points; reading an attribute whole brings it into
+    memory (page by page, as the file's pages), :meth:`read_xyz` reads some positions without the map.
+
+    Attributes (besides the cloud's):
+        xyz_file: the open binary file of the (N, 3) float64 positions (``engine.fusion.stream``).
+        path: the PLY file (its folder also holds the positions' nameless file).
+    """
+
+    # not fields: ``subset`` and the loops over the fields see the cloud's seven arrays only
+    xyz_file = None
+    path = None
+
+    def read_xyz(self, start: int, count: int) -> np.ndarray:
+        """(count, 3) float64 positions of points ``start`` .. ``start + count - 1``, read from the file (not through
+        the map, whose pages would stay resident)."""
+        count = max(0, min(count, len(self) - start))
+        data = os.pread(self.xyz_file.fileno(), count * 24, start * 24) if count else b""
+        if len(data) != count * 24:
+            raise OSError(f"the cloud's positions file ends at point {start + len(data) // 24} of {len(self)}")
+        return np.frombuffer(data, np.float64).reshape(count, 3)

@@ -7,9 +7,29 @@ from pathlib import Path
 import numpy as np
 
 from engine.fusion.cloud import FusedCloud
-from engine.io.ply import read_ply, write_ply
+from engine.io.ply import read_ply, vertex_dtype, vertex_fields, write_ply
 
 _EXTRA = ("num_views", "confidence", "source_view", "num_pixels")
+# The properties write_fused_ply writes (its extra attributes' dtypes), and one record of the file's body (43 bytes)
+FUSED_FIELDS = vertex_fields("f4", True, True, {"num_views": np.dtype(np.int32), "confidence": np.dtype(np.float32),
+                                                "source_view": np.dtype(np.int32), "num_pixels": np.dtype(np.int32)})
+FUSED_RECORD = vertex_dtype(FUSED_FIELDS)
+
+
+def fill_records(table: np.ndarray, xyz: np.ndarray, normal: np.ndarray, rgb: np.ndarray, num_views: np.ndarray,
+                 confidence: np.ndarray, source_view: np.ndarray, num_pixels: np.ndarray) -> np.ndarray:
+    """``table[:n]`` (``FUSED_RECORD``) filled with n points' attributes as :func:`write_fused_ply` stores them (the
+    same casts: float64 positions rounded to float32); returns that part."""
+    part = table[:len(xyz)]
+    for a, name in enumerate("xyz"):
+        part[name] = xyz[:, a]
+    for a, name in enumerate(("nx", "ny", "nz")):
+        part[name] = normal[:, a]
+    for a, name in enumerate(("red", "green", "blue")):
+        part[name] = rgb[:, a]
+    part["num_views"], part["confidence"] = num_views, confidence
+    part["source_view"], part["num_pixels"] = source_view, num_pixels
+    return part
 
 
 

@@ -160,6 +160,35 @@ def read_points(path: str | Path) -> np.ndarray:
     return np.stack([columns["x"], columns["y"], columns["z"]], axis=1).astype(np.float64)
 
 
+def vertex_fields(coordinate_dtype: str = "f4", normals: bool = False, rgb: bool = False,
+                  extra: dict[str, np.ndarray | np.dtype] | None = None) -> list[tuple[str, str]]:
+    """The vertex properties :func:`write_ply` writes, in order: ``(name, dtype kind)`` such as ``("x", "f4")``;
+    ``extra`` maps each further property to its values or their dtype."""
+    fields = [("x", coordinate_dtype), ("y", coordinate_dtype), ("z", coordinate_dtype)]
+    if normals:
+        fields += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
+    if rgb:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    for name, values in (extra or {}).items():
+        kind = values if isinstance(values, np.dtype) else np.asarray(values).dtype
+        fields.append((name, kind.str.lstrip("<>=|")))
+    return fields
+
+
+def vertex_dtype(fields: list[tuple[str, str]]) -> np.dtype:
+    """The packed little-endian record of one vertex with these properties (the body of a binary PLY)."""
+    return np.dtype([(name, "<" + kind) for name, kind in fields])
+
+
+def ply_header(n: int, fields: list[tuple[str, str]]) -> bytes:
+    """The header of a binary little-endian PLY of ``n`` vertices with these properties, ``end_header`` line
+    included."""
+    header = ["ply", "format binary_little_endian 1.0", "comment written by deepc-workbench", f"element vertex {n}"]
+    header += [f"property {_NAMES[np.dtype(kind).str.lstrip('<>=|')]} {name}" for name, kind in fields]
+    header.append("end_header")
+    return ("\n".join(header) + "\n").encode("ascii")
+
+
 def write_ply(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = None,
               rgb: np.ndarray | None = None, extra: dict[str, np.ndarray] | None = None,
               coordinate_dtype: str = "f4") -> None:
@@ -175,15 +204,9 @@ def write_ply(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = No
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"xyz must be (N, 3), got {xyz.shape}")
     n = len(xyz)
-    fields = [("x", coordinate_dtype), ("y", coordinate_dtype), ("z", coordinate_dtype)]
-    if normals is not None:
-        fields += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
-    if rgb is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     extra = extra or {}
-    for name, values in extra.items():
-        fields.append((name, np.asarray(values).dtype.str.lstrip("<>=|")))
-    table = np.empty(n, dtype=np.dtype([(name, "<" + kind) for name, kind in fields]))
+    fields = vertex_fields(coordinate_dtype, normals is not None, rgb is not None, extra)
+    table = np.empty(n, dtype=vertex_dtype(fields))
     table["x"], table["y"], table["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     if normals is not None:
         table["nx"], table["ny"], table["nz"] = np.asarray(normals, np.float32).T
@@ -191,10 +214,6 @@ def write_ply(path: str | Path, xyz: np.ndarray, normals: np.ndarray | None = No
         table["red"], table["green"], table["blue"] = np.asarray(rgb, np.uint8).T
     for name, values in extra.items():
         table[name] = values
-    header = ["ply", "format binary_little_endian 1.0", "comment written by deepc-workbench",
-              f"element vertex {n}"]
-    header += [f"property {_NAMES[np.dtype(kind).str.lstrip('<>=|')]} {name}" for name, kind in fields]
-    header.append("end_header")
     with atomic_write(path) as handle:
-        handle.write(("\n".join(header) + "\n").encode("ascii"))
+        handle.write(ply_header(n, fields))
         handle.write(memoryview(table.view(np.uint8)))  # not tobytes(): no second copy of the table
