@@ -8,8 +8,8 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
 - PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (2·S window weights, moments, padded source images and
-  source depths: 4·(2·S + 2 + 2·sources) B/px), its cost caches (``ViewState.prepare_caches``) and the float32
-  copy of its photometric costs at the end of a pass (the engine drops it: ``patchmatch/engine.py``);
+  source depths: 4·(2·S + 2 + 2·sources) B/px) and its cost caches (``ViewState.prepare_caches``: float32 costs
+  of the stored hypotheses, stamps and flags, 4·sources + 5 B/px, and the candidate rows);
 - after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px), the fused cloud (up to one point per
   pixel at 55 B: float64 position, float32 normal, uint8 colour, four 4-byte attributes) and the largest of
   fusion (packed maps 19 B/px and the kernel's output before its trimmed copy, 55 B/point), writing
@@ -141,10 +141,10 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     per_view_context = 4 * (2 * offsets + 2 + 2 * sources) * largest
     patchmatch = (4 * 4 // 3 + 24 + 4 + 6) * total + per_view_context + 3 * 24 * largest
     # the view being processed keeps per-pass cost caches (ViewState.prepare_caches): current
-    # hypothesis costs (float64 per source), versions and, below ROW_CACHE_MAX_BYTES, the candidate rows;
-    # at the end of its pass their float32 copy (ViewState.known_costs, dropped by the engine)
+    # hypothesis costs (float32 per source), change stamps, active-set flags and, below ROW_CACHE_MAX_BYTES,
+    # the candidate rows
     rows = row_cache_bytes(largest, 1, pm.k_update, sources)
-    patchmatch += (12 * sources + 4) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
+    patchmatch += (4 * sources + 5) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
     fusion = 19 * total + 55 * total
     write_cloud = 98 * total

@@ -556,20 +556,23 @@ def test_cached_rows_reuse_a_row_only_for_the_same_sample_of_an_unchanged_pixel(
     h, w, k_up, n_views = 30, 30, 4, 3
     x, y = 15, 15
     VER = np.zeros((h, w), np.uint32)
-    RS = np.zeros((h, w, k_up), np.int16)
-    RV = np.zeros((h, w, k_up), np.uint32)
+    RS = np.zeros((h, w, k_up), np.int8)
+    RT = np.zeros((h, w), np.uint32)
     RC = np.arange(h * w * k_up * n_views, dtype=np.float32).reshape(h, w, k_up, n_views)
-    RS[y, x, :3] = [5, 9, 2]  # the previous update's samples; sample 9's pixel changed since
-    dx, dy = pat[9]
-    VER[y + dy, x + dx] = 1
+    RS[y, x, :3] = [5, 9, 2]  # the previous update's samples, written in half-step 4
+    RT[y, x] = 4
+    # sample 9's pixel changed since (half-step 5), sample 5's before (half-step 3): only 9's row is stale
+    VER[y + pat[9, 1], x + pat[9, 0]] = 5
+    VER[y + pat[5, 1], x + pat[5, 0]] = 3
     cand_s = np.array([2, 5, 9, 7], np.int64)  # 2 and 5 in other slots, 9 stale, 7 new
-    cand_v = np.empty(k_up, np.uint32)
     R = np.empty((k_up, n_views))
-    K.cached_rows(R, cand_s, cand_v, 4, 3, x, y, pat, VER, RS, RV, RC)
+    K.cached_rows(R, cand_s, 4, 3, x, y, pat, VER, RS, RT, RC)
     np.testing.assert_array_equal(R[0], RC[y, x, 2])
     np.testing.assert_array_equal(R[1], RC[y, x, 0])
     assert np.isnan(R[2:]).all()
-    assert cand_v.tolist() == [0, 0, 1, 0]
+    RT[y, x] = 0  # no update wrote rows yet: nothing is known
+    K.cached_rows(R, cand_s, 4, 3, x, y, pat, VER, RS, RT, RC)
+    assert np.isnan(R).all()
 
 
 def test_view_order_is_heaviest_first_over_positive_weights() -> None:
@@ -684,14 +687,14 @@ def test_cost_caches_do_not_change_half_steps(geometric: bool, combos: str) -> N
     assert n_cached[K.CNT_ROWS] < 0.9 * n_fresh[K.CNT_ROWS]
     assert n_cached[K.CNT_REMAINING] < n_fresh[K.CNT_REMAINING]
     assert n_cached[K.CNT_CURRENT] < n_fresh[K.CNT_CURRENT]
-    # slots the next update would hit: the sample's pixel still has the version the row was made with
+    # slots the next update would hit: the sample's pixel last changed before the half-step that made the row
     h, w = st.depth.shape
     live = 0
     for y in range(h):
         for x in range(w):
             for k in range(st.row_count[y, x]):
                 dx, dy = pattern.offsets[st.row_samples[y, x, k]]
-                live += st.row_versions[y, x, k] == st.versions[y + dy, x + dx]
+                live += st.versions[y + dy, x + dx] < st.row_stamps[y, x]
     assert live > 0.2 * st.row_count.sum(), (live, st.row_count.sum())
     # the cached per-view costs of the stored hypotheses are their true costs
     known = ~np.isnan(st.view_costs)

@@ -1,7 +1,7 @@
 """Reuse of the large per-pass arrays between the view passes of a run.
 
 Every view pass needs the same large arrays (the reference window terms, 113 MB at 768x512, and the cost
-caches, 180 MB with 5 sources). Freshly allocated, each 4 KiB page of them faults when first written, inside
+caches, 145 MB with 5 sources). Freshly allocated, each 4 KiB page of them faults when first written, inside
 the parallel kernels, and on this virtual machine that cost varies a lot from run to run. Reused arrays
 make one view's window terms 1.07x and its initial cost plus a half-step 1.06x faster in the committed
 measurement (``benchmarks/results/bench_patchmatch_buffers.json``, best of 9); repeat with

@@ -104,7 +104,7 @@ def explain_pixel(maps: HypothesisMaps, view_costs: np.ndarray, ref: ReferenceWi
                   x: int, y: int) -> dict[str, Any]:
     """The update of pixel (x, y) by the half-step about to run on ``maps`` (the kernel's arguments).
 
-    ``view_costs`` (H, W, N) f64: the pass's cache of the stored hypothesis's m_j (NaN = not yet evaluated;
+    ``view_costs`` (H, W, N) f32: the pass's cache of the stored hypothesis's m_j (NaN = not yet evaluated;
     read only). Returns ``candidates`` (list of dicts: ``origin``, ``sample`` (pattern index or None),
     ``depth``, ``normal``, ``cost`` (aggregated, None without a plane), ``photometric_cost`` (the same sum
     without the geometric term), ``view_costs`` (N m_j or None), ``geometric_costs`` (N λ·g_j or None)),

@@ -116,14 +116,15 @@ class CostCaches(NamedTuple):
     cached value is a float32 cost of an unchanged hypothesis, so a cached run is bit-identical to one that
     evaluates every window afresh (see ``kernels.half_step_kernel``)."""
 
-    view_costs: np.ndarray  # (H, W, N) f64 per-view photometric cost of the stored hypothesis, NaN = unknown
-    versions: np.ndarray  # (H, W) u32 count of the stored hypothesis's changes in this pass
-    row_samples: np.ndarray  # (H, W, K) i16 pattern sample of each candidate of the pixel's last update
-    row_versions: np.ndarray  # (H, W, K) u32 the version of that sample's pixel then
+    view_costs: np.ndarray  # (H, W, N) f32 per-view photometric cost of the stored hypothesis, NaN = unknown
+    versions: np.ndarray  # (H, W) u32 the half-step (clock) of the stored hypothesis's last change, 0 = none
+    row_samples: np.ndarray  # (H, W, K) i8 pattern sample of each candidate of the pixel's last update
+    row_stamps: np.ndarray  # (H, W) u32 the half-step (clock) of that update
     row_costs: np.ndarray  # (H, W, K, N) f32 the candidates' photometric costs, NaN = not evaluated
     row_count: np.ndarray  # (H, W) i32 candidates of the last update (0 = none cached)
     changed: np.ndarray  # (H, W) u8 1 = the pixel's last update moved its plane (the active set, see kernels)
     rows: bool  # whether the row cache is used (the row_* arrays are (1, 1, ...) placeholders otherwise)
+    clock: np.ndarray  # (1,) u32 half-steps of this pass so far (each half-step kernel counts itself)
 
 
 class ReferenceWindows(NamedTuple):

@@ -11,8 +11,8 @@ from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.records import CostCaches, HypothesisMaps
 
-# the candidate row cache takes K_up · (4 N + 6) + 4 bytes per pixel (165 MB at 768x512 with 5 sources,
-# 291 MB with 10); above this it is left out (results are the same either way, only slower)
+# the candidate row cache takes K_up · (4 N + 1) + 8 bytes per pixel (129 MB at 768x512 with 5 sources,
+# 255 MB with 10); above this it is left out (results are the same either way, only slower)
 ROW_CACHE_MAX_BYTES = 2 << 30
 # names of the maps in a checkpoint (engine.checkpoint), kept from the first format so saved runs resume
 CHECKPOINT_NAMES = {"depth": "Z", "normal": "N", "cost": "C", "selected_views": "S"}
@@ -20,7 +20,7 @@ CHECKPOINT_NAMES = {"depth": "Z", "normal": "N", "cost": "C", "selected_views": 
 
 def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
     """Bytes of the candidate row cache of an (h, w) view with ``k_up`` candidates and ``n_sources`` sources."""
-    return h * w * (k_up * (4 * n_sources + 2 + 4) + 4)
+    return h * w * (k_up * (4 * n_sources + 1) + 4 + 4)
 
 
 @dataclasses.dataclass
@@ -36,13 +36,14 @@ class ViewState:
     normal: np.ndarray  # (H, W, 3) f32 unit, camera frame, facing the camera
     cost: np.ndarray  # (H, W) f32 aggregated cost of the stored hypothesis
     selected_views: np.ndarray  # (H, W) u32 bitmask over the view's source views
-    view_costs: np.ndarray | None = None  # (H, W, N) f64
+    view_costs: np.ndarray | None = None  # (H, W, N) f32 (the costs are float32 values)
     versions: np.ndarray | None = None  # (H, W) u32
-    row_samples: np.ndarray | None = None  # (H, W, K_up) i16
-    row_versions: np.ndarray | None = None  # (H, W, K_up) u32
+    row_samples: np.ndarray | None = None  # (H, W, K_up) i8 (patterns have at most 72 samples)
+    row_stamps: np.ndarray | None = None  # (H, W) u32
     row_costs: np.ndarray | None = None  # (H, W, K_up, N) f32
     row_count: np.ndarray | None = None  # (H, W) i32
     changed: np.ndarray | None = None  # (H, W) u8
+    clock: np.ndarray | None = None  # (1,) u32
     known_costs: np.ndarray | None = None
     known_window_set: np.ndarray | None = None
 
@@ -63,8 +64,8 @@ class ViewState:
     def caches(self, rows: bool) -> CostCaches:
         """The cost caches as the kernels take them; ``rows``: whether the row cache is used
         (:meth:`prepare_caches`)."""
-        return CostCaches(self.view_costs, self.versions, self.row_samples, self.row_versions, self.row_costs,
-                          self.row_count, self.changed, rows)
+        return CostCaches(self.view_costs, self.versions, self.row_samples, self.row_stamps, self.row_costs,
+                          self.row_count, self.changed, rows, self.clock)
 
     def checkpoint_arrays(self) -> dict[str, np.ndarray]:
         """The maps a checkpoint saves, under their on-disk names (no copies, unlike ``dataclasses.asdict``,
@@ -84,22 +85,24 @@ class ViewState:
         n = n_sources
         empty = np.empty if pool is None else pool.take
         if self.view_costs is None or self.view_costs.shape != (h, w, n):
-            self.view_costs = empty((h, w, n), np.float64)
+            self.view_costs = empty((h, w, n), np.float32)
             self.versions = empty((h, w), np.uint32)
             self.changed = empty((h, w), np.uint8)
+            self.clock = np.zeros(1, np.uint32)
             reset = True
         rows = row_cache_bytes(h, w, k_up, n) <= ROW_CACHE_MAX_BYTES
         if not rows:
-            self.row_samples, self.row_versions = np.empty((1, 1, k_up), np.int16), np.empty((1, 1, k_up), np.uint32)
+            self.row_samples, self.row_stamps = np.empty((1, 1, k_up), np.int8), np.empty((1, 1), np.uint32)
             self.row_costs, self.row_count = np.empty((1, 1, k_up, n), np.float32), np.zeros((1, 1), np.int32)
         elif self.row_count is None or self.row_costs.shape != (h, w, k_up, n):
             # contents are never read before written: row_count = 0 (below) makes every cached row unknown
-            self.row_samples, self.row_versions = empty((h, w, k_up), np.int16), empty((h, w, k_up), np.uint32)
+            self.row_samples, self.row_stamps = empty((h, w, k_up), np.int8), empty((h, w), np.uint32)
             self.row_costs, self.row_count = empty((h, w, k_up, n), np.float32), empty((h, w), np.int32)
             self.row_count[:] = 0
         if reset:
             self.view_costs[:] = np.nan
             self.versions[:] = 0
+            self.clock[:] = 0
             self.changed[:] = 1  # every pixel's first update in a pass is active
             self.row_count[:] = 0
         return rows
@@ -114,8 +117,8 @@ class ViewState:
         else:
             self.known_costs = self.known_window_set = None
         if pool is not None:
-            pool.give(self.view_costs, self.versions, self.row_samples, self.row_versions, self.row_costs,
+            pool.give(self.view_costs, self.versions, self.row_samples, self.row_stamps, self.row_costs,
                       self.row_count, self.changed)
-        self.view_costs = self.versions = self.row_samples = self.row_versions = self.row_costs = None
-        self.changed = None
+        self.view_costs = self.versions = self.row_samples = self.row_stamps = self.row_costs = None
+        self.changed = self.clock = None
         self.row_count = None

@@ -55,7 +55,7 @@ def init_cost(state: ViewState, ctx: ViewContext, params: KernelParams, cache: b
     also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given)."""
     if cache:
         state.prepare_caches(ctx.num_sources, params.k_update, True, pool)
-    view_costs = state.view_costs if cache else np.empty((1, 1, 1))
+    view_costs = state.view_costs if cache else np.empty((1, 1, 1), np.float32)
     known, known_wset = state.known_costs, state.known_window_set
     if known is None:  # the kernel also ignores carried-over costs of another shape
         known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
