@@ -31,10 +31,9 @@ from engine.fusion import (
     DiskCloud,
     FusedCloud,
     FusionOptions,
-    fuse,
     views_from_scene,
-    write_fused_ply,
 )
+from engine.fusion.stream import fuse_views_to_ply
 from engine.heap import release_free_memory
 from engine.interrupt import check_interrupt
 from engine.io.ply import read_points
@@ -216,10 +215,9 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         cloud = fuse_run_folder(scene, out_dir, options.fusion, tau, ply=out_dir / "fused.ply")
     else:
         fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
-        cloud = fuse(fusion_views, options.fusion)
-        release_free_memory()  # fusion's packed maps, before the cloud's records are written (engine/heap.py)
-        check_interrupt()
-        write_fused_ply(out_dir / "fused.ply", cloud)
+        cloud = fuse_views_to_ply(out_dir / "fused.ply", fusion_views, options.fusion)  # the cloud stays on disk
+        del fusion_views
+        release_free_memory()  # fusion's packed maps (engine/heap.py)
     seconds["fusion"] = time.perf_counter() - t
     if notify:
         notify("fusion", cloud=cloud, pipeline=options.pipeline)

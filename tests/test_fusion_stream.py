@@ -16,7 +16,7 @@ import engine.fusion.cached as cached
 import engine.fusion.stream as stream
 from engine.distributed.streamed import fuse_run_folder
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_point_chunks, evaluate_points
-from engine.fusion import FUSION_PRESETS, DiskCloud, FusedCloud, write_fused_ply
+from engine.fusion import FUSION_PRESETS, DiskCloud, FusedCloud, fuse, views_from_scene, write_fused_ply
 from engine.fusion.kernel import output_arrays
 from engine.io.ply import read_points
 from engine.run_folder import read_map, write_map
@@ -61,6 +61,23 @@ def test_streamed_fused_ply_is_write_fused_ply(run, tau, tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fused.ply", "want.ply"]  # the positions' file is nameless
     np.testing.assert_array_equal(got.read_xyz(len(got) - 5, 100), want.xyz[-5:])
     _same_cloud(got.subset(np.arange(0, len(got), 7)), want.subset(np.arange(0, len(want), 7)))
+
+
+@pytest.mark.parametrize("tau", [None, 0.3])
+def test_an_in_process_run_fuses_its_views_into_the_ply_as_fuse_does(run, tau, tmp_path):
+    """``deepc run --executor local`` fuses the views it holds straight into fused.ply (fuse_views_to_ply): the
+    file is write_fused_ply(fuse(views)) byte for byte and the cloud equals fuse's."""
+    scene, out = run
+    options = FUSION_PRESETS["pixels"].replace(max_num_pixels=500)
+    maps = [(read_map(out, "depth", v.name), read_map(out, "normal", v.name),
+             None if tau is None else read_map(out, "confidence", v.name)) for v in scene.views]
+    views = views_from_scene(scene, *(list(m) for m in zip(*maps, strict=True)), options.check_num_images)
+    want = fuse(views, options)
+    write_fused_ply(tmp_path / "want.ply", want)
+    got = stream.fuse_views_to_ply(tmp_path / "fused.ply", views, options)
+    assert isinstance(got, DiskCloud) and len(want) > 1000
+    assert (tmp_path / "fused.ply").read_bytes() == (tmp_path / "want.ply").read_bytes()
+    _same_cloud(got, want)
 
 
 def _maps_a_file(array: np.ndarray) -> bool:

@@ -26,7 +26,9 @@ from typing import IO
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
 
-from engine.fusion.cloud import DiskCloud, FusedCloud
+from engine.fusion.cached import fuse_cached
+from engine.fusion.cloud import DiskCloud, FusedCloud, FusionView
+from engine.fusion.options import FusionOptions
 from engine.fusion.ply import FUSED_FIELDS, FUSED_RECORD, fill_records
 from engine.io.atomic import atomic_write
 from engine.io.ply import ply_header
@@ -100,6 +102,18 @@ def write_fused_stream(path: str | Path, produce: Callable[[Sink], object], max_
     except BaseException:
         xyz_file.close()
         raise
+
+
+def fuse_views_to_ply(path: str | Path, views: list[FusionView], options: FusionOptions | None = None) -> FusedCloud:
+    """:func:`engine.fusion.fuse` of views held in memory, written into the PLY ``path`` as fusion makes the points
+    (``write_fused_ply``'s bytes) and returned as the :class:`DiskCloud` of that file: the same cloud, without
+    the whole cloud in memory besides the views (every view resident: the cached kernel never evicts one)."""
+    views = list(views)
+    cameras = [v.camera for v in views]
+    confidence = any(v.confidence is not None for v in views)
+    return write_fused_stream(path, lambda sink: fuse_cached(
+        cameras, [list(v.overlap) for v in views], views.__getitem__, options, cache_views=max(2, len(views)),
+        confidence=confidence, sink=sink), max_points=sum(c.width * c.height for c in cameras))
 
 
 def disk_cloud(path: Path, header_len: int, n: int, xyz_file: IO[bytes]) -> FusedCloud:
