@@ -326,8 +326,9 @@ class LiveViewer(NullObserver):
     def _draw_fused(self, cloud: Any) -> None:
         """The fused cloud in its colours in place of the per-view clouds, until the tuning viewer's."""
         keep = np.linspace(0, len(cloud) - 1, min(len(cloud), FUSED_MAX_POINTS)).astype(np.int64)
-        self.server.scene.add_point_cloud("/fused", np.asarray(cloud.xyz, np.float32)[keep],
-                                          colors=np.asarray(cloud.rgb, np.uint8)[keep],
+        # the kept points alone are read (a streamed cloud maps its file: no whole copy of it)
+        self.server.scene.add_point_cloud("/fused", np.asarray(cloud.xyz[keep], np.float32),
+                                          colors=np.asarray(cloud.rgb[keep], np.uint8),
                                           point_size=self.point_size, precision="float32")
         self._fused_shown = True
         for handle in self._clouds.values():
