@@ -10,12 +10,11 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
   and for the view being processed its context (2·S window weights, moments, padded source images and
   source depths: 4·(2·S + 2 + 2·sources) B/px) and its cost caches (``ViewState.prepare_caches``: float32 costs
   of the stored hypotheses, stamps and flags, 4·sources + 5 B/px, and the candidate rows);
-- after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px), the fused cloud (up to one point per
-  pixel at 55 B: float64 position, float32 normal, uint8 colour, four 4-byte attributes) and the largest of
-  fusion (packed maps 19 B/px and the kernel's output before its trimmed copy, 55 B/point), writing
-  ``fused.ply`` (its 43-byte records twice, bytes and table, and float32 positions: 98 B/point) and the
-  evaluation (k-d tree pieces, Morton and voxel keys: ~44 B/point, plus the GT points' index, ~64 B each;
-  ``engine/evaluation/point_index.py``).
+- after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px); fusion's copy of every view in its
+  slots (23 B/px: depth, normal, colour, confidence) and one output chunk with its PLY records (the cloud is
+  written into ``fused.ply`` as it is made and stays there: ``engine/fusion/stream.py``), then the evaluation
+  a chunk of points at a time (``engine/evaluation/chunked.py``: a chunk and a slab of voxels, about 60 MiB,
+  besides the GT points' index, ~64 B each).
 
 The compiled kernels (numba, and the LLVM runtime it links them with) take tens of MiB the first time
 one runs; :func:`load_kernels` runs a 2-view 24×24 PatchMatch first so that this is part of the measured
@@ -42,6 +41,8 @@ from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
+_FUSION_CHUNK = (55 + 43) << 18  # the kernel's output chunk (engine.fusion.cached.CHUNK_POINTS) and its records
+_EVALUATION_CHUNKS = 60 * _MIB  # a chunk of points and a slab of voxels (engine.evaluation.chunked)
 
 
 @dataclasses.dataclass
@@ -146,10 +147,9 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     rows = row_cache_bytes(largest, 1, pm.k_update, sources)
     patchmatch += (4 * sources + 5) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
-    fusion = 19 * total + 55 * total
-    write_cloud = 98 * total
-    evaluation = 44 * total + 64 * gt_points
-    after = (24 + 1 + 55) * total + max(fusion, write_cloud, evaluation)
+    fusion = 23 * total + _FUSION_CHUNK
+    evaluation = 64 * gt_points + _EVALUATION_CHUNKS
+    after = (24 + 1) * total + max(fusion, evaluation)
     baseline = current_rss() if baseline is None else baseline
     if available == -1:
         free = available_memory()
