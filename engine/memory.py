@@ -41,8 +41,8 @@ from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
-_FUSION_CHUNK = (55 + 43) << 18  # the kernel's output chunk (engine.fusion.cached.CHUNK_POINTS) and its records
-_EVALUATION_CHUNKS = 60 * _MIB  # a chunk of points and a slab of voxels (engine.evaluation.chunked)
+_FUSION_CHUNK = 1 << 18  # points of the output chunk (engine.fusion.cached.CHUNK_POINTS): 55 B + 43 B of records
+_EVALUATION_CHUNK = 1 << 19  # points of the evaluation's chunk and slab (engine.evaluation.chunked): ~120 B each
 
 
 @dataclasses.dataclass
@@ -147,8 +147,8 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     rows = row_cache_bytes(largest, 1, pm.k_update, sources)
     patchmatch += (4 * sources + 5) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
-    fusion = 23 * total + _FUSION_CHUNK
-    evaluation = 64 * gt_points + _EVALUATION_CHUNKS
+    fusion = 23 * total + 98 * min(total, _FUSION_CHUNK)  # at most a point a pixel
+    evaluation = 64 * gt_points + 120 * min(total, _EVALUATION_CHUNK)
     after = (24 + 1) * total + max(fusion, evaluation)
     baseline = current_rss() if baseline is None else baseline
     if available == -1:

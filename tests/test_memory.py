@@ -22,9 +22,10 @@ def fountain():
 
 def test_estimate_grows_with_image_size_and_source_views(fountain):
     options = PipelineOptions()
-    sizes = [estimate_run_memory(fountain, options, size, baseline=0, available=None).peak for size in (128, 256, 384)]
-    assert sizes[0] < sizes[1] < sizes[2]
-    assert sizes[2] - sizes[1] > 1.4 * (sizes[1] - sizes[0])  # per-pixel terms grow with the area (5:3)
+    estimates = [estimate_run_memory(fountain, options, size, baseline=0, available=None) for size in (128, 256, 384)]
+    assert estimates[0].peak < estimates[1].peak < estimates[2].peak
+    sizes = [e.patchmatch for e in estimates]  # per-pixel terms grow with the area (5:3); fusion's chunks saturate
+    assert sizes[2] - sizes[1] > 1.4 * (sizes[1] - sizes[0])
     few = load_scene(SAMPLES / "fountain_p11", SceneOptions(num_source_views=2))
     assert estimate_run_memory(few, options, baseline=0).patchmatch < estimate_run_memory(
         fountain, options, baseline=0).patchmatch
