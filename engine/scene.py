@@ -184,7 +184,13 @@ class SceneViews:
     def image(self, i: int) -> np.ndarray:
         """(H, W, 3) float32 RGB in [0, 1] at the working resolution (read-only), as ``Scene.image``."""
         view = self.views[i]
-        return _as_image(_task_pixels(str(self.image_root / view.name), view.original_size, view.camera.size))
+        path = self.image_root / view.name
+        try:
+            stat = path.stat()
+            changed = (stat.st_mtime_ns, stat.st_size)
+        except OSError:
+            changed = None  # decode_image says what is wrong
+        return _as_image(_task_pixels(str(path), changed, view.original_size, view.camera.size))
 
     def gray(self, i: int) -> np.ndarray:
         """(H, W) float32 grey image in [0, 1] at the working resolution."""
@@ -206,7 +212,9 @@ def _view_pixels(path: Path, original_size: tuple[int, int], size: tuple[int, in
 
 
 @lru_cache(maxsize=TASK_IMAGE_CACHE)
-def _task_pixels(path: str, original_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+def _task_pixels(path: str, changed: tuple[int, int] | None, original_size: tuple[int, int],
+                 size: tuple[int, int]) -> np.ndarray:
+    """:func:`_view_pixels`, cached by file, modification time and size (a worker outlives runs)."""
     return _view_pixels(Path(path), original_size, size)
 
 

@@ -90,3 +90,39 @@ def test_tasks_never_read_the_sparse_model(tmp_path, monkeypatch):
                           executor=LocalExecutor())
     assert len(result.cloud) > 100
 
+
+
+class _Recording(LocalExecutor):
+    """Tasks in this process; keeps every job."""
+
+    def __init__(self):
+        super().__init__()
+        self.jobs = []
+
+    def map(self, fn, jobs, on_result=None):
+        self.jobs.extend(jobs)
+        return super().map(fn, jobs, on_result)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backfacing_rule", [False, True])
+def test_full_refines_with_weights_its_tasks_read(tmp_path, backfacing_rule):
+    """``full`` as tasks: the refinement's weights before the back-facing rule go from the confidence tasks to the
+    refinement tasks through the run folder (no map in a job, the folder removed after), and the maps are the
+    in-process pipeline's byte for byte."""
+    from engine.distributed.driver import RAW_CONFIDENCE_DIR
+
+    scene = load_scene(SAMPLES / "tiny", SceneOptions(max_image_size=64))
+    cheap = RefinementOptions(scales=2, fast_iters=(60, 40), iters=(10, 10), lr=(0.01, 0.01), lr_slots=(1, 1),
+                              backfacing_rule=backfacing_rule)
+    options = PipelineOptions(pipeline="full", patchmatch=PATCHMATCH, refinement=cheap)
+    run_pipeline(scene, tmp_path / "local", options)
+    executor = _Recording()
+    run_pipeline(scene, tmp_path / "tasks", options, executor=executor)
+    refine = [j for j in executor.jobs if isinstance(j, RefineJob)]
+    assert len(refine) == 5 and all((j.confidence is None) != backfacing_rule for j in refine)
+    assert not (tmp_path / "tasks" / RAW_CONFIDENCE_DIR).exists()
+    files = sorted(p.relative_to(tmp_path / "local") for p in (tmp_path / "local").rglob("*")
+                   if p.suffix == ".bin" or p.name == "fused.ply")
+    assert len(files) > 5 * 6
+    assert [f for f in files if (tmp_path / "local" / f).read_bytes() != (tmp_path / "tasks" / f).read_bytes()] == []

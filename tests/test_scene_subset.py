@@ -108,3 +108,21 @@ def test_triangulation_angles_one_view_at_a_time_are_the_pairs_percentiles():
     off = ~np.eye(5, dtype=bool)
     assert np.count_nonzero(want[off]) > 10 and np.allclose(got[off], want[off], rtol=1e-12, atol=0)
     assert np.array_equal(got, got.T)
+
+
+def test_a_worker_sees_an_image_rewritten_at_the_same_path(tiny, tmp_path):
+    """The per-process cache is keyed by the file's modification time and size: a worker outlives runs."""
+    import os
+
+    from engine.scene import SceneViews
+
+    view = tiny.views[0]
+    path = tmp_path / view.name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pixels = decode_image(tiny.image_path(0))
+    Image.fromarray(pixels).save(path)
+    part = SceneViews(tmp_path, {0: view})
+    assert np.array_equal(part.image(0), tiny.image(0))
+    Image.fromarray(255 - pixels).save(path)
+    os.utime(path, ns=(1, 1))
+    assert np.array_equal(part.image(0), image_to_float(255 - pixels))

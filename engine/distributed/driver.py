@@ -14,9 +14,10 @@ tasks, ``engine.distributed.streamed`` fuses and scores the maps from the run fo
 
 from __future__ import annotations
 
+import shutil
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,7 @@ from engine.distributed.tasks import (
     refine_view,
     state_reader,
 )
+from engine.io.dense import read_dense_map
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from engine.patchmatch.engine import check_views, effective_levels, final_maps
 from engine.patchmatch.pyramid import level_size
@@ -50,6 +52,7 @@ from engine.refinement.refine import RefinedMap
 from engine.scene import Scene, SceneViews
 
 ProgressFn = Callable[[str, int, int], Any]
+RAW_CONFIDENCE_DIR = ".deepc-raw-confidence"  # the refinement's weights between the two stages (removed)
 MANIFEST_EVERY_S = 1.0  # the checkpoint's manifest is rewritten at most this often while a pass runs
 
 
@@ -185,22 +188,59 @@ def _inputs(checkpoint: PatchMatchCheckpoint, known: dict[str, str], at: tuple[i
 
 def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceOptions, executor: Executor,
                          want_raw: bool, read_back: bool = True) -> tuple[list[np.ndarray] | None,
-                                                                       list[np.ndarray] | None]:
+                                                                       StoredMaps | None]:
     """Confidence maps of every view (one task each, from the maps the PatchMatch tasks wrote into ``out_dir``;
     they write the confidence maps). Returns them (read back; None without ``read_back``) and, with ``want_raw``,
-    the maps before the back-facing rule (the refinement's weights)."""
-    jobs = [ConfidenceJob(scene.subset([i]), str(out_dir), i, options, options.weights or None, want_raw,
+    the maps before the back-facing rule (the refinement's weights) as :class:`StoredMaps`: the tasks write them into
+    ``out_dir/.deepc-raw-confidence`` and the driver holds none (:func:`run_refinement_tasks` hands its tasks the
+    files, then removes them)."""
+    raw = StoredMaps(Path(out_dir) / RAW_CONFIDENCE_DIR, [v.name for v in scene.views]) if want_raw else None
+    if raw is not None:
+        raw.remove()  # an interrupted run's
+    raw_dir = str(raw.folder) if raw is not None else ""
+    jobs = [ConfidenceJob(scene.subset([i]), str(out_dir), i, options, options.weights or None, raw_dir,
                           executor.threads) for i in range(len(scene.views))]
-    raw = executor.map(confidence_view, jobs)
+    executor.map(confidence_view, jobs)
     confidence = [read_view_map(out_dir, "confidence", v.name) for v in scene.views] if read_back else None
-    return confidence, (raw if want_raw else None)
+    return confidence, raw
 
 
-def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: list[np.ndarray], options: RefinementOptions,
-                         executor: Executor, progress: Callable[[int, int, Any], None] | None = None
-                         ) -> list[RefinedMap | None]:
+def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: Sequence[np.ndarray],
+                         options: RefinementOptions, executor: Executor,
+                         progress: Callable[[int, int, Any], None] | None = None) -> list[RefinedMap | None]:
     """Rossi et al. 2020's refinement of every view (one task each, from the PatchMatch maps in ``out_dir``), as
-    ``engine.refinement.views.refine_views`` returns it; ``progress(i, n, result)`` as each view's task ends."""
+    ``engine.refinement.views.refine_views`` returns it; ``progress(i, n, result)`` as each view's task ends.
+    ``confidence``: the weights per view, in memory (each job carries its map), or :class:`StoredMaps` (each task
+    reads its file; they are removed once every task ended)."""
     n = len(scene.views)
-    jobs = [RefineJob(scene.subset([i]), str(out_dir), i, confidence[i], options, executor.threads) for i in range(n)]
-    return executor.map(refine_view, jobs, None if progress is None else lambda i, r: progress(i, n, r))
+    stored = isinstance(confidence, StoredMaps)
+    jobs = [RefineJob(scene.subset([i]), str(out_dir), i, None if stored else confidence[i], options, executor.threads,
+                      str(confidence.path(i)) if stored else "") for i in range(n)]
+    refined = executor.map(refine_view, jobs, None if progress is None else lambda i, r: progress(i, n, r))
+    if stored:
+        confidence.remove()
+    return refined
+
+
+class StoredMaps(Sequence):
+    """One-channel maps of views as ``folder/{name}.bin`` (float32 as written), read when indexed: the
+    refinement's weights, which the driver passes on without holding them."""
+
+    def __init__(self, folder: Path, names: list[str]):
+        self.folder, self.names = Path(folder), list(names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        return read_dense_map(self.path(i), channels=1)
+
+    def path(self, i: int) -> Path:
+        """The file of view ``i``'s map."""
+        return self.folder / f"{self.names[i]}.bin"
+
+    def remove(self) -> None:
+        """Delete the folder and every map in it."""
+        shutil.rmtree(self.folder, ignore_errors=True)

@@ -30,6 +30,7 @@ from engine.checkpoint import PatchMatchCheckpoint, write_state
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions
 from engine.errors import DeepCError
+from engine.io.dense import read_dense_map, write_dense_map
 from engine.observer import IterationEvent
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from engine.patchmatch.engine import final_maps, level_start_state, run_view_pass
@@ -100,15 +101,15 @@ class FinishJob:
 @dataclasses.dataclass(frozen=True)
 class ConfidenceJob:
     """The confidence map of ``view`` from the depth, normal and counter maps in ``out`` with the network in
-    ``weights`` (None: the shipped weights); writes the confidence map, returns the map before the back-facing rule
-    when ``want_raw`` (the refinement's weights)."""
+    ``weights`` (None: the shipped weights); writes the confidence map, and the map before the back-facing rule (the
+    refinement's weights) as ``raw_dir/{name}.bin`` when ``raw_dir`` is set."""
 
     scene: SceneViews
     out: str
     view: int
     options: ConfidenceOptions
     weights: str | None
-    want_raw: bool
+    raw_dir: str = ""
     threads: int = 0
 
 
@@ -237,7 +238,7 @@ def _model(weights: str | None) -> Any:
     return load_weights(weights)
 
 
-def confidence_view(job: ConfidenceJob) -> np.ndarray | None:
+def confidence_view(job: ConfidenceJob) -> None:
     """Write a view's confidence map (the network of Kuhn et al. 2020, §3.2) from its maps in the run folder."""
     from engine.confidence.inference import torch_threads  # lazy: torch
 
@@ -251,20 +252,23 @@ def confidence_view(job: ConfidenceJob) -> np.ndarray | None:
         c, raw = view_confidence(scene.image(job.view), maps, counter.astype(np.uint8), len(view.source_views),
                                  job.options, _model(job.weights))
     write_map(job.out, "confidence", view.name, c)
-    return raw if job.want_raw else None
+    if job.raw_dir:
+        write_dense_map(Path(job.raw_dir) / f"{view.name}.bin", raw)
 
 
 @dataclasses.dataclass(frozen=True)
 class RefineJob:
     """Rossi et al. 2020's refinement of ``view`` from its PatchMatch depth and normal maps in ``out``, weighted
-    by ``confidence`` (H, W) f32 (the network's, before the back-facing rule unless the options say otherwise)."""
+    by ``confidence`` (H, W) f32 (the network's, before the back-facing rule unless the options say otherwise), or,
+    when it is None, by the map in ``confidence_file`` (what the confidence task wrote: no map travels in the job)."""
 
     scene: SceneViews
     out: str
     view: int
-    confidence: np.ndarray
+    confidence: np.ndarray | None
     options: RefinementOptions
     threads: int = 0
+    confidence_file: str = ""
 
 
 class _OneView:
@@ -285,7 +289,10 @@ def refine_view(job: RefineJob) -> RefinedMap | None:
         depth, normal = read_map(job.out, "depth", name), read_map(job.out, "normal", name)
         if depth is None or normal is None:
             raise DeepCError(f"maps of view {name} missing", Path(job.out))
-        return refine_views(_OneView(scene, job.view), [depth], [normal], [job.confidence], job.options)[0]
+        confidence = job.confidence
+        if confidence is None:
+            confidence = read_dense_map(job.confidence_file, channels=1)
+        return refine_views(_OneView(scene, job.view), [depth], [normal], [confidence], job.options)[0]
 
 
 def pass_event(i: int, name: str, level: int, pass_index: int, iteration: int, step: int, state: ViewState,
