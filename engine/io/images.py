@@ -1,6 +1,8 @@
 """Image reading and area-averaged resizing.
 
 Images are float32 in [0, 1], (H, W, 3) RGB, C-contiguous. Grey images are (H, W) float32.
+``read_image`` = ``image_to_float(decode_image(path))``: a cache may keep the decoded 8-bit pixels (a quarter of the
+bytes) and convert them when asked, to the same floats.
 """
 
 from __future__ import annotations
