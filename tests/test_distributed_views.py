@@ -126,3 +126,30 @@ def test_full_refines_with_weights_its_tasks_read(tmp_path, backfacing_rule):
                    if p.suffix == ".bin" or p.name == "fused.ply")
     assert len(files) > 5 * 6
     assert [f for f in files if (tmp_path / "local" / f).read_bytes() != (tmp_path / "tasks" / f).read_bytes()] == []
+
+
+async def _asyncio_tasks() -> int:
+    import asyncio
+
+    return len(asyncio.all_tasks())
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_dask_waits_keep_one_waiter_per_task_and_fail_a_stalled_stage():
+    """A stage of many short tasks leaves no waiters behind (a wait with a timeout every poll once left one per
+    pending task each time: hundreds of MB in the driver of a long run), and a stage where no task ends fails."""
+    import time
+
+    pytest.importorskip("distributed")
+    from engine.distributed.dask_executor import DaskExecutor
+    from engine.errors import DeepCError
+
+    with DaskExecutor(workers=2, stall_timeout=60) as executor:
+        alive = []
+        jobs = [0.05] * 120  # about 3 s on two workers: several polls
+        executor.map(time.sleep, jobs, lambda k, r: alive.append(executor.client.sync(_asyncio_tasks)))
+        assert len(alive) == len(jobs) and max(alive) < 2 * len(jobs) + 40  # a waiter and its wait per task
+        executor.stall_timeout = 1.0
+        with pytest.raises(DeepCError, match="no task ended in 1 s"):
+            executor.map(time.sleep, [4.0])
