@@ -5,7 +5,8 @@ tcp://host:8786``, workers on any machine that sees the run folder and the scene
 Each worker runs one task at a time (numba's workqueue layer is not reentrant; the parallelism inside a task is
 numba's): a LocalCluster gets ``workers`` single-threaded worker processes with cores / workers numba threads each.
 A worker that dies mid-task loses nothing: the scheduler runs the task again on another worker, and the task,
-a pure function writing atomically, writes the same bytes (``engine.distributed.tasks``).
+a pure function writing atomically, writes the same bytes (``engine.distributed.tasks``). A stage waits on one
+``as_completed`` over its futures, so the driver holds one waiter per task whatever the stage lasts.
 """
 
 from __future__ import annotations
