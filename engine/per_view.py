@@ -13,10 +13,10 @@ from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.patchmatch import PatchMatchView, ViewMaps
-from engine.scene import Scene
+from engine.scene import Scene, SceneViews
 
 
-def patchmatch_view(scene: Scene, i: int) -> PatchMatchView:
+def patchmatch_view(scene: Scene | SceneViews, i: int) -> PatchMatchView:
     """The PatchMatch input of view ``i`` of ``scene`` at its working resolution."""
     v = scene.views[i]
     return PatchMatchView(v.name, scene.gray(i), v.camera, v.depth_range[0], v.depth_range[1], list(v.source_views))

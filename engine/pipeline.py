@@ -170,8 +170,10 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
                 check_interrupt()
                 write_map(out_dir, "confidence", view.name, c)
         else:  # the tasks write the maps
-            confidence, raw_confidence = run_confidence_tasks(scene, out_dir, options.confidence, executor,
-                                                              options.pipeline == "full", read_back=not streamed)
+            # the refinement's weights before the back-facing rule stay in the run folder until its tasks read them
+            confidence, raw_confidence = run_confidence_tasks(
+                scene, out_dir, options.confidence, executor,
+                options.pipeline == "full" and not options.refinement.backfacing_rule, read_back=not streamed)
         fusion_confidence = confidence
         if options.pipeline == "fast" and not streamed:  # streamed: each view is filtered as fusion loads it
             filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)

@@ -9,7 +9,10 @@ exact intrinsics, and computes per view (Schönberger et al. 2016):
 - the source views: the views sharing most sparse points with it among those whose 75th-percentile
   triangulation angle is at least 1° (COLMAP's ``__auto__`` selection).
 
-Images and ground-truth depth are read lazily, at the working resolution.
+Images and ground-truth depth are read lazily, at the working resolution; a cache holds an 8-bit image already at
+the working size as its file's bytes (3 B/px, converted to float32 on access, the same floats), others as float32.
+A per-view task holds a :class:`SceneViews` (``Scene.subset``): its view and source views and their images, not the
+scene's sparse model (``engine.distributed``).
 """
 
 from __future__ import annotations
@@ -27,12 +30,14 @@ from engine.camera import Camera, rescaled_size
 from engine.errors import DeepCError
 from engine.io.colmap_model import PINHOLE_MODELS, SparseModel, find_model_dir, read_sparse_model, undistort_workspace
 from engine.io.dense import read_dense_map_header, read_depth_map
-from engine.io.images import image_size, read_image, resize_area, to_gray
+from engine.io.images import decode_image, image_size, image_to_float, resize_area, to_gray
 from engine.options import Options, option
 from engine.resample import resample_depth
 
 # Fewer observed points than this and a view's depth range falls back to all points it sees.
 _MIN_POINTS_FOR_RANGE = 5
+SCENE_IMAGE_CACHE = 64  # views whose image a Scene keeps
+TASK_IMAGE_CACHE = 16  # views whose image a process running per-view tasks keeps (all its SceneViews together)
 
 
 @dataclasses.dataclass
@@ -99,7 +104,7 @@ class Scene:
         self.shared_points = shared_points  # (n, n) sparse points seen by both views
         self.gt_depth_paths = gt_depth_paths
         self.gt_points_path = gt_points_path
-        self._image = lru_cache(maxsize=64)(self._load_image)
+        self._image = lru_cache(maxsize=SCENE_IMAGE_CACHE)(self._load_image)
 
     def __len__(self) -> int:
         return len(self.views)
@@ -117,17 +122,15 @@ class Scene:
 
     def _load_image(self, i: int) -> np.ndarray:
         view = self.views[i]
-        rgb = read_image(self.image_path(i))
-        if (rgb.shape[1], rgb.shape[0]) != view.original_size:
-            raise DeepCError(f"image is {rgb.shape[1]}x{rgb.shape[0]}, its header said "
-                             f"{view.original_size[0]}x{view.original_size[1]}", self.image_path(i))
-        image = resize_area(rgb, view.camera.size)
-        image.setflags(write=False)
-        return image
+        return _view_pixels(self.image_path(i), view.original_size, view.camera.size)
 
     def image(self, i: int) -> np.ndarray:
         """(H, W, 3) float32 RGB in [0, 1] at the working resolution (read-only, cached)."""
-        return self._image(i)
+        return _as_image(self._image(i))
+
+    def subset(self, indices: list[int]) -> SceneViews:
+        """The views ``indices`` alone, with their images: what a per-view task needs (a few kB pickled)."""
+        return SceneViews(self.image_root, {j: self.views[j] for j in indices})
 
     def gray(self, i: int) -> np.ndarray:
         """(H, W) float32 grey image in [0, 1] at the working resolution."""
@@ -164,6 +167,64 @@ class Scene:
             lines.append(f"{v.name[:28]:<28} {size:>10} {v.num_points:>7} {rng:>21}  "
                          f"{' '.join(str(j) for j in v.source_views) or '(none)'}")
         return "\n".join(lines)
+
+
+class SceneViews:
+    """Some views of a scene, by their index in ``Scene.views``, with their images at the working resolution: what a
+    per-view task holds (its view and its source views), instead of the whole scene and its sparse model.
+
+    ``views`` is a dict (index -> :class:`View`), so ``views[j]``, :meth:`image` and :meth:`gray` read as a
+    :class:`Scene`'s. The images go through one cache per process (``TASK_IMAGE_CACHE`` views, keyed by file and
+    size), so a worker's memory is bounded whatever the number of views of the scene.
+    """
+
+    def __init__(self, image_root: Path, views: dict[int, View]):
+        self.image_root, self.views = Path(image_root), views
+
+    def image(self, i: int) -> np.ndarray:
+        """(H, W, 3) float32 RGB in [0, 1] at the working resolution (read-only), as ``Scene.image``."""
+        view = self.views[i]
+        path = self.image_root / view.name
+        try:
+            stat = path.stat()
+            changed = (stat.st_mtime_ns, stat.st_size)
+        except OSError:
+            changed = None  # decode_image says what is wrong
+        return _as_image(_task_pixels(str(path), changed, view.original_size, view.camera.size))
+
+    def gray(self, i: int) -> np.ndarray:
+        """(H, W) float32 grey image in [0, 1] at the working resolution."""
+        return to_gray(self.image(i))
+
+
+def _view_pixels(path: Path, original_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    """A view's image as a cache holds it (read-only): the file's uint8 pixels when they are 8-bit RGB already at the
+    working ``size`` (:func:`_as_image` turns them into the floats ``read_image`` gives), else the (H, W, 3) float32
+    image area-resized to ``size``."""
+    pixels = decode_image(path)
+    if (pixels.shape[1], pixels.shape[0]) != tuple(original_size):
+        raise DeepCError(f"image is {pixels.shape[1]}x{pixels.shape[0]}, its header said "
+                         f"{original_size[0]}x{original_size[1]}", path)
+    if pixels.dtype != np.uint8 or tuple(size) != tuple(original_size):
+        pixels = resize_area(image_to_float(pixels), size)
+    pixels.setflags(write=False)
+    return pixels
+
+
+@lru_cache(maxsize=TASK_IMAGE_CACHE)
+def _task_pixels(path: str, changed: tuple[int, int] | None, original_size: tuple[int, int],
+                 size: tuple[int, int]) -> np.ndarray:
+    """:func:`_view_pixels`, cached by file, modification time and size (a worker outlives runs)."""
+    return _view_pixels(Path(path), original_size, size)
+
+
+def _as_image(pixels: np.ndarray) -> np.ndarray:
+    """A cached image (see :func:`_view_pixels`) as (H, W, 3) float32 RGB in [0, 1], read-only."""
+    if pixels.dtype != np.uint8:
+        return pixels
+    image = image_to_float(pixels)
+    image.setflags(write=False)
+    return image
 
 
 def load_scene(path: str | Path, options: SceneOptions | None = None) -> Scene:
@@ -301,39 +362,43 @@ def _source_views(model: SparseModel, cameras: list[Camera], shared: np.ndarray,
 
 
 def _triangulation_angle_p75(model: SparseModel, cameras: list[Camera]) -> np.ndarray:
-    """(n, n) 75th percentile of the triangulation angles (radians) over the points two views share."""
+    """(n, n) 75th percentile of the triangulation angles (radians) over the points two views share (a point
+    observed twice by a view counts once per pair of observations).
+
+    One view at a time: the pairs of its observations with the other observations of their points (the angles of
+    all pairs at once are ~100 bytes per pair: 150 MB at 400 views of a street sequence)."""
     n = len(cameras)
+    result = np.zeros((n, n))
+    if len(model.track_point) == 0:
+        return result
     centers = np.stack([c.center for c in cameras])
     order = np.argsort(model.track_point, kind="stable")
     tp, ti = model.track_point[order], model.track_image[order]
     starts = np.flatnonzero(np.r_[True, tp[1:] != tp[:-1]])
     lengths = np.diff(np.r_[starts, len(tp)])
-    pair_a, pair_b, pair_p = [], [], []
-    for length in np.unique(lengths):
-        if length < 2:
+    track = np.repeat(np.arange(len(starts)), lengths)  # the track of each observation
+    by_image = np.argsort(ti, kind="stable")
+    bounds = np.searchsorted(ti[by_image], np.arange(n + 1))
+    for r in range(n):
+        tracks = track[by_image[bounds[r]:bounds[r + 1]]]  # one per observation of view r
+        count = lengths[tracks]
+        # every observation of those tracks, once per observation of r in the track
+        position = np.repeat(starts[tracks] - np.cumsum(count) + count, count) + np.arange(count.sum())
+        other = ti[position]
+        keep = other > r  # each pair once (r < j); the pairs of r's own observations have no angle
+        b, p = other[keep], tp[position[keep]]
+        if not len(b):
             continue
-        group = starts[lengths == length]
-        ia, ib = np.triu_indices(length, 1)
-        pair_a.append(ti[group[:, None] + ia].ravel())
-        pair_b.append(ti[group[:, None] + ib].ravel())
-        pair_p.append(np.repeat(tp[group], len(ia)))
-    result = np.zeros((n, n))
-    if not pair_a:
-        return result
-    a, b, p = np.concatenate(pair_a), np.concatenate(pair_b), np.concatenate(pair_p)
-    ra = centers[a] - model.points[p]
-    rb = centers[b] - model.points[p]
-    cos = np.einsum("ij,ij->i", ra, rb) / np.maximum(np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-300)
-    angles = np.arccos(np.clip(cos, -1.0, 1.0))
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    key = lo * n + hi
-    order = np.lexsort((angles, key))
-    key, angles = key[order], angles[order]
-    bounds = np.flatnonzero(np.r_[True, key[1:] != key[:-1], True])
-    for s, e in zip(bounds[:-1], bounds[1:], strict=True):
-        value = np.percentile(angles[s:e], 75)
-        i, j = divmod(int(key[s]), n)
-        result[i, j] = result[j, i] = value
+        ra = centers[r] - model.points[p]
+        rb = centers[b] - model.points[p]
+        cos = (np.einsum("ij,ij->i", ra, rb) /
+               np.maximum(np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-300))
+        angles = np.arccos(np.clip(cos, -1.0, 1.0))
+        sort = np.lexsort((angles, b))
+        b, angles = b[sort], angles[sort]
+        edges = np.flatnonzero(np.r_[True, b[1:] != b[:-1], True])
+        for s, e in zip(edges[:-1], edges[1:], strict=True):
+            result[r, b[s]] = result[b[s], r] = np.percentile(angles[s:e], 75)
     return result
 
 

@@ -5,7 +5,8 @@ tcp://host:8786``, workers on any machine that sees the run folder and the scene
 Each worker runs one task at a time (numba's workqueue layer is not reentrant; the parallelism inside a task is
 numba's): a LocalCluster gets ``workers`` single-threaded worker processes with cores / workers numba threads each.
 A worker that dies mid-task loses nothing: the scheduler runs the task again on another worker, and the task,
-a pure function writing atomically, writes the same bytes (``engine.distributed.tasks``).
+a pure function writing atomically, writes the same bytes (``engine.distributed.tasks``). A stage waits on one
+``as_completed`` over its futures, so the driver holds one waiter per task whatever the stage lasts.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from engine.interrupt import check_interrupt
 
 CONNECT_TIMEOUT_S = 10.0  # reaching a scheduler
 POLL_S = 0.5  # how often a wait looks at stop requests
+WAKE_S = 0.02  # how often it looks for ended tasks
 
 
 class DaskExecutor(Executor):
@@ -66,35 +68,41 @@ class DaskExecutor(Executor):
         return f"dask: {self.workers} worker(s) on {where}, {threads}{dashboard}"
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any], on_result: ResultFn | None = None) -> list[Any]:
-        from distributed import wait  # lazy: dask
+        from distributed import as_completed  # lazy: dask
 
         if not jobs:
             return []
         futures = self.client.map(fn, list(jobs), pure=False)
         index = {f.key: k for k, f in enumerate(futures)}
         out: list[Any] = [None] * len(futures)
-        pending = set(futures)
-        last = time.monotonic()
+        # One waiter per future for the whole stage: ``distributed.wait(..., timeout, FIRST_COMPLETED)`` in a loop
+        # leaves a waiter per pending future behind at every timeout (until that future ends): N x seconds / POLL_S
+        # of them over a stage, ~2 kB each (hundreds of MB in the driver at 400 views).
+        ended = as_completed(futures)
+        left = len(futures)
+        last = polled = time.monotonic()
         try:
-            while pending:
-                check_interrupt()
-                try:
-                    done, pending = wait(pending, timeout=POLL_S, return_when="FIRST_COMPLETED")
-                except TimeoutError:
-                    done = set()
+            while left:
+                if time.monotonic() - polled > POLL_S:
+                    check_interrupt()
+                    polled = time.monotonic()
+                done = ended.next_batch(block=False)
                 if not done:
                     if time.monotonic() - last > self.stall_timeout:
-                        raise DeepCError(f"no task ended in {self.stall_timeout:g} s ({len(pending)} waiting)")
+                        raise DeepCError(f"no task ended in {self.stall_timeout:g} s ({left} waiting)")
+                    time.sleep(WAKE_S)
                     continue
                 last = time.monotonic()
                 for future in sorted(done, key=lambda f: index[f.key]):
                     k = index[future.key]
                     out[k] = future.result(timeout=self.stall_timeout)  # raises the task's exception
+                    left -= 1
                     if on_result is not None:
                         on_result(k, out[k])
         finally:
-            if pending:
-                self.client.cancel(list(pending))
+            if left:
+                self.client.cancel([f for f in futures if not f.done()])
+            ended.clear()
         return out
 
     def close(self) -> None:

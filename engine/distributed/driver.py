@@ -3,18 +3,21 @@ view and pass (the schedule of ``engine.patchmatch.engine``: levels coarse to fi
 geometric passes, every view of a pass before the next pass), then one task per view for its final maps and counter
 map, then one per view for its confidence. Maps equal ``--executor local``'s byte for byte.
 
-The driver holds no image and no map while the tasks run: it records each state's SHA-256 in the checkpoint's
-manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted run with either executor, and the SHA-256
-of each state's depth array, so that a geometric pass (and the counter maps) read only their source views' depth
-from the state files (a sixth of their bytes; whole states, verified by the manifest, after a resume). After the
+Each job carries the views its task touches (``Scene.subset``: a few kB), so a worker never loads the scene's
+sparse model. The driver holds no map while the tasks run, and images only in its scene's bounded cache: it records
+each state's SHA-256 in the checkpoint's manifest (``engine.checkpoint``), so ``--resume`` continues an interrupted
+run with either executor, and the SHA-256 of each state's depth array, so that a geometric pass (and the counter
+maps) read only their source views' depth from the state files (a sixth of their bytes; whole states, verified by
+the manifest, after a resume). After the
 tasks, ``engine.distributed.streamed`` fuses and scores the maps from the run folder without reading them all back.
 """
 
 from __future__ import annotations
 
+import shutil
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +34,6 @@ from engine.distributed.tasks import (
     PassJob,
     PassResult,
     RefineJob,
-    SceneRef,
     confidence_view,
     finish_view,
     load_state,
@@ -40,15 +42,17 @@ from engine.distributed.tasks import (
     refine_view,
     state_reader,
 )
+from engine.io.dense import read_dense_map
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from engine.patchmatch.engine import check_views, effective_levels, final_maps
 from engine.patchmatch.pyramid import level_size
 from engine.per_view import SceneView
 from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import RefinedMap
-from engine.scene import Scene
+from engine.scene import Scene, SceneViews
 
 ProgressFn = Callable[[str, int, int], Any]
+RAW_CONFIDENCE_DIR = ".deepc-raw-confidence"  # the refinement's weights between the two stages (removed)
 MANIFEST_EVERY_S = 1.0  # the checkpoint's manifest is rewritten at most this often while a pass runs
 
 
@@ -84,7 +88,7 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     if own:
         checkpoint = PatchMatchCheckpoint(Path(out_dir) / CHECKPOINT_DIR, resume=False)
     checkpoint.bind(views, options, n_levels)
-    folder, ref, n = str(checkpoint.folder), SceneRef.of(scene), len(views)
+    folder, n = str(checkpoint.folder), len(views)
     on_iter = getattr(observer, "on_iteration", None)
     on_stage = getattr(observer, "on_stage", None)
     schedule = pass_schedule(options, n_levels)
@@ -112,8 +116,8 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
         jobs = []
         for i in todo:
             whole, depths = _inputs(checkpoint, known, previous, i, views[i].source_views if p else [])
-            jobs.append(PassJob(ref, folder, i, level, p, n_levels, active[i], options, whole, done, executor.threads,
-                                depths))
+            jobs.append(PassJob(_own(scene, i), folder, i, level, p, n_levels, active[i], options, whole, done,
+                                executor.threads, depths))
         written: dict[str, str] = {}  # the depth digests of this pass's states (the next pass reads depth alone)
 
         def ended(index: int, result: PassResult, level=level, p=p, description=description, todo=todo,
@@ -144,8 +148,8 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     finish = []
     for i in range(n):
         whole, depths = _inputs(checkpoint, known, last, i, views[i].source_views)
-        finish.append(FinishJob(ref, folder, str(out_dir), i, last[1], active[i], whole, counter, executor.threads,
-                                depths))
+        finish.append(FinishJob(_own(scene, i), folder, str(out_dir), i, last[1], active[i], whole, counter,
+                                executor.threads, depths))
     executor.map(finish_view, finish)
     result = None
     if read_back:
@@ -158,6 +162,11 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n)
     return result
+
+
+def _own(scene: Scene, i: int) -> SceneViews:
+    """What a PatchMatch or counter task of view ``i`` reads of the scene: the view and its source views."""
+    return scene.subset([i, *scene.views[i].source_views])
 
 
 def _inputs(checkpoint: PatchMatchCheckpoint, known: dict[str, str], at: tuple[int, int] | None, view: int,
@@ -179,22 +188,59 @@ def _inputs(checkpoint: PatchMatchCheckpoint, known: dict[str, str], at: tuple[i
 
 def run_confidence_tasks(scene: Scene, out_dir: str | Path, options: ConfidenceOptions, executor: Executor,
                          want_raw: bool, read_back: bool = True) -> tuple[list[np.ndarray] | None,
-                                                                       list[np.ndarray] | None]:
+                                                                       StoredMaps | None]:
     """Confidence maps of every view (one task each, from the maps the PatchMatch tasks wrote into ``out_dir``;
     they write the confidence maps). Returns them (read back; None without ``read_back``) and, with ``want_raw``,
-    the maps before the back-facing rule (the refinement's weights)."""
-    jobs = [ConfidenceJob(SceneRef.of(scene), str(out_dir), i, options, options.weights or None, want_raw,
+    the maps before the back-facing rule (the refinement's weights) as :class:`StoredMaps`: the tasks write them into
+    ``out_dir/.deepc-raw-confidence`` and the driver holds none (:func:`run_refinement_tasks` hands its tasks the
+    files, then removes them)."""
+    raw = StoredMaps(Path(out_dir) / RAW_CONFIDENCE_DIR, [v.name for v in scene.views]) if want_raw else None
+    if raw is not None:
+        raw.remove()  # an interrupted run's
+    raw_dir = str(raw.folder) if raw is not None else ""
+    jobs = [ConfidenceJob(scene.subset([i]), str(out_dir), i, options, options.weights or None, raw_dir,
                           executor.threads) for i in range(len(scene.views))]
-    raw = executor.map(confidence_view, jobs)
+    executor.map(confidence_view, jobs)
     confidence = [read_view_map(out_dir, "confidence", v.name) for v in scene.views] if read_back else None
-    return confidence, (raw if want_raw else None)
+    return confidence, raw
 
 
-def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: list[np.ndarray], options: RefinementOptions,
-                         executor: Executor, progress: Callable[[int, int, Any], None] | None = None
-                         ) -> list[RefinedMap | None]:
+def run_refinement_tasks(scene: Scene, out_dir: str | Path, confidence: Sequence[np.ndarray],
+                         options: RefinementOptions, executor: Executor,
+                         progress: Callable[[int, int, Any], None] | None = None) -> list[RefinedMap | None]:
     """Rossi et al. 2020's refinement of every view (one task each, from the PatchMatch maps in ``out_dir``), as
-    ``engine.refinement.views.refine_views`` returns it; ``progress(i, n, result)`` as each view's task ends."""
+    ``engine.refinement.views.refine_views`` returns it; ``progress(i, n, result)`` as each view's task ends.
+    ``confidence``: the weights per view, in memory (each job carries its map), or :class:`StoredMaps` (each task
+    reads its file; they are removed once every task ended)."""
     n = len(scene.views)
-    jobs = [RefineJob(SceneRef.of(scene), str(out_dir), i, confidence[i], options, executor.threads) for i in range(n)]
-    return executor.map(refine_view, jobs, None if progress is None else lambda i, r: progress(i, n, r))
+    stored = isinstance(confidence, StoredMaps)
+    jobs = [RefineJob(scene.subset([i]), str(out_dir), i, None if stored else confidence[i], options, executor.threads,
+                      str(confidence.path(i)) if stored else "") for i in range(n)]
+    refined = executor.map(refine_view, jobs, None if progress is None else lambda i, r: progress(i, n, r))
+    if stored:
+        confidence.remove()
+    return refined
+
+
+class StoredMaps(Sequence):
+    """One-channel maps of views as ``folder/{name}.bin`` (float32 as written), read when indexed: the
+    refinement's weights, which the driver passes on without holding them."""
+
+    def __init__(self, folder: Path, names: list[str]):
+        self.folder, self.names = Path(folder), list(names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        return read_dense_map(self.path(i), channels=1)
+
+    def path(self, i: int) -> Path:
+        """The file of view ``i``'s map."""
+        return self.folder / f"{self.names[i]}.bin"
+
+    def remove(self) -> None:
+        """Delete the folder and every map in it."""
+        shutil.rmtree(self.folder, ignore_errors=True)

@@ -1,7 +1,11 @@
 """The per-view tasks of a run: pure functions of (scene, view, options, level, pass) that read their inputs from
 and write their outputs to the run folder atomically.
 
-A task holds one view and its source views at the current pyramid level, never the whole scene's maps. PatchMatch
+A task holds one view and its source views at the current pyramid level, never the whole scene's maps nor the
+scene itself: its job carries a :class:`engine.scene.SceneViews` with the views it touches (its view, and its source
+views for PatchMatch and the counter maps; cameras, depth ranges, source views as the driver's scene has them), so a
+worker never reads the sparse model, and its images go through one cache of ``engine.scene.TASK_IMAGE_CACHE`` views
+per process: a worker's memory does not grow with the scene's number of views. PatchMatch
 states travel between passes as the checkpoint's files (``engine.checkpoint``: ``OUT/.deepc-resume/L{level}_P{pass}/
 {view}.npz``), each read only if its SHA-256 is the one the driver recorded. A task killed half-way leaves no file
 (atomic writes) and, run again anywhere, writes the same bytes: the engine's random numbers are keyed by (seed,
@@ -12,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import time
 from contextlib import contextmanager
 from functools import lru_cache
@@ -27,6 +30,7 @@ from engine.checkpoint import PatchMatchCheckpoint, write_state
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions
 from engine.errors import DeepCError
+from engine.io.dense import read_dense_map, write_dense_map
 from engine.observer import IterationEvent
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from engine.patchmatch.engine import final_maps, level_start_state, run_view_pass
@@ -37,33 +41,12 @@ from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import RefinedMap
 from engine.refinement.views import refine_views
 from engine.run_folder import read_map, write_map
-from engine.scene import Scene, SceneOptions, load_scene
-
-
-@dataclasses.dataclass(frozen=True)
-class SceneRef:
-    """A scene as a task names it: its folder (on the shared filesystem) and the options it is loaded with."""
-
-    root: str
-    options: str  # SceneOptions as sorted JSON (hashable: the worker's scene cache is keyed by it)
-
-    @classmethod
-    def of(cls, scene: Scene) -> SceneRef:
-        return cls(str(scene.root.resolve()), json.dumps(scene.options.to_dict(), sort_keys=True))
-
-    def load(self) -> Scene:
-        """The scene, loaded once per worker process."""
-        return _load_scene(self.root, self.options)
-
-
-@lru_cache(maxsize=2)
-def _load_scene(root: str, options: str) -> Scene:
-    return load_scene(root, SceneOptions.from_dict(json.loads(options)))
+from engine.scene import SceneViews
 
 
 @dataclasses.dataclass(frozen=True)
 class PassJob:
-    """Pass ``pass_index`` of view ``view`` at ``level`` (of ``n_levels``).
+    """Pass ``pass_index`` of view ``view`` at ``level`` (of ``n_levels``); ``scene``: the view and its source views.
 
     ``inputs``: checkpoint file name -> SHA-256 of every state the task reads whole (its own state after the
     previous pass, or after the coarser level's last pass; in geometric passes the source views' states whose depth
@@ -72,7 +55,7 @@ class PassJob:
     ``done_before``: iterations of all earlier passes (the 'global' perturbation schedule). ``threads``: numba
     threads (0 = the worker's default; ``options.num_threads`` wins when set)."""
 
-    scene: SceneRef
+    scene: SceneViews
     folder: str
     view: int
     level: int
@@ -103,7 +86,7 @@ class FinishJob:
     view and its sources' depth (``inputs`` and ``depths`` as in :class:`PassJob`), writes depth, normal, cost and
     counter maps to ``out``."""
 
-    scene: SceneRef
+    scene: SceneViews
     folder: str
     out: str
     view: int
@@ -118,15 +101,15 @@ class FinishJob:
 @dataclasses.dataclass(frozen=True)
 class ConfidenceJob:
     """The confidence map of ``view`` from the depth, normal and counter maps in ``out`` with the network in
-    ``weights`` (None: the shipped weights); writes the confidence map, returns the map before the back-facing rule
-    when ``want_raw`` (the refinement's weights)."""
+    ``weights`` (None: the shipped weights); writes the confidence map, and the map before the back-facing rule (the
+    refinement's weights) as ``raw_dir/{name}.bin`` when ``raw_dir`` is set."""
 
-    scene: SceneRef
+    scene: SceneViews
     out: str
     view: int
     options: ConfidenceOptions
     weights: str | None
-    want_raw: bool
+    raw_dir: str = ""
     threads: int = 0
 
 
@@ -183,7 +166,7 @@ def load_depth(folder: str, inputs: dict[str, str], depths: dict[str, str], leve
     return depth
 
 
-def level_input(scene: Scene, j: int, level: int) -> tuple[np.ndarray, Camera]:
+def level_input(scene: SceneViews, j: int, level: int) -> tuple[np.ndarray, Camera]:
     """View ``j``'s grey image (H, W) f32 and camera at pyramid ``level`` (as ``engine.patchmatch.engine._run``
     builds its pyramid: each level area-resized from the working resolution)."""
     cam = scene.views[j].camera
@@ -197,7 +180,7 @@ def patchmatch_view_pass(job: PassJob) -> PassResult:
     t0 = time.perf_counter()
     options = job.options
     with numba_threads(job.threads, options.num_threads):
-        scene = job.scene.load()
+        scene = job.scene
         i, level, p = job.view, job.level, job.pass_index
         v = patchmatch_view(scene, i)
         coarsest = level == job.n_levels - 1
@@ -234,7 +217,7 @@ def patchmatch_view_pass(job: PassJob) -> PassResult:
 def finish_view(job: FinishJob) -> None:
     """Write a view's final depth, normal and cost maps and its counter map (Kuhn et al. 2020, §3.1)."""
     with numba_threads(job.threads):
-        scene = job.scene.load()
+        scene = job.scene
         i = job.view
         v = patchmatch_view(scene, i)
         reader = state_reader(job.folder, job.inputs)
@@ -255,11 +238,11 @@ def _model(weights: str | None) -> Any:
     return load_weights(weights)
 
 
-def confidence_view(job: ConfidenceJob) -> np.ndarray | None:
+def confidence_view(job: ConfidenceJob) -> None:
     """Write a view's confidence map (the network of Kuhn et al. 2020, §3.2) from its maps in the run folder."""
     from engine.confidence.inference import torch_threads  # lazy: torch
 
-    scene = job.scene.load()
+    scene = job.scene
     view = scene.views[job.view]
     depth, normal, counter = (read_map(job.out, kind, view.name) for kind in ("depth", "normal", "counter"))
     if depth is None or normal is None or counter is None:
@@ -269,26 +252,29 @@ def confidence_view(job: ConfidenceJob) -> np.ndarray | None:
         c, raw = view_confidence(scene.image(job.view), maps, counter.astype(np.uint8), len(view.source_views),
                                  job.options, _model(job.weights))
     write_map(job.out, "confidence", view.name, c)
-    return raw if job.want_raw else None
+    if job.raw_dir:
+        write_dense_map(Path(job.raw_dir) / f"{view.name}.bin", raw)
 
 
 @dataclasses.dataclass(frozen=True)
 class RefineJob:
     """Rossi et al. 2020's refinement of ``view`` from its PatchMatch depth and normal maps in ``out``, weighted
-    by ``confidence`` (H, W) f32 (the network's, before the back-facing rule unless the options say otherwise)."""
+    by ``confidence`` (H, W) f32 (the network's, before the back-facing rule unless the options say otherwise), or,
+    when it is None, by the map in ``confidence_file`` (what the confidence task wrote: no map travels in the job)."""
 
-    scene: SceneRef
+    scene: SceneViews
     out: str
     view: int
-    confidence: np.ndarray
+    confidence: np.ndarray | None
     options: RefinementOptions
     threads: int = 0
+    confidence_file: str = ""
 
 
 class _OneView:
     """A scene seen as holding only its view ``i`` (what ``refine_views`` reads: views, image)."""
 
-    def __init__(self, scene: Scene, i: int):
+    def __init__(self, scene: SceneViews, i: int):
         self.scene, self.i, self.views = scene, i, [scene.views[i]]
 
     def image(self, _index: int) -> np.ndarray:
@@ -298,12 +284,15 @@ class _OneView:
 def refine_view(job: RefineJob) -> RefinedMap | None:
     """One view's refined map (None where it has no data to refine from; a warning names it)."""
     with numba_threads(job.threads):
-        scene = job.scene.load()
+        scene = job.scene
         name = scene.views[job.view].name
         depth, normal = read_map(job.out, "depth", name), read_map(job.out, "normal", name)
         if depth is None or normal is None:
             raise DeepCError(f"maps of view {name} missing", Path(job.out))
-        return refine_views(_OneView(scene, job.view), [depth], [normal], [job.confidence], job.options)[0]
+        confidence = job.confidence
+        if confidence is None:
+            confidence = read_dense_map(job.confidence_file, channels=1)
+        return refine_views(_OneView(scene, job.view), [depth], [normal], [confidence], job.options)[0]
 
 
 def pass_event(i: int, name: str, level: int, pass_index: int, iteration: int, step: int, state: ViewState,

@@ -1,6 +1,8 @@
 """Image reading and area-averaged resizing.
 
 Images are float32 in [0, 1], (H, W, 3) RGB, C-contiguous. Grey images are (H, W) float32.
+``read_image`` = ``image_to_float(decode_image(path))``: a cache may keep the decoded 8-bit pixels (a quarter of the
+bytes) and convert them when asked, to the same floats.
 """
 
 from __future__ import annotations
@@ -31,6 +33,13 @@ def image_size(path: str | Path) -> tuple[int, int]:
 
 def read_image(path: str | Path) -> np.ndarray:
     """(H, W, 3) float32 RGB in [0, 1]. Grey and RGBA images are converted to RGB."""
+    return image_to_float(decode_image(path))
+
+
+def decode_image(path: str | Path) -> np.ndarray:
+    """The file's pixels as stored, before :func:`image_to_float`: (H, W, 3) uint8 RGB (grey and RGBA converted),
+    or (H, W) uint16 / int32 for 16-bit and 32-bit grey images (a quarter of the float image's bytes for 8-bit
+    files: what a cache holds)."""
     path = Path(path)
     if not path.is_file():
         raise DeepCError("image listed in the model is missing", path)
@@ -38,12 +47,19 @@ def read_image(path: str | Path) -> np.ndarray:
         with Image.open(path) as image:
             image.load()
             if image.mode in ("I;16", "I;16B", "I"):
-                array = np.asarray(image, dtype=np.float32) / 65535.0
-                array = np.repeat(array[:, :, None], 3, axis=2)
-            else:
-                array = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
+                return np.asarray(image)
+            return np.asarray(image.convert("RGB"))
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
         raise DeepCError(f"unreadable image ({type(exc).__name__}: {exc})", path) from exc
+
+
+def image_to_float(pixels: np.ndarray) -> np.ndarray:
+    """:func:`decode_image`'s pixels -> (H, W, 3) float32 RGB in [0, 1] (8-bit / 255, 16-bit grey / 65535)."""
+    if pixels.ndim == 2:
+        array = np.asarray(pixels, dtype=np.float32) / 65535.0
+        array = np.repeat(array[:, :, None], 3, axis=2)
+    else:
+        array = np.asarray(pixels, dtype=np.float32) / 255.0
     return np.ascontiguousarray(np.clip(array, 0.0, 1.0))
 
 
