@@ -209,7 +209,7 @@ def test_the_default_suite_has_a_current_baseline_for_every_run():
     """Editing sample_scenes/suite.toml without remaking tests/baselines would make CI compare apples and pears."""
     suite = load_suite(DEFAULT_SUITE)
     assert [r.key for r in suite.runs] == ["tiny/vanilla", "small/vanilla", "fountain_p11/vanilla", "tiny/fast",
-                                           "fountain_p11/fast", "tiny/full"]
+                                           "fountain_p11/fast", "tiny/full", "tiny/vanilla-paper"]
     assert suite.baseline_dir == REPO / "tests" / "baselines"
     for spec in suite.runs:
         stored = json.loads(baseline_path(suite.baseline_dir, spec).read_text())
