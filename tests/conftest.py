@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from engine.distributed import LocalExecutor
 from support.fake_run import make_fake_run  # noqa: F401  (tests import it from here)
 
 REPO = Path(__file__).resolve().parent.parent
@@ -149,3 +150,15 @@ def inspector_app(noisy_run):
         yield viewer
     finally:
         viewer.stop()
+
+
+class RecordingExecutor(LocalExecutor):
+    """Tasks in this process (``LocalExecutor``), keeping every job it ran in ``jobs``."""
+
+    def __init__(self):
+        super().__init__()
+        self.jobs = []
+
+    def map(self, fn, jobs, on_result=None):
+        self.jobs.extend(jobs)
+        return super().map(fn, jobs, on_result)

@@ -13,7 +13,7 @@ from pathlib import Path
 import cloudpickle
 import numpy as np
 import pytest
-from conftest import SAMPLES
+from conftest import SAMPLES, RecordingExecutor
 
 from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
 from engine.distributed import LocalExecutor
@@ -250,25 +250,13 @@ def test_tasks_read_only_what_the_driver_recorded(scene, tmp_path):
     assert load_state(state_reader(str(tmp_path), cp.entries), 0, 0, 0, (4, 4)).depth.sum() == 16
 
 
-class _Recording(LocalExecutor):
-    """Tasks in this process; keeps every job."""
-
-    def __init__(self):
-        super().__init__()
-        self.jobs = []
-
-    def map(self, fn, jobs, on_result=None):
-        self.jobs.extend(jobs)
-        return super().map(fn, jobs, on_result)
-
-
 def test_geometric_tasks_read_their_sources_depth_alone(scene, tmp_path):
     """A geometric pass and the counter maps read their own state whole and only the depth array of their source
     views' states, verified by its own digest; a damaged depth is an error, not a wrong input."""
     from engine.distributed.tasks import FinishJob, PassJob, depth_digest, load_depth
     from engine.errors import DeepCError
 
-    executor = _Recording()
+    executor = RecordingExecutor()
     run_pipeline(scene, tmp_path, PipelineOptions(pipeline="vanilla", patchmatch=OPTIONS.patchmatch),
                  executor=executor)
     geometric = [j for j in executor.jobs if isinstance(j, PassJob) and j.pass_index == 1]

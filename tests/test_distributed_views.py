@@ -7,7 +7,7 @@ import pickle
 
 import numpy as np
 import pytest
-from conftest import SAMPLES
+from conftest import SAMPLES, RecordingExecutor
 
 from engine.consistency import CounterOptions
 from engine.distributed import LocalExecutor
@@ -92,18 +92,6 @@ def test_tasks_never_read_the_sparse_model(tmp_path, monkeypatch):
 
 
 
-class _Recording(LocalExecutor):
-    """Tasks in this process; keeps every job."""
-
-    def __init__(self):
-        super().__init__()
-        self.jobs = []
-
-    def map(self, fn, jobs, on_result=None):
-        self.jobs.extend(jobs)
-        return super().map(fn, jobs, on_result)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("backfacing_rule", [False, True])
 def test_full_refines_with_weights_its_tasks_read(tmp_path, backfacing_rule):
@@ -117,7 +105,7 @@ def test_full_refines_with_weights_its_tasks_read(tmp_path, backfacing_rule):
                               backfacing_rule=backfacing_rule)
     options = PipelineOptions(pipeline="full", patchmatch=PATCHMATCH, refinement=cheap)
     run_pipeline(scene, tmp_path / "local", options)
-    executor = _Recording()
+    executor = RecordingExecutor()
     run_pipeline(scene, tmp_path / "tasks", options, executor=executor)
     refine = [j for j in executor.jobs if isinstance(j, RefineJob)]
     assert len(refine) == 5 and all((j.confidence is None) != backfacing_rule for j in refine)

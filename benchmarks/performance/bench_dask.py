@@ -18,9 +18,10 @@ driver's peak during the fusion stage with its growth over the RSS the stage sta
 fused.ply), and the growth during the cached fusion alone (``driver_fuse_*``). The driver of an executor run
 holds no per-view maps (``engine.distributed.streamed``): fusion reads them through a cache of at most
 ``--fusion-cache`` views (default 1 + the longest overlap list, at most check_num_images + 1 = 51,
-``engine.fusion.cached``), so its growth is the cache's slots (``cache_mb``, bounded whatever N) and the cloud it
-makes (``cloud_mb``, proportional to the points, as COLMAP's; joined from chunks, about 1.4x at its peak); the cache's
-loads and evictions are recorded.
+``engine.fusion.cached``), and the cloud goes into fused.ply chunk by chunk (``engine.fusion.stream``), so its growth
+is the cache's slots (``cache_mb``, bounded whatever N) and one output chunk; ``cloud_mb`` is what the cloud would
+take in memory (55 bytes a point). The cache's loads and evictions are recorded. The driver's overall peak comes
+after fusion, in the evaluation (it holds every view's GT depth for the free-space rule).
 Per-pass map I/O (states written and read through the run folder). A plot of both against N goes beside the JSON.
 
 The pipeline and its options: ``--pipeline``, ``--set SECTION.NAME=VALUE`` as ``deepc run --set`` (sections scene,
