@@ -8,6 +8,7 @@ report 0 seconds.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -352,7 +353,10 @@ def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     """ETH3D-style scores of a fused cloud against the scene's GT points; GT depth maps, when present,
     enable the unobserved-space rule (Schöps et al. 2017). A cloud on disk (a streamed run's) is scored a chunk of
     points at a time (``engine.evaluation.chunked``: the same numbers)."""
-    gt, gt_views = read_points(scene.gt_points_path), scene.gt_views() or None
+    # each GT depth map is read while it is packed for the free-space rule, not all held at once besides the pack
+    gt_views = [(v.camera, functools.partial(scene.gt_depth, v.index)) for v in scene.views
+                if scene.gt_depth_paths[v.index] is not None] or None
+    gt = read_points(scene.gt_points_path)
     if isinstance(cloud, DiskCloud):
         return evaluate_point_chunks(len(cloud), cloud.read_xyz, gt, options, gt_views, scratch=cloud.path.parent)
     return evaluate_points(np.asarray(cloud.xyz, np.float64), gt, options, gt_views)

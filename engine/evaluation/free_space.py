@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable
 
 import numba
 import numpy as np
@@ -60,22 +61,26 @@ def _free_space_margin_kernel(points, E, K, depth, offsets, widths, heights):
 
 
 
-def pack_gt_views(gt_views: list[tuple[Camera, np.ndarray]]) -> tuple:
-    """The GT views as the kernel reads them (pass to :func:`free_space_margin` to score many chunks of points)."""
-    Es, Ks, depths, offsets, widths, heights = [], [], [], [0], [], []
-    for cam, depth in gt_views:
-        depth = np.asarray(depth, np.float32)
+def pack_gt_views(gt_views: Iterable[tuple[Camera, np.ndarray | Callable[[], np.ndarray]]]) -> tuple:
+    """The GT views as the kernel reads them (pass to :func:`free_space_margin` to score many chunks of points).
+
+    A view's depth may be given as a function that reads it: each is then read only while it is copied into the
+    packed array (4 bytes a pixel in all, whatever the number of views)."""
+    gt_views = list(gt_views)
+    widths = np.array([cam.width for cam, _ in gt_views], np.int64)
+    heights = np.array([cam.height for cam, _ in gt_views], np.int64)
+    offsets = np.concatenate([[0], np.cumsum(widths * heights)]).astype(np.int64)
+    depths = np.empty(int(offsets[-1]), np.float32)
+    for k, (cam, depth) in enumerate(gt_views):
+        depth = np.asarray(depth() if callable(depth) else depth, np.float32)
         if depth.shape != (cam.height, cam.width):
             raise DeepCError(f"GT depth shape {depth.shape} does not match its camera ({cam.height}, {cam.width})")
-        Es.append(np.hstack([cam.R, cam.t[:, None]]))
-        Ks.append(cam.K_idx)
-        depths.append(np.where(np.isfinite(depth), depth, 0).ravel())
-        offsets.append(offsets[-1] + depth.size)
-        widths.append(cam.width)
-        heights.append(cam.height)
-    return (np.array(Es), np.array(Ks), np.concatenate(depths).astype(np.float32), np.array(offsets, np.int64),
-            np.array(widths, np.int64), np.array(heights, np.int64))
-
+        packed = depths[offsets[k]:offsets[k + 1]]
+        packed[:] = depth.ravel()
+        packed[~np.isfinite(packed)] = 0
+    Es = np.array([np.hstack([cam.R, cam.t[:, None]]) for cam, _ in gt_views])
+    Ks = np.array([cam.K_idx for cam, _ in gt_views])
+    return Es, Ks, depths, offsets, widths, heights
 
 
 def free_space_margin(points: np.ndarray, gt_views: list[tuple[Camera, np.ndarray]] | tuple) -> np.ndarray:

@@ -26,8 +26,8 @@ def evaluate_points(recon_xyz: np.ndarray, gt_xyz: np.ndarray | PointIndex,
         recon_xyz: (N, 3) reconstructed points, world frame.
         gt_xyz: (M, 3) GT surface points, same frame and unit, or a :class:`PointIndex` of them.
         options: tolerances and voxel size.
-        gt_views: optional (camera, (H, W) GT depth, 0 = unknown) pairs enabling the unobserved-space
-            rule; cameras at the depth maps' resolution.
+        gt_views: optional (camera, (H, W) GT depth, 0 = unknown, or a function reading it) pairs enabling the
+            unobserved-space rule; cameras at the depth maps' resolution.
     """
     options = (options or EvaluationOptions()).validate()
     release_free_memory()  # what fusion and writing the cloud freed, before the k-d trees come (engine/heap.py)
