@@ -60,7 +60,6 @@ def _free_space_margin_kernel(points, E, K, depth, offsets, widths, heights):
     return out
 
 
-
 def pack_gt_views(gt_views: Iterable[tuple[Camera, np.ndarray | Callable[[], np.ndarray]]]) -> tuple:
     """The GT views as the kernel reads them (pass to :func:`free_space_margin` to score many chunks of points).
 

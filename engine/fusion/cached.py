@@ -18,8 +18,8 @@ The cloud is written into chunks of ``CHUNK_POINTS`` points. Without a ``sink`` 
 attribute at a time (peak about 1.4 x the cloud, as COLMAP holds its fused points). With one, each chunk is handed to
 it as it fills and its arrays are filled again: :mod:`engine.fusion.stream` writes it into ``fused.ply`` (records,
 and the float64 positions into a temporary file) and returns the cloud as memory maps of the files, so that the
-memory of fusion is the cache's and one chunk's whatever the number of views and points (the streamed stages of an
-executor run, ``engine.distributed.streamed``).
+memory of fusion is the cache's and one chunk's whatever the number of views and points (every ``deepc run``:
+``engine.distributed.streamed`` with an executor, ``engine.fusion.stream.fuse_views_to_ply`` in process).
 """
 
 from __future__ import annotations

@@ -31,7 +31,6 @@ class FusionView:
     overlap: list[int] = dataclasses.field(default_factory=list)
 
 
-
 @dataclasses.dataclass(eq=False)
 class FusedCloud:
     """Fused points and the per-point attributes the viewer shows.
@@ -68,7 +67,6 @@ class FusedCloud:
     def empty(cls) -> FusedCloud:
         return cls(np.zeros((0, 3)), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8),
                    np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.int32))
-
 
 
 @dataclasses.dataclass(eq=False)
