@@ -18,14 +18,14 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from engine.heap import release_free_memory
-from engine.interrupt import check_interrupt
-from engine.options import Options, option
+from engine.core.heap_trim import release_free_memory
+from engine.core.interrupt import check_interrupt
+from engine.core.options import Options, option
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
-from engine.patchmatch.engine import PatchMatchView, ViewMaps
 from engine.patchmatch.geometry import plane_vector, ray, reprojection
 from engine.patchmatch.kernels import photometric_cost
+from engine.patchmatch.multiscale import PatchMatchView, ViewMaps
 from engine.patchmatch.ncc import load_window, ncc_work
 from engine.patchmatch.options import PatchMatchOptions
 
@@ -113,7 +113,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
     out = []
     pool = BufferPool()  # one view's window terms (113 MB at 768x512), reused by the next view of the same size
     for i, v in enumerate(views):
-        check_interrupt()  # between kernels (engine/interrupt.py)
+        check_interrupt()  # between kernels (engine/core/interrupt.py)
         m = maps[i]
         h, w = m.depth.shape
         counter = np.zeros((h, w), np.uint8)
@@ -137,5 +137,5 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
         ctx.release(pool)
         out.append(counter)
     pool.clear()
-    release_free_memory()  # the window terms and PatchMatch's arrays, before fusion packs the maps (engine/heap.py)
+    release_free_memory()  # the window terms and PatchMatch's arrays, before fusion packs the maps (heap_trim)
     return out

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 
 from engine.confidence.options import ConfidenceOptions
-from engine.options import Options, option
+from engine.core.options import Options, option
 
 
 @dataclasses.dataclass

@@ -12,7 +12,7 @@ exact intrinsics, and computes per view (Schönberger et al. 2016):
 Images and ground-truth depth are read lazily, at the working resolution; a cache holds an 8-bit image already at
 the working size as its file's bytes (3 B/px, converted to float32 on access, the same floats), others as float32.
 A per-view task holds a :class:`SceneViews` (``Scene.subset``): its view and source views and their images, not the
-scene's sparse model (``engine.distributed``).
+scene's sparse model (``engine.run.distributed``).
 """
 
 from __future__ import annotations
@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.camera import Camera, rescaled_size
-from engine.errors import DeepCError
+from engine.core.camera import Camera, rescaled_size
+from engine.core.errors import DeepCError
+from engine.core.options import Options, option
+from engine.core.resample import resample_depth
 from engine.io.colmap_model import PINHOLE_MODELS, SparseModel, find_model_dir, read_sparse_model, undistort_workspace
 from engine.io.dense import read_dense_map_header, read_depth_map
 from engine.io.images import decode_image, image_size, image_to_float, resize_area, to_gray
-from engine.options import Options, option
-from engine.resample import resample_depth
 
 # Fewer observed points than this and a view's depth range falls back to all points it sees.
 _MIN_POINTS_FOR_RANGE = 5

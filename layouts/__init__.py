@@ -12,7 +12,7 @@ to the recording) instead of an empty "No data available" panel.
 - ``pipelines``: the fused clouds of the pipelines side by side with one view's maps.
 - ``confidence``: confidence against GT labels, the image and the depth error: one tab per view (the
   chosen view's tab open).
-- ``probe``: the probed pixels of a view (``probe/<view>/<x>_<y>``, ``workbench/probe_stream.py``), one tab
+- ``probe``: the probed pixels of a view (``probe/<view>/<x>_<y>``, ``workbench/rerun/probe.py``), one tab
   each: cost and depth against the iteration, the candidates on the pixel's ray in 3-D, the pixel's window in
   each source image, the candidate table and the final estimate, beside the view's depth and error maps.
 """
@@ -31,7 +31,7 @@ MAP_LABELS = {"depth": "depth", "normal": "normal", "cost": "cost", "selected_co
 STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT",
                 "confidence_auc": "confidence ROC-AUC", "confidence_kept_pct": "confidence >= tau %"}
 PIPELINES = ("vanilla", "fast", "full")
-SCRUB_TIMELINE = "view_iteration"  # one view's iterations (workbench/stream.py); older recordings: "iteration"
+SCRUB_TIMELINE = "view_iteration"  # one view's iterations (workbench/rerun/stream.py); older recordings: "iteration"
 
 
 @dataclasses.dataclass

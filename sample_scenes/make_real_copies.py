@@ -23,8 +23,8 @@ import numpy as np
 import pycolmap
 from PIL import Image
 
+from engine.core.resample import resample_depth
 from engine.io.dense import read_depth_map, write_dense_map
-from engine.resample import resample_depth
 
 # name: (source folder, downscale factor, binary model?) - one binary and one text model, so both
 # readers are exercised by the shipped scenes.

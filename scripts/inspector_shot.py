@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from workbench.browser import chromium, dismiss_software_webgl_notice
-from workbench.session import ViewerSession
-from workbench.viewer import ViewerApp
+from support.browser import chromium, dismiss_software_webgl_notice
+from workbench.viewer.app import ViewerApp
+from workbench.viewer.session import ViewerSession
 
 OTHER_FOLDERS = ("Pipeline", "Fusion", "Display", "Metrics", "View")
 

@@ -18,12 +18,12 @@ from pathlib import Path
 
 from screenshots import rerun_shot  # scripts/screenshots.py, beside this script
 
-from engine.observer import IterationEvent, NullObserver
+from engine.core.observer import IterationEvent, NullObserver
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import PipelineOptions, patchmatch_views
+from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.scene import load_scene
-from workbench.run_recording import open_run_recording
-from workbench.stream_options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
+from workbench.rerun.options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
+from workbench.rerun.run_recording import open_run_recording
 
 
 class MidRun(Exception):

@@ -13,10 +13,10 @@ import argparse
 import time
 from pathlib import Path
 
-from workbench.browser import chromium, dismiss_software_webgl_notice, rerun_crashed
-from workbench.replay import WebViewer
-from workbench.session import ViewerSession
-from workbench.viewer import ViewerApp
+from support.browser import chromium, dismiss_software_webgl_notice, rerun_crashed
+from workbench.rerun.replay import WebViewer
+from workbench.viewer.app import ViewerApp
+from workbench.viewer.session import ViewerSession
 
 
 def viewer_shot(run_dir: Path, out: Path) -> None:

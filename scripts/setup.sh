@@ -48,13 +48,13 @@ if [ ! -f "$stamp" ]; then
   touch "$stamp"
 fi
 # Compile the numba kernels in a process of their own, so that every later run loads the same cached
-# code (freshly compiled and cached code do not round identically; workbench/compile_cache.py). Skipped
+# code (freshly compiled and cached code do not round identically; workbench/cli/compile_cache.py). Skipped
 # while the sources (paths, sizes, mtimes: what numba's cache checks) and the cache are unchanged.
 numba_stamp=".venv/.deepc-numba-$(find engine workbench -name '*.py' -printf '%p %s %T@\n' | sort | sha1sum | cut -c1-12)"
 if [ ! -f "$numba_stamp" ] || ! ls engine/patchmatch/__pycache__/*.nbi >/dev/null 2>&1; then
   echo "setup: compiling the numba kernels (once per source change, about 2 minutes)"
   rm -f .venv/.deepc-numba-*
-  NUMBA_THREADING_LAYER="${NUMBA_THREADING_LAYER:-workqueue}" .venv/bin/python -m workbench.compile_cache \
+  NUMBA_THREADING_LAYER="${NUMBA_THREADING_LAYER:-workqueue}" .venv/bin/python -m workbench.cli.compile_cache \
     || { echo "setup: compiling the numba kernels failed" >&2; exit 1; }
   touch "$numba_stamp"
 fi

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 
 
 def free_space_margin_reference(points: np.ndarray, gt_views: list[tuple[Camera, np.ndarray]]) -> np.ndarray:

@@ -11,7 +11,7 @@ def make_fake_run(scene_dir: Path, out_dir: Path, with_confidence: bool = True, 
     0 to 5, so every move of a filter threshold visibly removes or restores points."""
     import numpy as np
 
-    from engine.run_folder import write_map, write_metrics
+    from engine.run.folder import write_map, write_metrics
     from engine.scene import load_scene
     from support.gt_normals import depth_normals
 

@@ -2,7 +2,7 @@
 
 A :class:`FuzzTarget` is a valid input (one or more files in a folder), the files a fuzzer may
 corrupt, and the reader to call on the folder. :func:`check_input` writes a mutated input, calls the
-reader and accepts exactly two outcomes: a result, or :class:`engine.errors.DeepCError` whose message
+reader and accepts exactly two outcomes: a result, or :class:`engine.core.errors.DeepCError` whose message
 is one line and names a file of the input. Anything else (another exception, a hang that pytest's
 timeout catches, a native crash of the test process) is a reader bug.
 
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from hypothesis import strategies as st
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLES = REPO / "sample_scenes"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 
 
 def depth_normals(camera: Camera, depth: np.ndarray, max_relative_jump: float = 0.02) -> np.ndarray:

@@ -20,10 +20,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from engine.checkpoint import CHECKPOINT_DIR
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.dense import read_dense_map
 from engine.io.ply import read_ply
+from engine.run.checkpoint import CHECKPOINT_DIR
 
 REPO = Path(__file__).resolve().parent.parent
 # tiny scene, fast schedule: 2 levels x (photometric + 1 geometric) x 1 iteration, 5 views of 96x72

@@ -13,7 +13,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from engine.run_folder import read_metrics
+from engine.run.folder import read_metrics
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 

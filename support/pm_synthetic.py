@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.patchmatch import PatchMatchView
 
 _GRID = np.random.default_rng(1234).random((4, 256, 256))

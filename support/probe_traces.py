@@ -1,4 +1,4 @@
-"""Probe traces made by hand, in the schema of ``engine.probe_run`` (see ``workbench/probe_figures.py``), for
+"""Probe traces made by hand, in the schema of ``engine.run.probe`` (see ``workbench/trace/figures.py``), for
 the inspector's tests: a pixel that converges from a random depth to the run's depth map over two levels,
 and a region "re-run" that replaces the box's depths by GT depth. They check the viewer and the rerun stream
 without replaying PatchMatch; the engine's own probe is tested against the kernels in its own tests."""
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.errors import DeepCError
-from engine.probe_run import RegionResult
-from engine.run_folder import read_map
+from engine.core.errors import DeepCError
+from engine.run.folder import read_map
+from engine.run.probe import RegionResult
 from engine.scene import Scene
 
 ORIGINS = ("current", "pattern:0", "pattern:3", "perturbation", "random", "combination")

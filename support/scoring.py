@@ -19,11 +19,11 @@ from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence
 from engine.fusion import fuse, views_from_scene
 from engine.patchmatch import ViewMaps
-from engine.pipeline import PipelineOptions, confidence_stage, evaluate_cloud
 from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
 from engine.refinement.views import sky_filter_views
-from engine.run_folder import read_map
+from engine.run.folder import read_map
+from engine.run.pipeline import PipelineOptions, confidence_stage, evaluate_cloud
 
 TOLERANCES = (0.02, 0.05)
 TAU = 0.05  # the fast and full pipelines' default confidence threshold

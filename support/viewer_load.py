@@ -11,12 +11,12 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-from engine.errors import DeepCError
-from engine.memory import current_rss
+from engine.core.errors import DeepCError
+from engine.run.memory import current_rss
 from support.viewer_clients import client_process
 
 if TYPE_CHECKING:
-    from workbench.viewer import ViewerApp
+    from workbench.viewer.app import ViewerApp
 
 
 def _controls(app: ViewerApp) -> list[tuple[str, list, str]]:

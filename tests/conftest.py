@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.distributed import LocalExecutor
+from engine.run.distributed import LocalExecutor
 from support.fake_run import make_fake_run  # noqa: F401  (tests import it from here)
 
 REPO = Path(__file__).resolve().parent.parent
@@ -47,7 +47,7 @@ def make_noisy_run(scene_dir: Path, out_dir: Path) -> Path:
     that only partly tells them apart, so that a confidence network has something to learn."""
     import numpy as np
 
-    from engine.run_folder import write_map, write_metrics
+    from engine.run.folder import write_map, write_metrics
     from engine.scene import load_scene
     from support.gt_normals import depth_normals
 
@@ -82,7 +82,7 @@ def fake_run(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def browser_context():
     """Debian chromium driven by playwright; requests leaving 127.0.0.1 are blocked."""
-    from workbench.browser import CHROMIUM, chromium
+    from support.browser import CHROMIUM, chromium
 
     if not CHROMIUM.exists():
         pytest.skip("needs /usr/bin/chromium (scripts/setup.sh --test installs it)")
@@ -93,8 +93,8 @@ def browser_context():
 @contextlib.contextmanager
 def running_viewer(run_dir: Path):
     """A ViewerApp on a free port for ``run_dir``, idle (first exact cloud shown); always stopped."""
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
+    from workbench.viewer.app import ViewerApp
+    from workbench.viewer.session import ViewerSession
 
     viewer = ViewerApp(ViewerSession.open(run_dir), port=0)
     try:
@@ -138,8 +138,8 @@ def inspector_app(noisy_run):
     """A viewer on ``noisy_run`` whose inspector probes and re-runs with hand-made traces (``support.probe_traces``);
     ``inspector_app.hand`` records the calls. Stopped afterwards."""
     from support.probe_traces import HandProbe
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
+    from workbench.viewer.app import ViewerApp
+    from workbench.viewer.session import ViewerSession
 
     viewer = ViewerApp(ViewerSession.open(noisy_run), port=0)
     hand = HandProbe(viewer.session.scene, noisy_run)

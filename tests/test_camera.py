@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.camera import Camera, rescaled_size
+from engine.core.camera import Camera, rescaled_size
 
 
 def _rotation(rng) -> np.ndarray:

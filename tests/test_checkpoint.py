@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from conftest import SAMPLES
 
-from engine.checkpoint import PatchMatchCheckpoint
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import patchmatch_views
+from engine.run.checkpoint import PatchMatchCheckpoint
+from engine.run.pipeline import patchmatch_views
 from engine.scene import SceneOptions, load_scene
 
 OPTIONS = PatchMatchOptions(levels=2, geom_passes=1, iterations=1, seed=7)  # 4 passes of 5 views

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import torch
 
-from engine.camera import Camera
 from engine.confidence.data import flip_horizontal
 from engine.confidence.inference import predict_confidence
 from engine.confidence.inputs import encode_normals, network_inputs
@@ -17,7 +16,8 @@ from engine.confidence.losses import bce_loss, deepc_loss, loss_function
 from engine.confidence.metrics import roc_auc, sparsification
 from engine.confidence.network import ConfidenceNet, parameter_count
 from engine.confidence.weights import load_weights, read_weights_file, save_weights
-from engine.errors import DeepCError
+from engine.core.camera import Camera
+from engine.core.errors import DeepCError
 
 
 def _look_at(center: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

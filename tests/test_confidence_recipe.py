@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from engine.confidence.recipe import load_recipe
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
+from engine.training.recipe import load_recipe
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLES = REPO / "sample_scenes"

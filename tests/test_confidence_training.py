@@ -15,10 +15,10 @@ from conftest import make_noisy_run
 
 from engine.confidence.data import load_run
 from engine.confidence.network import ConfidenceNet
-from engine.confidence.training import TrainOptions, ValidationSet, train
 from engine.confidence.weights import save_weights
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS
+from engine.training.trainer import TrainOptions, ValidationSet, train
 
 REPO = Path(__file__).resolve().parent.parent
 TINY = REPO / "sample_scenes" / "tiny"
@@ -99,7 +99,7 @@ def test_run_fast_writes_confidence_maps_and_auc(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["pipeline"] == "fast" and 0 <= metrics["confidence_auc"] <= 100
     assert metrics["seconds"]["confidence"] > 0 and metrics["options"]["confidence"]["tau"] == 0.5
-    from engine.run_folder import read_map
+    from engine.run.folder import read_map
     from engine.scene import load_scene
     kept = valid = 0
     for v in load_scene(TINY).views:
@@ -134,7 +134,7 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
     assert metrics["full_depth"]["valid_fraction"] >= metrics["depth"]["valid_fraction"]
     assert metrics["full_depth"]["within_1pct"] != metrics["refined_depth"]["within_1pct"]
     from engine.io.ply import read_points
-    from engine.run_folder import read_map
+    from engine.run.folder import read_map
     from engine.scene import load_scene
     for v in load_scene(TINY).views:
         depth, normal = read_map(out, "refined_depth", v.name), read_map(out, "refined_normal", v.name)
@@ -151,9 +151,9 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
 
     # refine_run on the same run and options takes the full run's refined maps as they are, and refining its
     # vanilla maps again gives exactly those maps
-    from engine.pipeline import PipelineOptions
-    from engine.refine_run import refine_run
-    from engine.run_folder import REFINED_KINDS
+    from engine.run.folder import REFINED_KINDS
+    from engine.run.pipeline import PipelineOptions
+    from engine.run.refine import refine_run
     options = PipelineOptions.from_dict({k: v for k, v in metrics["options"].items() if k != "scene"})
     assert refine_run(out, options=options).reused
     with pytest.raises(DeepCError, match="would overwrite outputs of the run"):
@@ -167,7 +167,7 @@ def test_run_full_writes_refined_maps_and_fuses_them(tmp_path):
 
 
 def test_views_are_drawn_by_their_probabilities(noisy_run):
-    from engine.confidence.training import crop_size, draw_batch
+    from engine.training.trainer import crop_size, draw_batch
 
     samples = load_run(noisy_run)
     options = TrainOptions(batch=1, crop=32, flip=False, normal_noise=0, color_jitter=0, min_labelled=0)

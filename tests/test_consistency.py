@@ -10,7 +10,7 @@ import pytest
 
 import support.patchmatch_reference as ref
 from engine.consistency import CounterOptions, compute_counter_maps
-from engine.errors import OptionsError
+from engine.core.errors import OptionsError
 from engine.patchmatch import PatchMatchOptions, ViewMaps
 from support.pm_synthetic import make_scene
 

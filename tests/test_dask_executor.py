@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from conftest import SAMPLES, RecordingExecutor
 
-from engine.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
-from engine.distributed import LocalExecutor
 from engine.patchmatch import PatchMatchOptions
-from engine.pipeline import PipelineOptions, run_pipeline
+from engine.run.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
+from engine.run.distributed import LocalExecutor
+from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.scene import SceneOptions, load_scene
 
 pytest.importorskip("distributed")
@@ -43,7 +43,7 @@ def reference(scene, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def cluster():
-    from engine.distributed.dask_executor import DaskExecutor
+    from engine.run.distributed.dask_executor import DaskExecutor
 
     executor = DaskExecutor(workers=2, stall_timeout=120)
     try:
@@ -110,10 +110,10 @@ def test_confidence_tasks_return_the_refinement_weights(scene, reference, cluste
     in-process stage's."""
     import shutil
 
-    from engine.distributed.driver import run_confidence_tasks
     from engine.patchmatch import ViewMaps
-    from engine.pipeline import confidence_stage
-    from engine.run_folder import read_map
+    from engine.run.distributed.driver import run_confidence_tasks
+    from engine.run.folder import read_map
+    from engine.run.pipeline import confidence_stage
 
     shutil.copytree(reference, tmp_path, dirs_exist_ok=True)
     confidence, raw = run_confidence_tasks(scene, tmp_path, OPTIONS.confidence, cluster, want_raw=True)
@@ -128,10 +128,10 @@ def test_confidence_tasks_return_the_refinement_weights(scene, reference, cluste
 
 def test_refinement_tasks_give_the_same_refined_maps(scene, reference, cluster):
     """``full``: Rossi et al. 2020's refinement per view as a task, from the maps in the run folder."""
-    from engine.distributed.driver import run_refinement_tasks
     from engine.refinement.options import RefinementOptions
     from engine.refinement.views import refine_views
-    from engine.run_folder import read_map
+    from engine.run.distributed.driver import run_refinement_tasks
+    from engine.run.folder import read_map
 
     cheap = RefinementOptions(scales=2, fast_iters=(60, 40), iters=(10, 10), lr=(0.01, 0.01), lr_slots=(1, 1))
     names = [v.name for v in scene.views]
@@ -214,7 +214,7 @@ def test_resume_works_across_executors(scene, reference, cluster, tmp_path, firs
 
 
 def test_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     code = main(["run", str(SAMPLES / "tiny"), "--out", str(tmp_path / "out"), "--headless", "--executor", "dask",
                  "--scheduler", "tcp://127.0.0.1:9", "--max-image-size", "96"])
@@ -225,7 +225,7 @@ def test_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
 
 
 def test_deepc_run_on_a_local_cluster_prints_its_dashboard(tmp_path, capsys):
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     code = main(["run", str(SAMPLES / "tiny"), "--out", str(tmp_path / "out"), "--headless", "--executor", "dask",
                  "--workers", "2", "--max-image-size", "64", "--levels", "1", "--geom-passes", "0",
@@ -238,8 +238,8 @@ def test_deepc_run_on_a_local_cluster_prints_its_dashboard(tmp_path, capsys):
 def test_tasks_read_only_what_the_driver_recorded(scene, tmp_path):
     """A state whose bytes differ from the recorded SHA-256 is not used: the task fails instead of computing
     from a wrong input."""
-    from engine.distributed.tasks import load_state, state_reader
-    from engine.errors import DeepCError
+    from engine.core.errors import DeepCError
+    from engine.run.distributed.tasks import load_state, state_reader
 
     cp = PatchMatchCheckpoint(tmp_path)
     cp.save(0, 0, 0, {"Z": np.ones((4, 4), np.float32), "N": np.zeros((4, 4, 3), np.float32),
@@ -253,8 +253,8 @@ def test_tasks_read_only_what_the_driver_recorded(scene, tmp_path):
 def test_geometric_tasks_read_their_sources_depth_alone(scene, tmp_path):
     """A geometric pass and the counter maps read their own state whole and only the depth array of their source
     views' states, verified by its own digest; a damaged depth is an error, not a wrong input."""
-    from engine.distributed.tasks import FinishJob, PassJob, depth_digest, load_depth
-    from engine.errors import DeepCError
+    from engine.core.errors import DeepCError
+    from engine.run.distributed.tasks import FinishJob, PassJob, depth_digest, load_depth
 
     executor = RecordingExecutor()
     run_pipeline(scene, tmp_path, PipelineOptions(pipeline="vanilla", patchmatch=OPTIONS.patchmatch),

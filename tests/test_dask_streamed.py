@@ -1,4 +1,4 @@
-"""The driver of an executor run streams its later stages from the run folder (engine/distributed/streamed.py,
+"""The driver of an executor run streams its later stages from the run folder (engine/run/distributed/streamed.py,
 pooled.py): pooled sums and ROC-AUC accumulated view by view equal numpy's on the concatenation to the last bit, and
 the streamed fusion and metrics equal the in-process pipeline's on the same maps."""
 
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from engine.confidence.metrics import roc_auc
-from engine.distributed.pooled import PooledRankSum, pairwise_sum
-from engine.distributed.streamed import fuse_run_folder, streamed_metrics
 from engine.fusion import FUSION_PRESETS, FusedCloud, fuse, views_from_scene
 from engine.fusion.cached import CacheStats
 from engine.patchmatch import ViewMaps
-from engine.pipeline import _depth_block, confidence_auc
-from engine.run_folder import read_map, write_map
+from engine.run.distributed.pooled import PooledRankSum, pairwise_sum
+from engine.run.distributed.streamed import fuse_run_folder, streamed_metrics
+from engine.run.folder import read_map, write_map
+from engine.run.pipeline import _depth_block, confidence_auc
 from engine.scene import load_scene
 from support.fake_run import make_fake_run
 from tests.conftest import SAMPLES, make_noisy_run

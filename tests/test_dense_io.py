@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.dense import (
     encode_dense_map,
     read_dense_map,

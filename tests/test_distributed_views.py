@@ -10,12 +10,12 @@ import pytest
 from conftest import SAMPLES, RecordingExecutor
 
 from engine.consistency import CounterOptions
-from engine.distributed import LocalExecutor
-from engine.distributed.driver import run_patchmatch_tasks, run_refinement_tasks
-from engine.distributed.tasks import PassJob, PassResult, RefineJob
 from engine.patchmatch import PatchMatchOptions
-from engine.pipeline import PipelineOptions, run_pipeline
 from engine.refinement.options import RefinementOptions
+from engine.run.distributed import LocalExecutor
+from engine.run.distributed.driver import run_patchmatch_tasks, run_refinement_tasks
+from engine.run.distributed.tasks import PassJob, PassResult, RefineJob
+from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.scene import SceneOptions, load_scene
 from engine.synthetic import write_scene
 from engine.synthetic.sequence import street_scene
@@ -98,7 +98,7 @@ def test_full_refines_with_weights_its_tasks_read(tmp_path, backfacing_rule):
     """``full`` as tasks: the refinement's weights before the back-facing rule go from the confidence tasks to the
     refinement tasks through the run folder (no map in a job, the folder removed after), and the maps are the
     in-process pipeline's byte for byte."""
-    from engine.distributed.driver import RAW_CONFIDENCE_DIR
+    from engine.run.distributed.driver import RAW_CONFIDENCE_DIR
 
     scene = load_scene(SAMPLES / "tiny", SceneOptions(max_image_size=64))
     cheap = RefinementOptions(scales=2, fast_iters=(60, 40), iters=(10, 10), lr=(0.01, 0.01), lr_slots=(1, 1),
@@ -130,8 +130,8 @@ def test_dask_waits_keep_one_waiter_per_task_and_fail_a_stalled_stage():
     import time
 
     pytest.importorskip("distributed")
-    from engine.distributed.dask_executor import DaskExecutor
-    from engine.errors import DeepCError
+    from engine.core.errors import DeepCError
+    from engine.run.distributed.dask_executor import DaskExecutor
 
     with DaskExecutor(workers=2, stall_timeout=60) as executor:
         alive = []

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from conftest import SAMPLES
 
-from engine.checkpoint import CHECKPOINT_DIR
+from engine.run.checkpoint import CHECKPOINT_DIR
 from support.interruption import FAST, check_no_partial, kill_when, saved_states, start_run
 
 REPO = Path(__file__).resolve().parent.parent

@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from engine.camera import Camera
-from engine.errors import DeepCError, OptionsError
+from engine.core.camera import Camera
+from engine.core.errors import DeepCError, OptionsError
 from engine.evaluation import (
     EvaluationOptions,
     PointIndex,
@@ -27,7 +27,7 @@ from engine.scene import load_scene
 from support.evaluation_reference import classify_beam_reference, free_space_margin_reference
 from support.synthetic_scan import make_synthetic_eth3d, sample_synthetic_reconstruction
 from tests.conftest import SAMPLES
-from workbench.eval_command import cmd_eval
+from workbench.cli.eval import cmd_eval
 
 TOL = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from engine.confidence.options import ConfidenceOptions
-from engine.errors import OptionsError
+from engine.core.errors import OptionsError
 from engine.filtering import FilterOptions, apply_filters, filter_by_confidence, filter_by_counter
 
 

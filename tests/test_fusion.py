@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from engine.camera import Camera
-from engine.errors import OptionsError
+from engine.core.camera import Camera
+from engine.core.errors import OptionsError
 from engine.fusion import (
     FUSION_PRESETS,
     FusedCloud,

@@ -14,12 +14,12 @@ import pytest
 import engine.evaluation.chunked as chunked
 import engine.fusion.cached as cached
 import engine.fusion.stream as stream
-from engine.distributed.streamed import fuse_run_folder
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_point_chunks, evaluate_points
 from engine.fusion import FUSION_PRESETS, DiskCloud, FusedCloud, fuse, views_from_scene, write_fused_ply
 from engine.fusion.kernel import output_arrays
 from engine.io.ply import read_points
-from engine.run_folder import read_map, write_map
+from engine.run.distributed.streamed import fuse_run_folder
+from engine.run.folder import read_map, write_map
 from engine.scene import load_scene
 from tests.conftest import SAMPLES, make_noisy_run
 
@@ -210,8 +210,8 @@ def test_chunked_evaluation_holds_no_copy_of_the_cloud(monkeypatch):
 def test_the_rerun_stream_logs_a_cloud_on_disk(cloud, tmp_path):
     """The fusion stage's observers get the DiskCloud (a streamed run with --stream)."""
     pytest.importorskip("rerun")
-    from workbench.recording import Recording
-    from workbench.stream import RerunStream
+    from workbench.rerun.recording import Recording
+    from workbench.rerun.stream import RerunStream
 
     recording = Recording(tmp_path / "run.rrd")
     scene = load_scene(SAMPLES / "tiny")

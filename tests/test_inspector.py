@@ -8,8 +8,8 @@ import pytest
 from conftest import SAMPLES, wait_for
 
 from support.probe_traces import make_trace
-from workbench.probe_figures import candidate_table_html, summary_markdown, trace_figure
-from workbench.probe_windows import window_corners, window_thumbnails
+from workbench.trace.figures import candidate_table_html, summary_markdown, trace_figure
+from workbench.trace.windows import window_corners, window_thumbnails
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -158,7 +158,7 @@ def test_region_outside_the_image_is_a_message(inspector_app):
 
 
 def test_a_trace_in_rerun_with_the_probe_layout(inspector_app, tmp_path):
-    from workbench.replay import default_layout, layout_file, recording_contents
+    from workbench.rerun.replay import default_layout, layout_file, recording_contents
 
     inspector = inspector_app.inspector
     inspector.inspect(0, 40, 30)
@@ -181,9 +181,9 @@ def test_a_trace_in_rerun_with_the_probe_layout(inspector_app, tmp_path):
 @pytest.fixture(scope="module")
 def engine_run(tmp_path_factory):
     """A real vanilla run of sample_scenes/tiny with its pass history (short schedule)."""
-    from engine.pass_history import HISTORY_DIR, PassHistory
     from engine.patchmatch.options import PatchMatchOptions
-    from engine.pipeline import PipelineOptions, run_pipeline
+    from engine.run.pass_history import HISTORY_DIR, PassHistory
+    from engine.run.pipeline import PipelineOptions, run_pipeline
     from engine.scene import load_scene
 
     out = tmp_path_factory.mktemp("engine_run")
@@ -194,8 +194,8 @@ def engine_run(tmp_path_factory):
 
 def test_the_engine_probe_and_region_rerun_in_the_inspector(engine_run):
     """The inspector on the engine's own probe_run / rerun_region: the real schema fills every widget."""
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
+    from workbench.viewer.app import ViewerApp
+    from workbench.viewer.session import ViewerSession
 
     inspector_app = ViewerApp(ViewerSession.open(engine_run), port=0)
     try:
@@ -226,8 +226,8 @@ def test_the_engine_probe_and_region_rerun_in_the_inspector(engine_run):
 
 def test_a_run_without_pass_history_says_so(noisy_run):
     """A run folder made without history (here: one that never ran PatchMatch) cannot be probed: one line."""
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
+    from workbench.viewer.app import ViewerApp
+    from workbench.viewer.session import ViewerSession
 
     inspector_app = ViewerApp(ViewerSession.open(noisy_run), port=0)  # the engine's own probe
     try:

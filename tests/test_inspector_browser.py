@@ -14,7 +14,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
 
 
 def _open(context, inspector_app):
-    from workbench.browser import dismiss_software_webgl_notice
+    from support.browser import dismiss_software_webgl_notice
 
     page = context.new_page()
     page.goto(f"http://127.0.0.1:{inspector_app.port}/")
@@ -108,7 +108,7 @@ def test_bad_pixel_and_unknown_view_are_messages_in_the_browser(browser_context,
 def test_a_saved_trace_replays_in_the_rerun_web_viewer_with_the_probe_layout(browser_context, inspector_app, tmp_path):
     from test_replay_browser import _shot, blueprint_titles
 
-    from workbench.replay import WebViewer, default_layout, layout_file
+    from workbench.rerun.replay import WebViewer, default_layout, layout_file
 
     inspector = inspector_app.inspector
     inspector.inspect(0, 40, 30)

@@ -1,4 +1,4 @@
-"""engine.interrupt: inside deferred_interrupts a signal only requests a stop, raised at check_interrupt."""
+"""engine.core.interrupt: inside deferred_interrupts a signal only requests a stop, raised at check_interrupt."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numba
 import numpy as np
 import pytest
 
-from engine.interrupt import check_interrupt, deferred_interrupts
+from engine.core.interrupt import check_interrupt, deferred_interrupts
 
 
 @numba.njit(cache=True)

@@ -8,7 +8,7 @@ import signal
 import pytest
 from conftest import SAMPLES
 
-from engine.checkpoint import CHECKPOINT_DIR
+from engine.run.checkpoint import CHECKPOINT_DIR
 from support.interruption import check_no_partial, differences, kill_when, saved_states, start_run
 
 pytestmark = pytest.mark.slow
@@ -26,7 +26,7 @@ def reference(tmp_path_factory):
 
 # (signal, moment): states saved by the checkpoint before the kill, or "writing" = first map written
 # "writing" lands in the map writes or the fusion kernel: a SIGTERM there used to crash the process
-# (SIGSEGV: the handler raised inside numba's boxing of the kernel's result, see engine/interrupt.py)
+# (SIGSEGV: the handler raised inside numba's boxing of the kernel's result, see engine/core/interrupt.py)
 MOMENTS = [(signal.SIGTERM, 3), (signal.SIGINT, 14), (signal.SIGTERM, "writing")]
 
 

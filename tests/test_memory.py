@@ -8,10 +8,10 @@ import sys
 import pytest
 from conftest import REPO, SAMPLES
 
-from engine.heap import release_free_memory
-from engine.memory import available_memory, current_rss, estimate_run_memory, largest_fitting_size
+from engine.core.heap_trim import release_free_memory
 from engine.patchmatch import PatchMatchOptions
-from engine.pipeline import PipelineOptions
+from engine.run.memory import available_memory, current_rss, estimate_run_memory, largest_fitting_size
+from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions, load_scene
 
 
@@ -51,7 +51,7 @@ def test_system_readings_are_plausible():
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
 def test_freed_heap_memory_goes_back_to_the_system():
     # freeing a 20 MiB mmap'ed block raises glibc's mmap threshold past 2 MiB: the blocks below come from the
-    # heap, and every other one freed leaves holes that stay resident until trimmed (engine/heap.py)
+    # heap, and every other one freed leaves holes that stay resident until trimmed (engine/core/heap_trim.py)
     import numpy as np
 
     big = np.ones(20 << 20, np.uint8)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.fusion import FusedCloud, fuse, views_from_scene, write_fused_ply
 from engine.meshing import (
@@ -20,11 +20,11 @@ from engine.meshing import (
     tsdf_mesh,
     write_mesh_ply,
 )
-from engine.run_folder import read_map
+from engine.run.folder import read_map
 from engine.scene import load_scene
 from support.fake_run import make_fake_run
 from tests.conftest import SAMPLES
-from workbench.cli import main
+from workbench.cli.main import main
 
 TOLERANCES = EvaluationOptions(tolerances=(0.01, 0.02, 0.05))
 

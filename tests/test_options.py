@@ -11,18 +11,18 @@ import pytest
 
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions
-from engine.errors import OptionsError
+from engine.core.errors import OptionsError
+from engine.core.options import SOURCES, Options, describe, option
 from engine.evaluation import EvaluationOptions
 from engine.filtering import FilterOptions
 from engine.fusion import FusionOptions
-from engine.options import SOURCES, Options, describe, option
 from engine.patchmatch import PatchMatchOptions
-from engine.pipeline import PipelineOptions
 from engine.refinement.options import RefinementOptions
+from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions
 from engine.synthetic.layout import RandomSceneKnobs
-from workbench.flags import add_options_flags, options_from_args, section_overrides
-from workbench.stream_options import StreamOptions
+from workbench.flags.options import add_options_flags, options_from_args, section_overrides
+from workbench.rerun.options import StreamOptions
 
 BASELINES = Path(__file__).resolve().parent / "baselines"
 
@@ -71,7 +71,8 @@ def _all_options_classes() -> list[type]:
     """Every Options subclass of engine/ and workbench/ (importing the modules that declare them)."""
     import importlib
 
-    for module in ("engine.pipeline", "engine.filtering", "engine.sky", "engine.synthetic.layout", "workbench.stream"):
+    for module in ("engine.run.pipeline", "engine.filtering", "engine.refinement.sky", "engine.synthetic.layout",
+                   "workbench.rerun.stream"):
         importlib.import_module(module)
     found, todo = [], list(Options.__subclasses__())
     while todo:

@@ -10,10 +10,10 @@ import numba
 import numpy as np
 import pytest
 
-from engine.camera import Camera
-from engine.errors import DeepCError, OptionsError
-from engine.metrics import depth_metrics
-from engine.observer import IterationEvent, NullObserver, ObserverList
+from engine.core.camera import Camera
+from engine.core.errors import DeepCError, OptionsError
+from engine.core.observer import IterationEvent, NullObserver, ObserverList
+from engine.evaluation.depth import depth_metrics
 from engine.patchmatch import (
     PatchMatchOptions,
     PatchMatchView,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import support.patchmatch_reference as ref
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.patchmatch import PatchMatchOptions, ViewState, kernel_params, run_view_level
 from engine.patchmatch import kernels as K
 from engine.patchmatch.context import FINE_CREASE, FINE_EDGE, build_context, depth_edge_band, fine_window_region

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from engine.evaluation import EvaluationOptions
+from engine.evaluation.depth import depth_metrics
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, fuse, views_from_scene
-from engine.metrics import depth_metrics
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import PipelineOptions, evaluate_cloud, patchmatch_views
+from engine.run.pipeline import PipelineOptions, evaluate_cloud, patchmatch_views
 from engine.scene import load_scene
 
 TINY = Path(__file__).resolve().parent.parent / "sample_scenes" / "tiny"
@@ -36,7 +36,7 @@ def tiny_maps():
 
 
 def _pooled(scene, maps) -> dict[str, float]:
-    """Depth metrics pooled over the views (engine.metrics.depth_metrics on all pixels at once)."""
+    """Depth metrics pooled over the views (engine.evaluation.depth.depth_metrics on all pixels at once)."""
     return depth_metrics(np.concatenate([m.depth.ravel() for m in maps]),
                          np.concatenate([scene.gt_depth(i).ravel() for i in range(len(maps))]))
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.ply import read_ply, read_points, write_ply
 
 

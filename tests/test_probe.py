@@ -1,5 +1,5 @@
 """The pixel probe (engine/patchmatch/probe.py, explain.py), the pass history and the probe on finished runs
-(engine/pass_history.py, engine/probe_run.py, engine/probe_output.py) and their command line."""
+(engine/run/pass_history.py, engine/run/probe.py, engine/run/probe_output.py) and their command line."""
 
 from __future__ import annotations
 
@@ -11,15 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.errors import DeepCError
-from engine.pass_history import HISTORY_DIR, PassHistory, pack_depth, unpack_depth
+from engine.core.errors import DeepCError
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.patchmatch.engine import replay_view
+from engine.patchmatch.multiscale import replay_view
 from engine.patchmatch.probe import MAX_PROBE_PIXELS, PixelProbe, level_pixel
-from engine.pipeline import PipelineOptions, run_pipeline
-from engine.probe_output import probe_path
-from engine.probe_run import probe_run, rerun_region
-from engine.run_folder import read_map
+from engine.run.folder import read_map
+from engine.run.pass_history import HISTORY_DIR, PassHistory, pack_depth, unpack_depth
+from engine.run.pipeline import PipelineOptions, run_pipeline
+from engine.run.probe import probe_run, rerun_region
+from engine.run.probe_output import probe_path
 from engine.scene import load_scene
 from support.pm_synthetic import make_scene
 
@@ -301,7 +301,7 @@ def test_cli_probe_writes_traces(tiny_run):
 
 def test_cli_run_with_probe_records_the_traces_in_the_run_recording(tmp_path):
     """``deepc run --probe ... --record``: the run's recording holds the traces under probe/<view>/<x>_<y>/."""
-    from workbench.replay import recording_contents
+    from workbench.rerun.replay import recording_contents
 
     out, rrd = tmp_path / "run", tmp_path / "run.rrd"
     res = _deepc("run", str(TINY), "--out", str(out), "--headless", "--levels", "1", "--iterations", "1",

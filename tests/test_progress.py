@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from workbench.progress import PassProgress
+from workbench.cli.progress import PassProgress
 
 
 def test_pass_bars_time_each_pass_from_start_to_last_view(monkeypatch, capsys) -> None:

@@ -1,4 +1,4 @@
-"""Refined maps of finished runs (engine/refine_run.py): refine_run, its stamp-checked cache,
+"""Refined maps of finished runs (engine/run/refine.py): refine_run, its stamp-checked cache,
 load_run(refined=True) and `deepc train --refined` on the tiny scene."""
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from conftest import make_noisy_run
 from engine.confidence.data import load_run, view_labels
 from engine.confidence.weights import DEFAULT_WEIGHTS
 from engine.consistency import compute_counter_maps
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.patchmatch import ViewMaps
-from engine.pipeline import PipelineOptions, patchmatch_views
-from engine.refine_run import refine_run
 from engine.refinement.options import RefinementOptions
-from engine.run_folder import STAMP, file_sha256, map_path, read_map, read_stamp
+from engine.run.folder import STAMP, file_sha256, map_path, read_map, read_stamp
+from engine.run.pipeline import PipelineOptions, patchmatch_views
+from engine.run.refine import refine_run
 from engine.scene import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
@@ -103,7 +103,7 @@ def test_refined_maps_are_reused_only_while_the_stamp_matches(refined_run, netwo
     assert read_stamp(run)["key"]["refinement"]["lambda_reg"] == 3.0
 
     # a rewrite that dies half-way leaves no stamp, so the mixed maps are never taken for either refinement
-    import engine.run_folder as runs
+    import engine.run.folder as runs
     writes = []
 
     def failing_write(out, kind, name, array):
@@ -154,8 +154,8 @@ def test_train_refined_refines_each_run_and_learns_on_the_refined_maps(vanilla_r
     text = card.read_text()
     assert "Network inputs: refined maps" in text and f"`{DEFAULT_WEIGHTS.name}`" in text
 
-    from workbench.cli import build_parser
-    from workbench.train_command import cmd_train
+    from workbench.cli.main import build_parser
+    from workbench.cli.train import cmd_train
     for flags in (["--refine-weights", str(out)], ["--set", "refinement.scales=2"]):
         with pytest.raises(DeepCError, match="only make sense with --refined"):
             cmd_train(build_parser().parse_args(["train", str(run), *flags]))
@@ -169,7 +169,7 @@ def test_the_refinement_weights_its_data_by_the_confidence_before_the_back_facin
     from engine.confidence.inference import facing_away
     from engine.confidence.inputs import network_inputs
     from engine.confidence.options import ConfidenceOptions
-    from engine.pipeline import confidence_stage, refinement_confidence
+    from engine.run.pipeline import confidence_stage, refinement_confidence
 
     scene = load_scene(TINY)
     maps, counter = [], []

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from engine.errors import DeepCError, OptionsError
+from engine.core.errors import DeepCError, OptionsError
 from engine.refinement import (
     NoDataError,
     RefinementOptions,
@@ -216,7 +216,7 @@ def _angle_deg(a, b):
 
 
 def test_refinement_recovers_planes():
-    from engine.camera import Camera
+    from engine.core.camera import Camera
     from support.gt_normals import depth_normals
 
     sc = planar_scene()

@@ -13,8 +13,8 @@ import pytest
 from conftest import REPO, SAMPLES, make_fake_run
 from PIL import Image
 
-from engine.metrics import roc_curve
-from workbench.cli import main
+from engine.evaluation.depth import roc_curve
+from workbench.cli.main import main
 from workbench.regress import (
     DEFAULT_SUITE,
     IMPROVED,
@@ -359,9 +359,9 @@ def test_the_report_shows_its_plots_in_chromium(regress_runs, browser_context, t
 def test_report_of_a_run_with_confidence_and_refined_maps(tmp_path):
     """A fast/full-style output folder: the ROC of a confidence that ranks outliers low, error histograms of
     PatchMatch and refined depth, and thumbnails of every map."""
-    from engine.run_folder import read_map, write_map
+    from engine.run.folder import read_map, write_map
     from engine.scene import load_scene
-    from workbench.report import analyse_run, relative_depth_labels, write_report
+    from workbench.regress.report import analyse_run, relative_depth_labels, write_report
 
     run = make_fake_run(SAMPLES / "tiny", tmp_path / "run")
     scene = load_scene(SAMPLES / "tiny")

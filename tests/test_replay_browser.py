@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from engine.errors import DeepCError
-from workbench.browser import rerun_crashed
-from workbench.recording import Recording
-from workbench.replay import WebViewer, layout_file, layout_files, recording_contents, recording_views
-from workbench.stream import entity_name
+from engine.core.errors import DeepCError
+from support.browser import rerun_crashed
+from workbench.rerun.recording import Recording
+from workbench.rerun.replay import WebViewer, layout_file, layout_files, recording_contents, recording_views
+from workbench.rerun.stream import entity_name
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
 
@@ -151,10 +151,10 @@ def test_replay_view_shows_that_view(browser_context, recording):
 def test_a_run_recording_says_what_it_will_not_record(tmp_path):
     """A run thinned to view 1 (--set stream.view=1) embeds a layout of view 1, and its recording says that the
     other views' maps and the vanilla pipeline's confidence are not recorded, instead of empty panels."""
-    from engine.pipeline import PipelineOptions
+    from engine.run.pipeline import PipelineOptions
     from engine.scene import load_scene
-    from workbench.run_recording import open_run_recording
-    from workbench.stream_options import StreamOptions
+    from workbench.rerun.options import StreamOptions
+    from workbench.rerun.run_recording import open_run_recording
 
     scene = load_scene("sample_scenes/tiny")
     recording = open_run_recording(str(tmp_path / "run.rrd"), scene, PipelineOptions(), StreamOptions(view=1))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.resample import resample_depth
+from engine.core.resample import resample_depth
 
 
 def test_integer_downsampling_takes_an_existing_valid_depth():

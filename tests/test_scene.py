@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import sample_scene_dirs, shared_scene_dirs
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.dense import read_depth_map, write_dense_map
 from engine.scene import SceneOptions, load_scene
 

@@ -11,7 +11,7 @@ import pytest
 from conftest import SAMPLES
 from PIL import Image
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.io.colmap_model import SparseModel
 from engine.io.images import decode_image, image_to_float, read_image, resize_area
 from engine.scene import SceneOptions, _triangulation_angle_p75, load_scene

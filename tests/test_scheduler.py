@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from workbench.scheduler import LatestOnly, NewestWorker, RecomputeScheduler
+from workbench.viewer.scheduler import LatestOnly, NewestWorker, RecomputeScheduler
 
 TIMEOUT = 10.0  # seconds: every wait in these tests is bounded
 

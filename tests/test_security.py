@@ -17,8 +17,8 @@ from conftest import REPO, SAMPLES, run_async, running_viewer, wait_for
 
 from support.interruption import FAST
 from support.viewer_clients import CAMERA as _CAMERA
-from workbench.cli import build_parser
-from workbench.viewer_export import safe_file_name
+from workbench.cli.main import build_parser
+from workbench.viewer.export import safe_file_name
 
 TRAVERSALS = ["../../../escaped", "/tmp/escaped_abs", "..\\..\\escaped", "a/../../escaped", "....//....//escaped",
               "%2e%2e%2fescaped", "exports/../../escaped", "~/escaped", "\x00escaped", "..", ".", "", "x" * 500,

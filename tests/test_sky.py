@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.errors import OptionsError
+from engine.core.errors import OptionsError
+from engine.refinement.sky import SkyOptions, far_mask, filter_sky, sky_mask
 from engine.scene import load_scene
-from engine.sky import SkyOptions, far_mask, filter_sky, sky_mask
 from tests.conftest import SAMPLES
 
 

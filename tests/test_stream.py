@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.camera import Camera
-from engine.observer import IterationEvent
-from workbench.recording import Recording
-from workbench.stream import RerunStream, StreamOptions, entity_name, selected_views_list
+from engine.core.camera import Camera
+from engine.core.observer import IterationEvent
+from workbench.rerun.recording import Recording
+from workbench.rerun.stream import RerunStream, StreamOptions, entity_name, selected_views_list
 
 
 def _events(n_views: int, iterations: int, shape=(12, 16)):
@@ -118,7 +118,7 @@ def test_one_view_scrubs_on_its_own_timeline_with_gt_error_at_every_level(tmp_pa
     assert (fmt["width"], fmt["height"]) == (8, 6) and set(ids) == {10}  # class 10 = 2.25-2.50 %
     summary = str(store.summary())
     assert any(line.startswith(f"/maps/{base}/error ") and "AnnotationContext" in line for line in summary.splitlines())
-    from workbench.stream_legends import error_context
+    from workbench.rerun.legends import error_context
     labels = {c["class_id"]: c["class_description"]["info"]["label"]
               for c in error_context().context.as_arrow_array().to_pylist()[0]}
     assert labels[10] == "relative error 2.25-2.50 %" and labels[0].startswith("no data")
@@ -167,6 +167,6 @@ def test_selected_views_mask_decodes_to_view_indices():
 
 
 def test_stream_options_are_validated():
-    from engine.errors import OptionsError
+    from engine.core.errors import OptionsError
     with pytest.raises(OptionsError, match="every"):
         StreamOptions(every=0).validate()

@@ -1,4 +1,4 @@
-"""Confidence while PatchMatch runs (workbench/stream_confidence.py): recorded for every view at several iterations
+"""Confidence while PatchMatch runs (workbench/rerun/confidence.py): recorded for every view at several iterations
 and levels, off without a viewer unless asked, and the engine's maps bit-identical with or without it."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ import pytest
 from conftest import SAMPLES
 
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import PipelineOptions, patchmatch_views
+from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.scene import load_scene
-from workbench.recording import Recording
-from workbench.stream import entity_name
-from workbench.stream_options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
+from workbench.rerun.options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
+from workbench.rerun.recording import Recording
+from workbench.rerun.stream import entity_name
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -49,7 +49,7 @@ def test_a_short_fast_run_records_confidence_for_every_view_at_several_iteration
 
 
 def test_scoring_is_off_without_a_viewer_and_leaves_the_maps_bit_identical(tmp_path):
-    from workbench.run_recording import open_run_recording
+    from workbench.rerun.run_recording import open_run_recording
 
     assert StreamOptions().confidence_k(live=True) == DEFAULT_CONFIDENCE_EVERY
     assert StreamOptions().confidence_k(live=False) == 0  # --headless --record
@@ -73,7 +73,7 @@ def test_scoring_is_off_without_a_viewer_and_leaves_the_maps_bit_identical(tmp_p
 def test_sources_at_another_level_are_resampled_and_views_without_maps_confirm_nothing(tmp_path):
     from test_stream import _stream
 
-    from workbench.stream_confidence import LiveConfidence
+    from workbench.rerun.confidence import LiveConfidence
 
     recording = Recording(tmp_path / "run.rrd")
     stream = _stream(recording.rec)

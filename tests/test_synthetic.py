@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 from scipy.spatial import cKDTree
 
-from engine.camera import Camera
-from engine.errors import OptionsError
+from engine.core.camera import Camera
+from engine.core.errors import OptionsError
 from engine.io.dense import read_depth_map
 from engine.io.ply import read_points
 from engine.synthetic import random_scene, render_scene, tiny_scene, write_scene

@@ -66,7 +66,7 @@ def test_fusion_preset_dropdown_sets_the_sliders_and_follows_them(app):
 
 
 def test_large_clouds_are_drawn_thinned_but_scored_and_exported_whole(app, monkeypatch):
-    import workbench.viewer as viewer_module
+    import workbench.viewer.app as viewer_module
 
     assert app.wait_idle(60)
     total = len(app.cloud)

@@ -10,7 +10,7 @@ import pytest
 from conftest import running_viewer, wait_for
 
 from engine.fusion import FUSION_PRESETS
-from engine.run_folder import read_metrics, write_metrics
+from engine.run.folder import read_metrics, write_metrics
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from conftest import running_viewer
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.fusion import FUSION_PRESETS
-from engine.run_folder import read_metrics, write_metrics
-from workbench.session import ViewerSession, ViewParams
+from engine.run.folder import read_metrics, write_metrics
+from workbench.viewer.session import ViewerSession, ViewParams
 
 
 def _with_options(run, tmp_path, name: str, **metrics):
@@ -139,7 +139,7 @@ def test_a_vanilla_run_without_gt_or_confidence_offers_only_what_it_has(fake_run
 
 def test_a_full_run_opens_with_its_refined_threshold_and_sky_filter(fake_run, tmp_path):
     from engine.refinement.views import sky_filter_views
-    from engine.run_folder import read_map, write_map
+    from engine.run.folder import read_map, write_map
 
     run = _with_options(fake_run, tmp_path, "full", pipeline="full",
                         options={"pipeline": "full", "refinement": {"refined_conf_tau": 0.2, "sky_filter": True}})
@@ -165,7 +165,7 @@ def test_a_full_run_opens_with_its_refined_threshold_and_sky_filter(fake_run, tm
 def test_a_bare_scene_says_there_is_no_run_to_tune():
     from conftest import SAMPLES
 
-    from workbench.viewer import ViewerApp
+    from workbench.viewer.app import ViewerApp
 
     app = ViewerApp(ViewerSession.open(SAMPLES / "tiny"), port=0)
     try:

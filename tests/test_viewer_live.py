@@ -1,4 +1,4 @@
-"""The 3-D viewer live while a run runs (workbench/viewer_live.py), its hand-over to the tuning viewer, and both
+"""The 3-D viewer live while a run runs (workbench/viewer/live.py), its hand-over to the tuning viewer, and both
 in a real browser. Every wait has a timeout; servers, pages and run threads are stopped whatever happens."""
 
 from __future__ import annotations
@@ -13,13 +13,13 @@ import pytest
 from conftest import SAMPLES, wait_for
 from PIL import Image
 
-from engine.observer import IterationEvent, NullObserver, ObserverList
+from engine.core.observer import IterationEvent, NullObserver, ObserverList
+from engine.core.resample import resample_depth
 from engine.patchmatch import PatchMatchOptions
-from engine.pipeline import PipelineOptions, run_pipeline
-from engine.resample import resample_depth
+from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.scene import load_scene
-from workbench.gt_depth import depth_error
-from workbench.viewer_live import LiveViewer
+from workbench.maps.gt_depth import depth_error
+from workbench.viewer.live import LiveViewer
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -198,9 +198,9 @@ def _canvas(page) -> np.ndarray:
 
 @pytest.mark.browser
 def test_in_chromium_points_show_during_the_run_and_the_tuning_panel_after_it(browser_context, tiny, tmp_path):
-    from workbench.browser import dismiss_software_webgl_notice
-    from workbench.session import ViewerSession
-    from workbench.viewer import ViewerApp
+    from support.browser import dismiss_software_webgl_notice
+    from workbench.viewer.app import ViewerApp
+    from workbench.viewer.session import ViewerSession
 
     options = PipelineOptions(pipeline="fast", patchmatch=SMALL_RUN)
     live = LiveViewer(tiny, options, port=0)

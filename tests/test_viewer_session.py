@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.refinement.options import RefinementOptions
-from workbench.session import ViewerSession, ViewParams
-from workbench.viewer_export import safe_file_name
+from workbench.viewer.export import safe_file_name
+from workbench.viewer.session import ViewerSession, ViewParams
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +39,7 @@ def test_full_pipeline_keeps_trusted_estimates_and_filters_refined_ones_by_their
                                                                                                  tmp_path):
     import shutil
 
-    from engine.run_folder import read_map, write_map
+    from engine.run.folder import read_map, write_map
     run = shutil.copytree(fake_run, tmp_path / "run")
     session = ViewerSession.open(run)
     for v in session.scene.views:  # refined = vanilla maps, but the second network trusts the other half
@@ -70,7 +70,7 @@ def test_a_fusion_change_reuses_the_filtered_maps(session):
 
 
 def test_exact_clouds_are_cached_within_a_byte_budget(session, monkeypatch):
-    import workbench.session as session_module
+    import workbench.viewer.session as session_module
 
     params = ViewParams()
     cloud = session.cloud(params)

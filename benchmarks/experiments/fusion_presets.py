@@ -20,8 +20,8 @@ import numpy as np
 
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
-from engine.pipeline import evaluate_cloud
-from engine.run_folder import read_metrics
+from engine.run.folder import read_metrics
+from engine.run.pipeline import evaluate_cloud
 from engine.scene import SceneOptions, load_scene
 from support import bench
 from support.scoring import TAU, pipeline_maps

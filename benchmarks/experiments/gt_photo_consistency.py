@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from engine.io.images import to_gray
-from engine.run_folder import read_map
+from engine.run.folder import read_map
 from support import bench
 from support.gt_normals import depth_normals
 from support.patchmatch_reference import homography_ref, ncc_cost_ref
 from support.scoring import within_by_region
-from workbench.session import ViewerSession
+from workbench.viewer.session import ViewerSession
 
 SCALES = (-0.03, -0.02, -0.01, -0.005, 0.0, 0.005, 0.01, 0.02)
 WINDOW = np.array([(dx, dy) for dy in range(-5, 6) for dx in range(-5, 6)], np.int64)

@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from engine.evaluation import EvaluationOptions, evaluate_points
 from engine.fusion import read_fused_ply
-from engine.run_folder import read_map, read_metrics
+from engine.run.folder import read_map, read_metrics
 from engine.scene import SceneOptions, load_scene
 from support import bench
 from support.gt_normals import depth_normals

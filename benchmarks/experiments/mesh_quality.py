@@ -20,8 +20,8 @@ from pathlib import Path
 from engine.evaluation import EvaluationOptions
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, fuse, views_from_scene
 from engine.meshing import MeshOptions, evaluate_mesh, mesh_run
-from engine.pipeline import evaluate_cloud
-from engine.run_folder import run_scene
+from engine.run.folder import run_scene
+from engine.run.pipeline import evaluate_cloud
 from support import bench
 from support.scoring import shipped_pipeline_maps
 

@@ -31,12 +31,12 @@ import numpy as np
 import engine.patchmatch.kernels as K
 import engine.patchmatch.records as records
 import engine.patchmatch.view_pass as view_pass
+from engine.core.resample import resample_depth
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import PipelineOptions, patchmatch_views, run_pipeline
-from engine.resample import resample_depth
+from engine.run.pipeline import PipelineOptions, patchmatch_views, run_pipeline
 from engine.scene import SceneOptions, load_scene
 from support import bench
-from workbench.flags import section_overrides
+from workbench.flags.options import section_overrides
 
 
 class _Convergence:

@@ -25,7 +25,7 @@ from scipy import ndimage
 
 from support import bench
 from support.scoring import within_by_region
-from workbench.session import ViewerSession
+from workbench.viewer.session import ViewerSession
 
 
 def unseen_mask(scene, index: int, gt: np.ndarray) -> np.ndarray:

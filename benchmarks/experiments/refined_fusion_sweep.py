@@ -16,7 +16,7 @@ import itertools
 from pathlib import Path
 
 from engine.fusion import FUSION_PRESETS
-from engine.run_folder import read_metrics
+from engine.run.folder import read_metrics
 from engine.scene import SceneOptions, load_scene
 from support import bench
 from support.scoring import fuse_and_score, pipeline_maps

@@ -5,7 +5,7 @@
 
 Without ``--scene`` the analytic synthetic scene of ``support/pm_synthetic.py`` (4 views, 160x120) is
 used. With a scene that has GT depth maps (e.g. /work/shared/data/fountain_p11) the scene is loaded
-with ``engine.scene.load_scene``. Depth metrics (``engine.metrics.depth_metrics``) are averaged over
+with ``engine.scene.load_scene``. Depth metrics (``engine.evaluation.depth.depth_metrics``) are averaged over
 views: abs_rel, within_1pct, within_5pct, valid_fraction (percentages 0-100), before any filtering.
 """
 
@@ -15,7 +15,7 @@ import argparse
 
 import numpy as np
 
-from engine.metrics import depth_metrics
+from engine.evaluation.depth import depth_metrics
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
 from support import bench
 

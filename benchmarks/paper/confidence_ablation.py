@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from engine.confidence.data import load_run
-from engine.confidence.training import TrainOptions, ValidationSet, train
+from engine.training.trainer import TrainOptions, ValidationSet, train
 from support import bench
 
 VARIANTS = (("deepc_squared", "middle"), ("bce", "middle"), ("wbce", "middle"), ("deepc_l2", "middle"),

@@ -28,18 +28,18 @@ from engine.confidence.apply import auc_report, predict_samples
 from engine.confidence.data import load_run
 from engine.confidence.inference import facing_away
 from engine.confidence.options import ConfidenceOptions
-from engine.confidence.recipe import SceneEntry, load_recipe, parse_seeds
 from engine.confidence.weights import load_weights
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, fuse, views_from_scene
-from engine.pipeline import evaluate_cloud
-from engine.run_folder import run_scene
+from engine.run.folder import run_scene
+from engine.run.pipeline import evaluate_cloud
 from engine.synthetic.dataset import training_scene_name
+from engine.training.recipe import SceneEntry, load_recipe, parse_seeds
 from support import bench
 from support.scoring import TOLERANCES, score_columns
-from workbench.session import ViewerSession
-from workbench.train_command import recipe_run
+from workbench.cli.train import recipe_run
+from workbench.viewer.session import ViewerSession
 
 
 def fused_row(session: ViewerSession, depths: list, normals: list, preset: str) -> dict:
@@ -56,7 +56,7 @@ def ground_plane_masks(scene, samples: list, band: float = 0.15, distance: float
                        seed: int = 0) -> list[np.ndarray]:
     """(H, W) bool per view: pixels whose GT surface point lies within ``distance`` (scene units) of the
     dominant plane of the GT points in the bottom ``band`` of the images (RANSAC, 500 draws)."""
-    from engine.resample import resample_depth
+    from engine.core.resample import resample_depth
 
     points, clouds = [], []
     for v, s in zip(scene.views, samples, strict=True):
@@ -134,11 +134,11 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
     filter; plus the depth of vanilla, refined and fused-by-full maps against GT. Row ``refined + conf``: the
     refined maps alone, filtered (the paper's Table 3 row)."""
     from engine.confidence.data import load_run as load_samples
-    from engine.pipeline import PipelineOptions, _depth_block
-    from engine.refine_run import refine_run
     from engine.refinement.guard import keep_confident
     from engine.refinement.views import sky_filter_views
-    from engine.run_folder import read_map
+    from engine.run.folder import read_map
+    from engine.run.pipeline import PipelineOptions, _depth_block
+    from engine.run.refine import refine_run
 
     options = PipelineOptions(pipeline="full").validate()
     t = time.perf_counter()

@@ -23,10 +23,10 @@ import numpy as np
 from engine.evaluation import EvaluationOptions
 from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
-from engine.pipeline import evaluate_cloud
+from engine.run.pipeline import evaluate_cloud
 from support import bench
 from support.scoring import TOLERANCES, score_cells, score_columns
-from workbench.session import ViewerSession
+from workbench.viewer.session import ViewerSession
 
 
 def variants(session: ViewerSession, confidence: list | None = None) -> list[tuple[str, str, float]]:
@@ -45,7 +45,7 @@ def score_run(run_dir: Path, weights: Path | None = None, preset: str = "deepc")
     confidence = None
     if weights is not None:  # predict the confidence of a vanilla run with these weights (as --pipeline fast does)
         from engine.confidence.options import ConfidenceOptions
-        from engine.pipeline import confidence_stage
+        from engine.run.pipeline import confidence_stage
         confidence = confidence_stage(scene, session.data, [d.counter for d in session.data],
                                       ConfidenceOptions(weights=str(weights)))
     rows = []

@@ -5,7 +5,7 @@
     .venv/bin/python benchmarks/paper/table3_refinement.py VANILLA_RUN_DIR --weights NET1.pt [--refined-weights NET2.pt]
 
 The second form computes what ``--pipeline fast`` and ``full`` compute, from a finished vanilla run:
-network-1 confidence, the refinement through ``engine.refine_run.refine_run`` (cached in
+network-1 confidence, the refinement through ``engine.run.refine.refine_run`` (cached in
 RUN_DIR/refined/), the refined maps' counter maps and their confidence from the second network.
 
 RUN_DIR is the output folder of ``deepc run`` (CONTRACT.md §4). Every view is refined (SPEC.md §6) with
@@ -40,20 +40,20 @@ from scipy import ndimage
 
 from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS
 from engine.consistency import compute_counter_maps
+from engine.evaluation.depth import depth_metrics
 from engine.filtering import filter_by_confidence
 from engine.fusion import FUSION_PRESETS
 from engine.io.images import to_gray
-from engine.metrics import depth_metrics
 from engine.patchmatch import ViewMaps
-from engine.pipeline import patchmatch_views
-from engine.refine_run import refine_run
 from engine.refinement import NoDataError, RefinementOptions, refine_depth
 from engine.refinement.views import sky_filter_views
-from engine.run_folder import file_sha256, read_map, write_map
+from engine.run.folder import file_sha256, read_map, write_map
+from engine.run.pipeline import patchmatch_views
+from engine.run.refine import refine_run
 from support import bench
 from support.gt_normals import depth_normals
 from support.scoring import fuse_and_score, network_confidence, score_cells
-from workbench.session import ViewerSession
+from workbench.viewer.session import ViewerSession
 
 PLANAR_WINDOW = 7
 PLANAR_MIN_RESULTANT = 0.999

@@ -16,7 +16,7 @@ local) / tasks (one per view and pass, one per view for the final and counter ma
 into ``--scenes``), the pipeline on a LocalCluster: wall time, peak RSS of each worker and of the driver, and the
 driver's peak during the fusion stage with its growth over the RSS the stage started from (fusion and writing
 fused.ply), and the growth during the cached fusion alone (``driver_fuse_*``). The driver of an executor run
-holds no per-view maps (``engine.distributed.streamed``): fusion reads them through a cache of at most
+holds no per-view maps (``engine.run.distributed.streamed``): fusion reads them through a cache of at most
 ``--fusion-cache`` views (default 1 + the longest overlap list, at most check_num_images + 1 = 51,
 ``engine.fusion.cached``), and the cloud goes into fused.ply chunk by chunk (``engine.fusion.stream``), so its growth
 is the cache's slots (``cache_mb``, bounded whatever N) and one output chunk; ``cloud_mb`` is what the cloud would
@@ -70,10 +70,10 @@ class _StagePeaks:
 
 
 class _CountingCache:
-    """Records the cache statistics of the run's streamed fusion (``engine.distributed.streamed``)."""
+    """Records the cache statistics of the run's streamed fusion (``engine.run.distributed.streamed``)."""
 
     def __init__(self, cache_views: int | None):
-        import engine.distributed.streamed as streamed
+        import engine.run.distributed.streamed as streamed
         from engine.fusion.cached import CacheStats
 
         self.stats, self.cache_views, self.module = CacheStats(), cache_views, streamed
@@ -102,9 +102,9 @@ def pipeline_options(config: dict):
     from engine.confidence.options import ConfidenceOptions
     from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
     from engine.patchmatch import PatchMatchOptions
-    from engine.pipeline import PipelineOptions
+    from engine.run.pipeline import PipelineOptions
     from engine.scene import SceneOptions
-    from workbench.flags import section_overrides
+    from workbench.flags.options import section_overrides
 
     items = config.get("set", [])
     scene = SceneOptions(**{"max_image_size": config["max_image_size"],
@@ -119,7 +119,7 @@ def pipeline_options(config: dict):
 
 def run_one(config: dict) -> dict:
     """One pipeline run as ``config`` says; the numbers of :func:`main`'s rows."""
-    from engine.pipeline import run_pipeline
+    from engine.run.pipeline import run_pipeline
     from engine.scene import load_scene
 
     scene_options, options = pipeline_options(config)
@@ -127,7 +127,7 @@ def run_one(config: dict) -> dict:
     cache = _CountingCache(config.get("fusion_cache"))
     executor = None
     if config["workers"]:
-        from engine.distributed.dask_executor import DaskExecutor
+        from engine.run.distributed.dask_executor import DaskExecutor
 
         executor = DaskExecutor(workers=config["workers"], stall_timeout=3600)
     peaks = _StagePeaks()

@@ -32,8 +32,8 @@ import websockets
 
 from support import bench
 from support.viewer_clients import CAMERA, SUBPROTOCOL, decode_frame, markdown_text
-from workbench.session import ViewerSession
-from workbench.viewer import ViewerApp
+from workbench.viewer.app import ViewerApp
+from workbench.viewer.session import ViewerSession
 
 
 def click_ray(app: ViewerApp, view: int, x: int, y: int) -> SimpleNamespace:

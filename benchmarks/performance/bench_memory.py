@@ -5,7 +5,7 @@
                                                 [--out benchmarks/results/bench_memory.json]
 
 Each scene runs headless in a child process; its estimate is the ``memory: estimated peak`` line that
-`deepc run` prints before PatchMatch (engine/memory.py), its measured peak the child's ru_maxrss.
+`deepc run` prints before PatchMatch (engine/run/memory.py), its measured peak the child's ru_maxrss.
 ``--iterations 1`` keeps it short: the arrays PatchMatch holds do not depend on the iteration count
 (checked with ``--check-iterations``, which runs tiny with 1 and 3). ``--large`` adds
 ../shared/data/fountain_p11 at 768 px (several minutes); ``--args`` adds `deepc run` flags to every run (issue 34

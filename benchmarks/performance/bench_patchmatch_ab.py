@@ -37,7 +37,7 @@ WORKER = r'''
 import hashlib, json, sys, time
 import numpy as np, numba
 from engine.scene import load_scene, SceneOptions
-from engine.pipeline import patchmatch_views
+from engine.run.pipeline import patchmatch_views
 from engine.patchmatch import PatchMatchOptions
 from engine.patchmatch import kernels as K
 from engine.patchmatch.context import build_context
@@ -54,7 +54,7 @@ try:
     def step(st, ctx, colour, key, t):
         half_step(st, ctx, colour, st.cost, pattern, key, params(t))
 except ImportError:  # a baseline tree from before the kernels took named records
-    from engine.patchmatch.engine import _params, _State, init_cost, half_step
+    from engine.patchmatch.multiscale import _params, _State, init_cost, half_step
     from engine.patchmatch.propagation import sampling_pattern
     class ViewState(_State):
         depth = property(lambda self: self.Z)

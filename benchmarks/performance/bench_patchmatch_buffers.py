@@ -25,7 +25,7 @@ from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.kernels import random_init_kernel
 from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
-from engine.pipeline import patchmatch_views
+from engine.run.pipeline import patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
 

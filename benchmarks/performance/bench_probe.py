@@ -1,5 +1,5 @@
 """Cost of the pixel probe and the pass history: PatchMatch time with them off and on, the history's size, and
-the latency of a probe and a region re-run on a finished run (engine/probe_run.py).
+the latency of a probe and a region re-run on a finished run (engine/run/probe.py).
 
     nice -n 5 .venv/bin/python benchmarks/performance/bench_probe.py [SCENE] [--max-image-size 768]
         [--schedule acmm] [--repeats 2] [--pixels 8] [--box 96] [--json benchmarks/results/bench_probe.json]
@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.pass_history import HISTORY_DIR, PassHistory
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.patchmatch.probe import PixelProbe
-from engine.pipeline import PipelineOptions, patchmatch_views, run_pipeline
-from engine.probe_run import probe_run, rerun_region
+from engine.run.pass_history import HISTORY_DIR, PassHistory
+from engine.run.pipeline import PipelineOptions, patchmatch_views, run_pipeline
+from engine.run.probe import probe_run, rerun_region
 from engine.scene import SceneOptions, load_scene
 from support import bench
 

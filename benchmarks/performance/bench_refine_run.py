@@ -1,4 +1,4 @@
-"""Cost of refining a finished run (engine.refine_run.refine_run), i.e. of making the training data of
+"""Cost of refining a finished run (engine.run.refine.refine_run), i.e. of making the training data of
 the second confidence network (``deepc train --refined``), and what the refinement does to the labels.
 
     nice -n 5 .venv/bin/python benchmarks/performance/bench_refine_run.py RUN
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.confidence.data import load_run
-from engine.refine_run import refine_run
+from engine.run.refine import refine_run
 from support import bench
 
 

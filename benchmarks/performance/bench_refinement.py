@@ -24,9 +24,9 @@ import numpy as np
 
 from engine.io.images import to_gray
 from engine.refinement import RefinementOptions, refine_depth
-from engine.run_folder import read_map
+from engine.run.folder import read_map
 from support import bench
-from workbench.session import ViewerSession
+from workbench.viewer.session import ViewerSession
 
 
 def view_inputs(run_dir: Path, view: int) -> dict:

@@ -4,7 +4,7 @@
         [--json benchmarks/results/bench_region.json]
 
 RUN_DIR: a run made by ``deepc run`` (history kept, the default), e.g. fountain_p11 at 768 px. A ``--box`` square
-at the view's centre is re-run by ``engine.probe_run.rerun_region`` from level 0, pass 0 and pass 1, with the
+at the view's centre is re-run by ``engine.run.probe.rerun_region`` from level 0, pass 0 and pass 1, with the
 run's own schedule and with the paper's (8 iterations a pass: the default options); the first call replays the
 view from the history (reported apart), the others are the interactive latency (median of ``--repeats``).
 """
@@ -16,8 +16,8 @@ import statistics
 import time
 from pathlib import Path
 
-from engine.probe_run import rerun_region
-from engine.run_folder import read_run_metrics
+from engine.run.folder import read_run_metrics
+from engine.run.probe import rerun_region
 from support import bench
 
 

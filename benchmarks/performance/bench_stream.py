@@ -17,11 +17,11 @@ import time
 from pathlib import Path
 
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import patchmatch_views
+from engine.run.pipeline import patchmatch_views
 from engine.scene import load_scene
 from support import bench
-from workbench.recording import Recording
-from workbench.stream import RerunStream, StreamOptions
+from workbench.rerun.recording import Recording
+from workbench.rerun.stream import RerunStream, StreamOptions
 
 
 def timed_run(scene, options: PatchMatchOptions, record: Path | None) -> tuple[float, int, int]:

@@ -10,7 +10,7 @@ fountain_p11 at 768 px (the scene beside the checkout, ../shared/data):
 
 Per repeat, alternating: PatchMatch headless (no observer), with the rerun stream writing an .rrd (the demo's
 stream, ``scripts/demo.sh``: default thinning, no confidence) and, for each K of ``--every``, with the stream
-and :class:`workbench.stream_confidence.LiveConfidence` scoring every K-th iteration of each view. Reports the
+and :class:`workbench.rerun.confidence.LiveConfidence` scoring every K-th iteration of each view. Reports the
 best wall times, the overhead of each against the headless run and against the stream alone, the seconds spent
 scoring (measured inside the run, so less sensitive to other load than the wall-time ratio) as a share of the
 headless engine time (target: at most 25 % at the default K), and the size of each recording (the demo's
@@ -25,11 +25,11 @@ import time
 from pathlib import Path
 
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import PipelineOptions, patchmatch_views
+from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
-from workbench.run_recording import open_run_recording
-from workbench.stream_options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
+from workbench.rerun.options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
+from workbench.rerun.run_recording import open_run_recording
 
 
 def timed_run(scene, options: PipelineOptions, record: Path | None, every: int | None) -> dict:

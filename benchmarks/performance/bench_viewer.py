@@ -28,9 +28,9 @@ from engine.scene import SceneOptions
 from support import bench
 from support.fake_run import make_fake_run
 from support.viewer_clients import decode_frame
-from workbench.session import ViewerSession
-from workbench.viewer import DISPLAY_MAX_POINTS, ViewerApp
-from workbench.viewer_panel import preset_of
+from workbench.viewer.app import DISPLAY_MAX_POINTS, ViewerApp
+from workbench.viewer.panel import preset_of
+from workbench.viewer.session import ViewerSession
 
 
 async def measure(app: ViewerApp, moves: list[tuple[object, float]]) -> list[dict]:

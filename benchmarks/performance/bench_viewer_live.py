@@ -7,7 +7,7 @@ fountain_p11 at 768 px: ``--scene ../shared/data/fountain_p11 --size 768 --out
 benchmarks/results/bench_viewer_live_fountain768.json``.
 
 Each repeat runs PatchMatch (the default levels and passes, ``--iterations`` per pass) once headless (no
-observer: the engine builds no events) and once observed by a :class:`workbench.viewer_live.LiveViewer`
+observer: the engine builds no events) and once observed by a :class:`workbench.viewer.live.LiveViewer`
 with one websocket client in its own process taking every frame, as a browser tab would; the order alternates
 between repeats so that a drift of the shared machine's load falls on both. Reported: the engine seconds of
 every run, the overhead as the ratio of the medians (and of the best times), the CPU seconds of the viewer's
@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import PipelineOptions, patchmatch_views
+from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
@@ -89,7 +89,7 @@ def cpu_split(before: dict[int, float], after: dict[int, float]) -> tuple[float,
 
 def timed_run(scene, options: PatchMatchOptions, live: bool) -> dict:
     """One PatchMatch run: engine seconds, and with ``live`` the server start, pushes and client traffic."""
-    from workbench.viewer_live import LiveViewer  # lazy: viser
+    from workbench.viewer.live import LiveViewer  # lazy: viser
 
     views = patchmatch_views(scene)
     if not live:

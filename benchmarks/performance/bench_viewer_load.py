@@ -29,8 +29,8 @@ from engine.scene import SceneOptions
 from support import bench
 from support.fake_run import make_fake_run
 from support.viewer_load import load, summarise
-from workbench.session import ViewerSession
-from workbench.viewer import ViewerApp
+from workbench.viewer.app import ViewerApp
+from workbench.viewer.session import ViewerSession
 
 
 def summary(result: dict) -> list[dict]:

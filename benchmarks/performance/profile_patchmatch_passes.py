@@ -19,12 +19,12 @@ import time
 
 import numpy as np
 
-from engine.metrics import depth_metrics
+from engine.evaluation.depth import depth_metrics
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.pipeline import patchmatch_views
+from engine.run.pipeline import patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
-from workbench.flags import section_overrides
+from workbench.flags.options import section_overrides
 
 
 class _Timer:
@@ -42,7 +42,7 @@ class _Timer:
 
 
 def _pooled_depth(scene, maps) -> dict[str, float] | None:
-    """Depth metrics pooled over every view with GT (engine.metrics.depth_metrics), or None."""
+    """Depth metrics pooled over every view with GT (engine.evaluation.depth.depth_metrics), or None."""
     pairs = [(m.depth.ravel(), gt.ravel()) for i, m in enumerate(maps) if (gt := scene.gt_depth(i)) is not None]
     if not pairs:
         return None

@@ -66,7 +66,7 @@ def _md5s(run: Path) -> dict[str, str]:
 
 
 def one_round(tree: Path, scene: Path, out: Path, fusions: int) -> dict:
-    cmd = [sys.executable, "-c", "import sys; from workbench.cli import main; sys.exit(main())", "run", str(scene),
+    cmd = [sys.executable, "-c", "import sys; from workbench.cli.main import main; sys.exit(main())", "run", str(scene),
            "--out", str(out), "--pipeline", "vanilla", "--schedule", "acmm", "--seed", "0", "--headless"]
     subprocess.run(cmd, cwd=tree, env=_env(tree), check=True, capture_output=True, timeout=1800)
     metrics = json.loads((out / "metrics.json").read_text())
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     trees = {"baseline": args.baseline.resolve(), "this": ROOT}
     for tree in trees.values():
-        subprocess.run([sys.executable, "-m", "workbench.compile_cache"], cwd=tree, env=_env(tree), check=True,
+        subprocess.run([sys.executable, "-m", "workbench.cli.compile_cache"], cwd=tree, env=_env(tree), check=True,
                        capture_output=True, timeout=1800)
     results: dict[str, list[dict]] = {k: [] for k in trees}
     with tempfile.TemporaryDirectory() as tmp:

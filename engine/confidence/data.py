@@ -1,6 +1,6 @@
 """Training / validation data: engine runs on scenes with GT depth, turned into network inputs and labels.
 
-A *run* is the output folder of ``deepc run`` (:mod:`engine.run_folder`); :func:`engine.training_runs.ensure_run`
+A *run* is the output folder of ``deepc run`` (:mod:`engine.run.folder`); :func:`engine.training.runs.ensure_run`
 makes and caches them. :func:`load_run` reads a run's maps and computes the label maps (Kuhn et al. 2020, §3.2).
 """
 
@@ -13,10 +13,10 @@ import numpy as np
 
 from engine.confidence.inputs import NORMAL, network_inputs
 from engine.confidence.labels import label_map
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
+from engine.core.resample import resample_depth
 from engine.io.images import resize_area
-from engine.resample import resample_depth
-from engine.run_folder import map_path, read_map, run_scene
+from engine.run.folder import map_path, read_map, run_scene
 from engine.scene import Scene
 
 
@@ -52,7 +52,7 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
     """Inputs and labels of every view of a run (views without GT depth get all-unlabeled maps).
 
     ``refined``: the refined depth, normal and counter maps of ``RUN/refined/`` instead (the inputs of the
-    full pipeline's second confidence network; see :mod:`engine.refine_run`), labelled by comparing
+    full pipeline's second confidence network; see :mod:`engine.run.refine`), labelled by comparing
     the refined depth with GT depth."""
     run_dir = Path(run_dir)
     scene = scene or run_scene(run_dir)
@@ -65,7 +65,7 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
         maps = {kind: read_map(run_dir, prefix + kind, v.name) for kind in ("depth", "normal", "counter")}
         for kind, m in maps.items():
             if m is None:
-                hint = " (refine the run first: engine.refine_run.refine_run, deepc train --refined)" \
+                hint = " (refine the run first: engine.run.refine.refine_run, deepc train --refined)" \
                     if refined else ""
                 raise DeepCError(f"run has no {prefix.replace('_', ' ')}{kind} map for view {v.name}{hint}",
                                  map_path(run_dir, prefix + kind, v.name))

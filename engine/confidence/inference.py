@@ -15,7 +15,7 @@ import torch
 
 from engine.confidence.inputs import NORMAL
 from engine.confidence.network import ConfidenceNet, pad_to_multiple
-from engine.interrupt import check_interrupt
+from engine.core.interrupt import check_interrupt
 
 
 def _autocast(bf16: bool, device: str = "cpu"):
@@ -65,7 +65,7 @@ def _predict(model: ConfidenceNet, inputs: np.ndarray, tile: int, overlap: int, 
                 y1, x1 = min(h, y0 + core), min(w, x0 + core)
                 ya, xa = max(0, y0 - overlap), max(0, x0 - overlap)
                 yb, xb = min(h, y1 + overlap), min(w, x1 + overlap)
-                check_interrupt()  # between tiles (engine/interrupt.py)
+                check_interrupt()  # between tiles (engine/core/interrupt.py)
                 pred = _forward(model, inputs[:, ya:yb, xa:xb], bf16)
                 out[y0:y1, x0:x1] = pred[y0 - ya:y1 - ya, x0 - xa:x1 - xa]
     return out

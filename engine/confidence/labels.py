@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 
 UNLABELED = -1
 

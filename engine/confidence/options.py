@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from engine.options import Options, check, option
+from engine.core.options import Options, check, option
 
 LOSSES = ("deepc_squared", "deepc_l2", "bce", "wbce")
 FUSIONS = ("middle", "early")

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from engine.confidence.network import FUSIONS, ConfidenceNet
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.atomic import atomic_write_bytes
 
 FORMAT = "deepc-confidence-weights"

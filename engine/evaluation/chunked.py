@@ -12,7 +12,7 @@ ground truth and one slab of voxels, not by the cloud (Schöps et al. 2017's sco
 - The voxel means: accuracy averages accurate / classified over occupied voxels in the order of their cells
   (lexicographic), summed pairwise by numpy. The cloud is cut into slabs of consecutive x cells of at most
   :data:`SLAB_POINTS` points; a slab's voxels follow the previous slab's in that order, so the ratios of the
-  slabs one after the other are numpy's array, summed as numpy sums it (``engine.distributed.pooled.pairwise_sum``;
+  slabs one after the other are numpy's array, summed as numpy sums it (``engine.run.distributed.pooled.pairwise_sum``;
   the ratios wait in temporary files). A slab reads the chunks that reach it again.
 """
 
@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from engine.camera import Camera
-from engine.distributed.pooled import pairwise_sum
+from engine.core.camera import Camera
+from engine.core.heap_trim import release_free_memory
 from engine.evaluation.free_space import free_space_margin, pack_gt_views
 from engine.evaluation.options import EvaluationOptions
 from engine.evaluation.point_index import QUERY_CHUNK, PointIndex, first_within
@@ -41,7 +41,7 @@ from engine.evaluation.voxels import (
     key_ranks,
     voxel_completeness,
 )
-from engine.heap import release_free_memory
+from engine.run.distributed.pooled import pairwise_sum
 
 CHUNK_POINTS = 1 << 18  # points read at once (6 MiB of float64 positions)
 SLAB_POINTS = 1 << 19  # points of one slab of the voxel grid (about 30 MiB while its voxels are counted)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.evaluation.options import EvaluationOptions
 from engine.evaluation.point_index import first_within
 from engine.evaluation.result import EvaluationResult, make_result, overlap_notes

@@ -8,8 +8,8 @@ from collections.abc import Callable, Iterable
 import numba
 import numpy as np
 
-from engine.camera import Camera
-from engine.errors import DeepCError
+from engine.core.camera import Camera
+from engine.core.errors import DeepCError
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)

@@ -6,8 +6,8 @@ import dataclasses
 
 import numpy as np
 
-from engine.errors import OptionsError
-from engine.options import Options, option
+from engine.core.errors import OptionsError
+from engine.core.options import Options, option
 
 
 @dataclasses.dataclass

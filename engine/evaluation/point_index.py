@@ -14,7 +14,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.evaluation.voxels import as_points
 
 

@@ -6,14 +6,14 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
+from engine.core.heap_trim import release_free_memory
 from engine.evaluation.eth3d import evaluate_eth3d
 from engine.evaluation.free_space import free_space_margin
 from engine.evaluation.options import EvaluationOptions
 from engine.evaluation.point_index import PointIndex, first_within
 from engine.evaluation.result import EvaluationResult, make_result, overlap_notes
 from engine.evaluation.voxels import as_points, voxel_accuracy, voxel_completeness
-from engine.heap import release_free_memory
 from engine.io.ply import read_points
 
 
@@ -30,7 +30,7 @@ def evaluate_points(recon_xyz: np.ndarray, gt_xyz: np.ndarray | PointIndex,
             unobserved-space rule; cameras at the depth maps' resolution.
     """
     options = (options or EvaluationOptions()).validate()
-    release_free_memory()  # what fusion and writing the cloud freed, before the k-d trees come (engine/heap.py)
+    release_free_memory()  # what fusion and writing the cloud freed, before the k-d trees come (heap_trim)
     tol = options.sorted_tolerances()
     recon = as_points(recon_xyz, "reconstruction")
     # one index serves both directions (its Morton order as queries, its tree as data)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 
 _GRID_SHIFTS = (0.0, 0.5)
 

@@ -19,7 +19,7 @@ attribute at a time (peak about 1.4 x the cloud, as COLMAP holds its fused point
 it as it fills and its arrays are filled again: :mod:`engine.fusion.stream` writes it into ``fused.ply`` (records,
 and the float64 positions into a temporary file) and returns the cloud as memory maps of the files, so that the
 memory of fusion is the cache's and one chunk's whatever the number of views and points (every ``deepc run``:
-``engine.distributed.streamed`` with an executor, ``engine.fusion.stream.fuse_views_to_ply`` in process).
+``engine.run.distributed.streamed`` with an executor, ``engine.fusion.stream.fuse_views_to_ply`` in process).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.fusion.cloud import FusedCloud, FusionView
 from engine.fusion.kernel import (
     _FUSED,

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 
 
 @dataclasses.dataclass(eq=False)

@@ -59,7 +59,7 @@ def pack_geometry(cameras: list, overlaps: list[list[int]], options: FusionOptio
     """What the kernel keeps of every view whatever is resident: sizes, projections, overlap lists.
 
     Args:
-        cameras: ``engine.camera.Camera`` per view, at its depth map's resolution.
+        cameras: ``engine.core.camera.Camera`` per view, at its depth map's resolution.
         overlaps: per view, the views to search, best first (duplicates and the view itself are dropped, then
             the list is cut at ``options.check_num_images``).
     Returns:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.fusion.cloud import FusionView
 from engine.io.images import resize_area
 

@@ -19,7 +19,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 
 
 def _current_umask() -> int:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _MODEL_FILES = ("cameras", "images", "points3D")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.atomic import atomic_write
 
 _MAX_HEADER = 64  # "&"-separated decimal header; far more than any real size needs

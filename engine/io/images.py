@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 
 Image.MAX_IMAGE_PIXELS = None  # large aerial/ETH3D photographs are legitimate input
 

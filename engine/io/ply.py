@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.atomic import atomic_write
 
 _TYPES = {

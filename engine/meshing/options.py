@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from engine.options import Options, option
+from engine.core.options import Options, option
 
 MESH_METHODS = ("none", "poisson", "tsdf")
 

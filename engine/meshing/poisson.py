@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.fusion.cloud import FusedCloud
 from engine.meshing.mesh import TriangleMesh
 from engine.meshing.options import MeshOptions

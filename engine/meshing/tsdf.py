@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.camera import Camera
-from engine.errors import DeepCError
+from engine.core.camera import Camera
+from engine.core.errors import DeepCError
 from engine.meshing.mesh import TriangleMesh
 from engine.meshing.options import MeshOptions
 

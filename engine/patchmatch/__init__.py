@@ -21,7 +21,7 @@ plane propagation, normals), ``ncc`` (bilateral NCC), ``propagation`` (sampling 
 """
 
 from engine.patchmatch.context import ViewContext, build_context
-from engine.patchmatch.engine import PatchMatchView, ViewMaps, effective_levels, run_patchmatch
+from engine.patchmatch.multiscale import PatchMatchView, ViewMaps, effective_levels, run_patchmatch
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.records import KernelParams, kernel_params
 from engine.patchmatch.state import ViewState

@@ -9,7 +9,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import ndimage
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.geometry import pack_geometry, relative_geometry
 from engine.patchmatch.ncc import (

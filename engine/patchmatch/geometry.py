@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.patchmatch.rng import uniform
 
 # columns of the packed geometry: A_j, b_j, B_j, c_j, then the source's width and height (px)

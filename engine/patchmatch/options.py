@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from engine.options import Options, check, option
+from engine.core.options import Options, check, option
 
 SCHEDULES = ("paper", "acmm")
 PATTERNS = ("deepc", "deepc_far", "acmm")

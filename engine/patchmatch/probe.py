@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.explain import explain_pixel
 from engine.patchmatch.kernels import ACTIVE_DRAW, neighbourhood_changed
@@ -117,7 +117,7 @@ class PixelProbe:
         self._entries[pixel].append(entry)
 
     def set_final(self, pixel: tuple[int, int], final: dict[str, Any]) -> None:
-        """The pixel's ``final`` entry (filled by the pipeline or ``engine.probe_run``, which know the later
+        """The pixel's ``final`` entry (filled by the pipeline or ``engine.run.probe``, which know the later
         stages)."""
         self._final[pixel] = final
 

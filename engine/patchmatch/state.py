@@ -14,7 +14,7 @@ from engine.patchmatch.records import CostCaches, HypothesisMaps
 # the candidate row cache takes K_up · (4 N + 1) + 8 bytes per pixel (129 MB at 768x512 with 5 sources,
 # 255 MB with 10); above this it is left out (results are the same either way, only slower)
 ROW_CACHE_MAX_BYTES = 2 << 30
-# names of the maps in a checkpoint (engine.checkpoint), kept from the first format so saved runs resume
+# names of the maps in a checkpoint (engine.run.checkpoint), kept from the first format so saved runs resume
 CHECKPOINT_NAMES = {"depth": "Z", "normal": "N", "cost": "C", "selected_views": "S"}
 
 
@@ -74,7 +74,7 @@ class ViewState:
 
     @classmethod
     def from_checkpoint(cls, arrays: dict[str, np.ndarray]) -> ViewState:
-        """The state of the maps :meth:`checkpoint_arrays` saved (``engine.checkpoint`` verified them)."""
+        """The state of the maps :meth:`checkpoint_arrays` saved (``engine.run.checkpoint`` verified them)."""
         return cls(**{name: arrays[disk] for name, disk in CHECKPOINT_NAMES.items()})
 
     def prepare_caches(self, n_sources: int, k_up: int, reset: bool, pool: BufferPool | None = None) -> bool:

@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 import engine.patchmatch.kernels as K
-from engine.interrupt import check_interrupt
+from engine.core.interrupt import check_interrupt
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.convergence import Convergence
@@ -112,7 +112,7 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     (perturbation schedule 'global'). ``zmin``, ``zmax``: the view's depth range (camera z, scene units).
 
     ``on_iteration(t, counts, seconds)`` is called after every iteration with the (N_COUNTS,) int64 counts
-    of its two half-steps (columns ``kernels.CNT_*``). A stop request (``engine.interrupt``) is honoured
+    of its two half-steps (columns ``kernels.CNT_*``). A stop request (``engine.core.interrupt``) is honoured
     between iterations. The pass's caches are dropped at the end; the photometric costs of the final
     hypotheses are kept for the next pass of this level (``pass_index < options.geom_passes``).
     With ``options.converge_ratio`` > 0 (and ``iterations`` unset) the pass ends early once it has converged
@@ -139,7 +139,7 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     convergence = Convergence(state.depth, options) if iterations is None and options.converge_ratio > 0 else None
     last = n_iter == 1
     for t in range(n_iter):
-        check_interrupt()  # a stop request is honoured between kernels (engine/interrupt.py)
+        check_interrupt()  # a stop request is honoured between kernels (engine/core/interrupt.py)
         t0 = time.perf_counter()
         params = kernel_params(options, zmin, zmax, t, geometric, detail, n_regions(pattern),
                                perturbation_scale(options, t, done_before), last=last)

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import torch
 
-from engine.interrupt import check_interrupt
+from engine.core.interrupt import check_interrupt
 from engine.refinement.energy import ScaleProblem
 
 SMALL_PROBLEM = 65536  # pixels below which Adam runs single-threaded
@@ -56,7 +56,7 @@ def solve_adam(problem: ScaleProblem, d0: np.ndarray, u0: np.ndarray, iters: int
         with torch.no_grad():
             d.clamp_(problem.d_min, problem.d_max)
         for _ in range(iters):
-            check_interrupt()  # between steps (engine/interrupt.py)
+            check_interrupt()  # between steps (engine/core/interrupt.py)
             opt.zero_grad(set_to_none=True)
             f(d, u).backward()
             opt.step()

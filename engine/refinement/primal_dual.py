@@ -19,7 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from engine.interrupt import check_interrupt
+from engine.core.interrupt import check_interrupt
 from engine.refinement.energy import ScaleProblem
 
 
@@ -163,7 +163,7 @@ def solve_primal_dual(problem: ScaleProblem, d0: np.ndarray, u0: np.ndarray,
     tau_d = (pre["tau_d"] * theta).astype(np.float32)
     tau_u = (pre["tau_u"] * theta).astype(np.float32)
     for _ in range(iters):
-        check_interrupt()  # between kernels (engine/interrupt.py)
+        check_interrupt()  # between kernels (engine/core/interrupt.py)
         dual_step(d_bar, u_bar, neighbors, weights, offsets, sigma_p, sigma_q, np.float32(problem.gamma), p, q)
         primal_step(d, u, d_bar, u_bar, p, q, weights, offsets, pre["in_ptr"], pre["in_src"], pre["in_slot"],
                      tau_d, tau_u, data, shrink, np.float32(problem.d_min),

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.refinement.energy import ScaleProblem, energy_terms
 from engine.refinement.graph import similarity_graph
 from engine.refinement.options import RefinementOptions

@@ -19,7 +19,7 @@ import numpy as np
 from engine.io.images import resize_area, to_gray
 from engine.refinement.options import RefinementOptions
 from engine.refinement.refine import NoDataError, RefinedMap, refine_depth
-from engine.sky import SkyOptions, far_mask, filter_sky, sky_mask
+from engine.refinement.sky import SkyOptions, far_mask, filter_sky, sky_mask
 
 
 def _camera(scene, i: int, shape: tuple[int, int]):

@@ -21,7 +21,7 @@ import numpy as np
 import pycolmap
 from PIL import Image
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.io.atomic import atomic_write_text
 from engine.io.dense import write_dense_map
 from engine.io.ply import write_ply

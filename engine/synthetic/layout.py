@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from engine.camera import Camera
-from engine.options import Options, option
+from engine.core.camera import Camera
+from engine.core.options import Options, option
 from engine.synthetic.raycast import Box, Cylinder, Quad, Sphere
 from engine.synthetic.scene import RenderSettings, SceneRecipe, SparseSettings
 from engine.synthetic.texture import KINDS, Texture

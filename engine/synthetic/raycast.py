@@ -1,7 +1,7 @@
 """Exact analytic ray casting of simple primitives (pure numpy, vectorised).
 
 World frame: right-handed, z up, units are metres. A ray is ``origin + s * direction``; directions
-need not be unit length. Camera rays from :meth:`engine.camera.Camera.pixel_rays` have camera-frame
+need not be unit length. Camera rays from :meth:`engine.core.camera.Camera.pixel_rays` have camera-frame
 z component 1, so for them the ray parameter ``s`` *is* the camera z-depth (Schönberger et al. 2016: depth is
 camera z, not ray length); the Euclidean hit distance is ``s * |direction|``.
 

@@ -16,7 +16,7 @@ from PIL import Image
 from scipy import ndimage
 
 import engine.synthetic.raycast as raycast
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.synthetic.scene import SceneData, SceneRecipe
 from engine.synthetic.sparse import make_sparse_model
 

@@ -2,7 +2,7 @@
 (:class:`SceneData`).
 
 World frame: right-handed, z up, metres. Cameras follow COLMAP (``X_cam = R X_world + t``,
-x right, y down, z forward) and :class:`engine.camera.Camera` conventions.
+x right, y down, z forward) and :class:`engine.core.camera.Camera` conventions.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from engine.camera import Camera
-from engine.options import Options, option
+from engine.core.camera import Camera
+from engine.core.options import Options, option
 from engine.synthetic.raycast import Primitive
 from engine.synthetic.texture import Texture
 

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.synthetic.layout import look_at
 from engine.synthetic.raycast import Box, Quad
 from engine.synthetic.scene import RenderSettings, SceneRecipe, SparseSettings

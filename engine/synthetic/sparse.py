@@ -14,7 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 import engine.synthetic.raycast as raycast
-from engine.camera import Camera
+from engine.core.camera import Camera
 from engine.synthetic.scene import SceneData, SparseModel
 
 _MAX_INCIDENCE_COS = np.cos(np.radians(80.0))  # features are not matched at grazing angles

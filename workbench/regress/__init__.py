@@ -3,7 +3,7 @@
 ``suite`` reads and checks the suite file, ``running`` runs its entries as ``deepc run --headless``
 would, ``comparison`` compares a run's metrics with its baseline under tolerances, ``baselines`` reads
 and rewrites the baseline files, ``environment`` records where the numbers were measured, and
-``command`` is the command itself (it writes the HTML report of ``workbench/report/``). The command is
+``command`` is the command itself (it writes the HTML report of ``workbench/regress/report/``). The command is
 not imported here, so that the report can import the comparison without importing itself.
 """
 

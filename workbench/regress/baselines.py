@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.atomic import write_json
 from workbench.regress.comparison import format_change, format_value
 from workbench.regress.running import RunResult

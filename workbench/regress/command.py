@@ -2,7 +2,7 @@
 
 Exit 0 when nothing regressed, 1 when something did (named); a run without a baseline fails too (a suite
 entry nobody has checked is not a passed check). ``--update-baseline`` rewrites the baselines instead
-and exits 0. The HTML report (``workbench/report/``) and ``summary.json`` go to ``--report``.
+and exits 0. The HTML report (``workbench/regress/report/``) and ``summary.json`` go to ``--report``.
 """
 
 from __future__ import annotations
@@ -14,15 +14,15 @@ import sys
 import time
 from pathlib import Path
 
-from engine.errors import DeepCError
+from engine.core.errors import DeepCError
 from engine.io.atomic import write_json
-from engine.run_folder import write_metrics
+from engine.run.folder import write_metrics
 from workbench.regress.baselines import baseline_path, read_baseline, read_baseline_reason, update_baselines
 from workbench.regress.comparison import INFO, METRIC_BY_NAME, compare, format_table, option_changes
 from workbench.regress.environment import environment
+from workbench.regress.report.page import write_report
 from workbench.regress.running import RunResult, execute, prepare_out_dir, warm_up
 from workbench.regress.suite import DEFAULT_SUITE, RunSpec, Suite, load_suite
-from workbench.report.page import write_report
 
 DEFAULT_REPORT = Path("runs/regress")
 

@@ -14,9 +14,9 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from engine.errors import DeepCError
-from engine.pipeline import run_pipeline
-from engine.run_folder import RunMetrics
+from engine.core.errors import DeepCError
+from engine.run.folder import RunMetrics
+from engine.run.pipeline import run_pipeline
 from engine.scene import load_scene
 from workbench.regress.comparison import FAILED, Delta
 from workbench.regress.suite import RunSpec
@@ -86,7 +86,7 @@ def execute(spec: RunSpec, out_dir: Path, record: bool) -> tuple[dict[str, Any],
         shutil.rmtree(out_dir)
     recording = None
     if record:
-        from workbench.run_recording import open_run_recording  # lazy: rerun
+        from workbench.rerun.run_recording import open_run_recording  # lazy: rerun
 
         recording = open_run_recording(str(out_dir / "recording.rrd"), scene, spec.options, spec.stream_options)
     try:

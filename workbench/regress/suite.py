@@ -23,7 +23,7 @@ A suite is a TOML file::
     set = ["patchmatch.tau0=0.7"]       # --set STAGE.NAME=VALUE items
 
 Flags merge in the order defaults < scene < pipeline and are parsed by the parser of ``deepc run``
-(``workbench/run_flags.py``), so a run's options are exactly those of ``deepc run`` with the same flags.
+(``workbench/flags/run.py``), so a run's options are exactly those of ``deepc run`` with the same flags.
 """
 
 from __future__ import annotations
@@ -36,13 +36,13 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from engine.errors import DeepCError
-from engine.pipeline import PipelineOptions
+from engine.core.errors import DeepCError
+from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions
+from workbench.flags.run import add_run_option_flags
+from workbench.flags.run_options import run_options_from_args
 from workbench.regress.comparison import DEFAULT_TOLERANCES, METRIC_BY_NAME
-from workbench.run_flags import add_run_option_flags
-from workbench.run_options import run_options_from_args
-from workbench.stream_options import StreamOptions
+from workbench.rerun.options import StreamOptions
 
 DEFAULT_SUITE = Path(__file__).resolve().parents[2] / "sample_scenes" / "suite.toml"
 SUITE_KEYS = ("name", "baseline", "thumbnail_views", "defaults", "tolerances", "scene", "pipeline")
