@@ -351,7 +351,7 @@ def _source_views(model: SparseModel, cameras: list[Camera], shared: np.ndarray,
     n = len(cameras)
     if len(model.track_point) == 0:
         return _source_views_from_poses(cameras, options.num_source_views)
-    angle = _triangulation_angle_p75(model, cameras)
+    angle = triangulation_angle_p75(model, cameras)
     min_angle = math.radians(options.min_triangulation_angle)
     sources = []
     for r in range(n):
@@ -361,7 +361,7 @@ def _source_views(model: SparseModel, cameras: list[Camera], shared: np.ndarray,
     return sources
 
 
-def _triangulation_angle_p75(model: SparseModel, cameras: list[Camera]) -> np.ndarray:
+def triangulation_angle_p75(model: SparseModel, cameras: list[Camera]) -> np.ndarray:
     """(n, n) 75th percentile of the triangulation angles (radians) over the points two views share (a point
     observed twice by a view counts once per pair of observations).
 

@@ -1,6 +1,7 @@
-"""The driver of an executor run streams its later stages from the run folder (engine/run/distributed/streamed.py,
-pooled.py): pooled sums and ROC-AUC accumulated view by view equal numpy's on the concatenation to the last bit, and
-the streamed fusion and metrics equal the in-process pipeline's on the same maps."""
+"""The driver of an executor run streams its later stages from the run folder (engine/run/distributed/streamed.py;
+metrics through engine/run/scores.py and engine/evaluation/pooled.py): pooled sums and ROC-AUC accumulated view by
+view equal numpy's on the concatenation to the last bit, and the streamed fusion and metrics equal the in-process
+pipeline's on the same maps."""
 
 from __future__ import annotations
 
@@ -11,13 +12,14 @@ import numpy as np
 import pytest
 
 from engine.confidence.metrics import roc_auc
+from engine.evaluation.depth import DEPTH_KEYS, depth_metrics
+from engine.evaluation.pooled import PooledRankSum, pairwise_sum
 from engine.fusion import FUSION_PRESETS, FusedCloud, fuse, views_from_scene
 from engine.fusion.cached import CacheStats
-from engine.patchmatch import ViewMaps
-from engine.run.distributed.pooled import PooledRankSum, pairwise_sum
 from engine.run.distributed.streamed import fuse_run_folder, streamed_metrics
 from engine.run.folder import read_map, write_map
-from engine.run.pipeline import _depth_block, confidence_auc
+from engine.run.per_view import view_auc
+from engine.run.scores import confidence_auc, depth_block
 from engine.scene import load_scene
 from support.fake_run import make_fake_run
 from tests.conftest import SAMPLES, make_noisy_run
@@ -71,10 +73,18 @@ def _maps(scene, out, kinds):
 @pytest.mark.parametrize("which", [1, 2])
 def test_streamed_metrics_are_the_in_process_ones(runs, which):
     scene, run = runs[0], runs[which]
-    depth, normal, confidence = _maps(scene, run, ("depth", "normal", "confidence"))
-    maps = [ViewMaps(d, n, None, None) for d, n in zip(depth, normal, strict=True)]
-    want_depth, want_per_view = _depth_block(scene, maps)
-    auc = confidence_auc(scene, depth, confidence)
+    depth, confidence = _maps(scene, run, ("depth", "confidence"))
+    # the reference: numpy on the concatenated views, as the pipeline scored before it pooled view by view
+    gt = [scene.gt_depth(v.index) for v in scene.views]
+    pooled = depth_metrics(np.concatenate([d.ravel() for d in depth]), np.concatenate([g.ravel() for g in gt]))
+    want_depth = {k: pooled[k] for k in DEPTH_KEYS}
+    want_per_view = [{"view": v.name, **depth_metrics(d, g)} for v, d, g in zip(scene.views, depth, gt, strict=True)]
+    entries = [view_auc(scene, v, d, c) for v, d, c in zip(scene.views, depth, confidence, strict=True)]
+    auc = {"pooled": 100 * roc_auc(np.concatenate([e[1] for e in entries]), np.concatenate([e[2] for e in entries])),
+           "per_view": [e[0] for e in entries]}
+    # in memory (the in-process pipeline) and read back from the run folder (streamed): the same, to the bit
+    assert json.dumps(depth_block(scene, lambda i: depth[i])) == json.dumps((want_depth, want_per_view))
+    assert json.dumps(confidence_auc(scene, lambda i: depth[i], lambda i: confidence[i])) == json.dumps(auc)
     tau = 0.4
     kept = sum(int((np.where(c >= tau, d, 0) > 0).sum()) for d, c in zip(depth, confidence, strict=True))
     got = streamed_metrics(scene, run, tau)

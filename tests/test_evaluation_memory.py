@@ -10,7 +10,7 @@ import pytest
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.evaluation import point_index as P
 from engine.evaluation import voxels as V
-from engine.evaluation.point_index import _spread_bits
+from engine.evaluation.point_index import spread_bits
 
 
 def _spatial_order_numpy(points):
@@ -18,7 +18,7 @@ def _spatial_order_numpy(points):
     extent = float((points.max(axis=0) - lo).max())
     scale = (2**21 - 1) / extent if extent > 0 else 0.0
     c = ((points - lo) * scale).astype(np.int64)
-    key = _spread_bits(c[:, 0]) | (_spread_bits(c[:, 1]) << 1) | (_spread_bits(c[:, 2]) << 2)
+    key = spread_bits(c[:, 0]) | (spread_bits(c[:, 1]) << 1) | (spread_bits(c[:, 2]) << 2)
     return np.argsort(key, kind="stable")
 
 

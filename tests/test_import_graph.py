@@ -144,3 +144,40 @@ def test_start_up_leaves_heavy_libraries_unloaded(module):
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO,
                             check=True).stdout.strip()
     assert loaded == ""
+
+
+def _private_imports(path: Path) -> list[str]:
+    """'module.name' for every ``_name`` that ``path`` imports from a project module (any depth)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module \
+                and node.module.split(".")[0] in PACKAGES:
+            found += [f"{node.module}.{a.name}" for a in node.names
+                      if a.name.startswith("_") and a.name != "__version__"]
+    return found
+
+
+def test_no_private_name_is_imported_from_another_module():
+    """A ``_name`` is its module's own: what another module (runtime, support, tests or benchmarks) needs is public."""
+    files = [p for d in (*PACKAGES, "tests", "benchmarks") for p in (REPO / d).rglob("*.py")]
+    offenders = [f"{p.relative_to(REPO)} imports {name}" for p in files for name in _private_imports(p)]
+    assert offenders == []
+
+
+def test_private_import_finder_finds_one(tmp_path):
+    module = tmp_path / "m.py"
+    module.write_text("from engine.run.pipeline import _hidden, visible\nfrom engine import __version__\n")
+    assert _private_imports(module) == ["engine.run.pipeline._hidden"]
+
+
+#: most modules one folder of runtime code may hold at one level (a room, not a corridor)
+MAX_MODULES_PER_FOLDER = 15
+
+
+def test_no_runtime_folder_is_a_corridor():
+    folders: dict[str, int] = {}
+    for name, path in MODULES.items():
+        if not name.startswith("support") and path.name != "__init__.py":
+            key = str(path.parent.relative_to(REPO))
+            folders[key] = folders.get(key, 0) + 1
+    assert {k: n for k, n in folders.items() if n > MAX_MODULES_PER_FOLDER} == {}

@@ -28,7 +28,7 @@ def _open(context, inspector_app):
 
 
 def _look_through_view(page, inspector_app):
-    camera = inspector_app.session.scene.views[inspector_app._selected_view].camera
+    camera = inspector_app.session.scene.views[inspector_app.selected_view].camera
     client = next(iter(inspector_app.server.get_clients().values()))
     page.get_by_role("button", name="Look through the view").click()
     wait_for(lambda: abs(client.camera.position - camera.center).max() < 1e-3 * (1 + abs(camera.center).max()))

@@ -1,4 +1,4 @@
-"""The pixel probe (engine/patchmatch/probe.py, explain.py), the pass history and the probe on finished runs
+"""The pixel probe (engine/patchmatch/probe/pixel_probe.py, explain.py), the pass history and the probe on finished runs
 (engine/run/pass_history.py, engine/run/probe.py, engine/run/probe_output.py) and their command line."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 from engine.core.errors import DeepCError
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.patchmatch.multiscale import replay_view
-from engine.patchmatch.probe import MAX_PROBE_PIXELS, PixelProbe, level_pixel
+from engine.patchmatch.probe.pixel_probe import MAX_PROBE_PIXELS, PixelProbe, level_pixel
 from engine.run.folder import read_map
 from engine.run.pass_history import HISTORY_DIR, PassHistory, pack_depth, unpack_depth
 from engine.run.pipeline import PipelineOptions, run_pipeline

@@ -14,7 +14,7 @@ from PIL import Image
 from engine.core.camera import Camera
 from engine.io.colmap_model import SparseModel
 from engine.io.images import decode_image, image_to_float, read_image, resize_area
-from engine.scene import SceneOptions, _triangulation_angle_p75, load_scene
+from engine.scene import SceneOptions, load_scene, triangulation_angle_p75
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +103,7 @@ def test_triangulation_angles_one_view_at_a_time_are_the_pairs_percentiles():
         track_image += seen
     order = rng.permutation(len(track_point))  # observations in no particular order
     model = SparseModel(None, {}, [], points, np.array(track_point)[order], np.array(track_image)[order])
-    got = _triangulation_angle_p75(model, cameras)
+    got = triangulation_angle_p75(model, cameras)
     want = _angles_by_definition(model, cameras)
     off = ~np.eye(5, dtype=bool)
     assert np.count_nonzero(want[off]) > 10 and np.allclose(got[off], want[off], rtol=1e-12, atol=0)

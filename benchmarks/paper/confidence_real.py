@@ -20,7 +20,6 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -137,8 +136,9 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
     from engine.refinement.guard import keep_confident
     from engine.refinement.views import sky_filter_views
     from engine.run.folder import read_map
-    from engine.run.pipeline import PipelineOptions, _depth_block
+    from engine.run.pipeline import PipelineOptions
     from engine.run.refine import refine_run
+    from engine.run.scores import depth_block
 
     options = PipelineOptions(pipeline="full").validate()
     t = time.perf_counter()
@@ -164,9 +164,9 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
            "full": fused_row(session, sky_d, sky_n, preset),
            "auc_refined": auc_report(samples, conf2)["auc"] if any((s.labels >= 0).any() for s in samples) else None}
     if scene.has_gt_depth:
-        out["depth_vanilla"] = _depth_block(scene, [SimpleNamespace(depth=d.depth) for d in data])[0]
-        out["depth_refined"] = _depth_block(scene, [SimpleNamespace(depth=d) for d, _ in refined])[0]
-        out["depth_full"] = _depth_block(scene, [SimpleNamespace(depth=g[0]) for g in guarded])[0]
+        out["depth_vanilla"] = depth_block(scene, lambda i: data[i].depth)[0]
+        out["depth_refined"] = depth_block(scene, lambda i: refined[i][0])[0]
+        out["depth_full"] = depth_block(scene, lambda i: guarded[i][0])[0]
     out["seconds"] = time.perf_counter() - t
     return out
 

@@ -42,38 +42,16 @@ from engine.patchmatch import PatchMatchOptions
 from engine.patchmatch import kernels as K
 from engine.patchmatch.context import build_context
 from engine.patchmatch.rng import stream_key
-try:
-    from engine.patchmatch import ViewState, kernel_params
-    from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
-    def new_state(h, w):
-        return ViewState.zeros(h, w)
-    def maps(st):
-        return st.maps()
-    def init(st, ctx, t):
-        init_cost(st, ctx, params(t))
-    def step(st, ctx, colour, key, t):
-        half_step(st, ctx, colour, st.cost, pattern, key, params(t))
-except ImportError:  # a baseline tree from before the kernels took named records
-    from engine.patchmatch.multiscale import _params, _State, init_cost, half_step
-    from engine.patchmatch.propagation import sampling_pattern
-    class ViewState(_State):
-        depth = property(lambda self: self.Z)
-        normal = property(lambda self: self.N)
-    def new_state(h, w):
-        return ViewState(np.zeros((h, w), np.float32), np.zeros((h, w, 3), np.float32),
-                         np.zeros((h, w), np.float32), np.zeros((h, w), np.uint32))
-    def maps(st):
-        return st.Z, st.N, st.C, st.S
-    def kernel_params(opts, zmin, zmax, t, geom, detail, n_regions, eps):
-        return _params(opts, zmin, zmax, t, geom, detail, n_regions, eps)
-    def pattern_of(opts):
-        return sampling_pattern(opts.pattern)
-    def n_regions(pattern):
-        return int(pattern[1].max()) + 1
-    def init(st, ctx, t):
-        init_cost(st, ctx, *params(t))
-    def step(st, ctx, colour, key, t):
-        half_step(st, ctx, colour, st.C, *pattern, key, *params(t))
+from engine.patchmatch import ViewState, kernel_params
+from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
+def new_state(h, w):
+    return ViewState.zeros(h, w)
+def maps(st):
+    return st.maps()
+def init(st, ctx, t):
+    init_cost(st, ctx, params(t))
+def step(st, ctx, colour, key, t):
+    half_step(st, ctx, colour, st.cost, pattern, key, params(t))
 scene, size, threads, reps, T, pre, geom = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), \
     int(sys.argv[5]), int(sys.argv[6]), sys.argv[7] == "1"
 sc = load_scene(scene, SceneOptions(max_image_size=size, num_source_views=5))

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
-from engine.patchmatch.probe import PixelProbe
+from engine.patchmatch.probe.pixel_probe import PixelProbe
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, patchmatch_views, run_pipeline
 from engine.run.probe import probe_run, rerun_region

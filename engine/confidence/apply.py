@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from engine.confidence.data import ViewSample, load_run
+from engine.confidence.data import ViewSample
 from engine.confidence.inference import predict_confidence, torch_threads
 from engine.confidence.metrics import roc_auc, sparsification
 from engine.confidence.network import ConfidenceNet
@@ -36,8 +35,3 @@ def auc_report(samples: list[ViewSample], confidence: list[np.ndarray]) -> dict[
             "labelled": int(labels.size), "inlier_pct": 100 * float(labels.mean()),
             "sparsification_auc": sp["auc"], "sparsification_optimal": sp["optimal"]}
 
-
-def run_auc(run_dir: str | Path, model: ConfidenceNet, options: ConfidenceOptions | None = None) -> dict[str, Any]:
-    """Labels and predictions for every view of a run; the :func:`auc_report`."""
-    samples = load_run(run_dir)
-    return auc_report(samples, predict_samples(model, samples, options))

@@ -18,7 +18,7 @@ from engine.confidence.network import ConfidenceNet, pad_to_multiple
 from engine.core.interrupt import check_interrupt
 
 
-def _autocast(bf16: bool, device: str = "cpu"):
+def autocast(bf16: bool, device: str = "cpu"):
     if bf16 and (device == "cuda" or torch.backends.mkldnn.is_available()):
         return torch.autocast(device, dtype=torch.bfloat16)
     return contextlib.nullcontext()
@@ -27,7 +27,7 @@ def _autocast(bf16: bool, device: str = "cpu"):
 def _forward(model: ConfidenceNet, x: np.ndarray, bf16: bool) -> np.ndarray:
     t = torch.from_numpy(np.ascontiguousarray(x))[None]
     t, (h, w) = pad_to_multiple(t)
-    with _autocast(bf16):
+    with autocast(bf16):
         logits = model(t.contiguous(memory_format=torch.channels_last))
     return torch.sigmoid(logits.float())[0, 0, :h, :w].numpy()
 

@@ -99,7 +99,3 @@ class ObserverList(NullObserver):
         for o in self.observers:
             if hasattr(o, "on_stage"):
                 o.on_stage(name, **info)
-
-    @property
-    def wants_iterations(self) -> bool:
-        return any(hasattr(o, "on_iteration") for o in self.observers)

@@ -12,7 +12,7 @@ ground truth and one slab of voxels, not by the cloud (Schöps et al. 2017's sco
 - The voxel means: accuracy averages accurate / classified over occupied voxels in the order of their cells
   (lexicographic), summed pairwise by numpy. The cloud is cut into slabs of consecutive x cells of at most
   :data:`SLAB_POINTS` points; a slab's voxels follow the previous slab's in that order, so the ratios of the
-  slabs one after the other are numpy's array, summed as numpy sums it (``engine.run.distributed.pooled.pairwise_sum``;
+  slabs one after the other are numpy's array, summed as numpy sums it (``engine.evaluation.pooled.pairwise_sum``;
   the ratios wait in temporary files). A slab reads the chunks that reach it again.
 """
 
@@ -30,9 +30,10 @@ from engine.core.heap_trim import release_free_memory
 from engine.evaluation.free_space import free_space_margin, pack_gt_views
 from engine.evaluation.options import EvaluationOptions
 from engine.evaluation.point_index import QUERY_CHUNK, PointIndex, first_within
+from engine.evaluation.pooled import pairwise_sum
 from engine.evaluation.result import EvaluationResult, make_result, overlap_notes
 from engine.evaluation.voxels import (
-    _GRID_SHIFTS,
+    GRID_SHIFTS,
     as_points,
     cell_coords,
     cell_keys,
@@ -41,7 +42,6 @@ from engine.evaluation.voxels import (
     key_ranks,
     voxel_completeness,
 )
-from engine.run.distributed.pooled import pairwise_sum
 
 CHUNK_POINTS = 1 << 18  # points read at once (6 MiB of float64 positions)
 SLAB_POINTS = 1 << 19  # points of one slab of the voxel grid (about 30 MiB while its voxels are counted)
@@ -140,7 +140,7 @@ def evaluate_point_chunks(n: int, read: Callable[[int, int], np.ndarray], gt_xyz
     gt_index = gt_xyz if isinstance(gt_xyz, PointIndex) else PointIndex(gt_xyz, "ground truth")
     complete = _Completeness(gt_index, float(tol[-1]) * (1 + 1e-6))  # first_within's bound
     packed = pack_gt_views(gt_views) if gt_views else None
-    slabs = [_Slabs(options.voxel_size, shift) for shift in _GRID_SHIFTS]
+    slabs = [_Slabs(options.voxel_size, shift) for shift in GRID_SHIFTS]
     unobserved = np.zeros(n_tol, np.int64)
     code = np.uint8 if n_tol < 255 else np.uint16
     with tempfile.TemporaryFile(dir=scratch) as classes:

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import Any
+
 import numpy as np
+
+from engine.evaluation.pooled import pairwise_sum
 
 
 def depth_metrics(depth: np.ndarray, gt_depth: np.ndarray) -> dict[str, float]:
@@ -54,3 +59,43 @@ def roc_curve(scores: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.nd
     tpr = np.concatenate([[0.0], np.cumsum(positive)[group_ends] / n_pos])
     fpr = np.concatenate([[0.0], np.cumsum(~positive)[group_ends] / n_neg])
     return fpr, tpr, float(np.trapezoid(tpr, fpr))
+
+
+#: the pooled ``depth`` block of metrics.json
+DEPTH_KEYS = ("abs_rel", "within_1pct", "within_5pct", "valid_fraction")
+
+
+def relative_errors(depth: np.ndarray, gt_depth: np.ndarray) -> tuple[int, np.ndarray]:
+    """(pixels with GT, |z - z*| / z* in float64 where both exist), exactly as :func:`depth_metrics` forms them."""
+    depth = np.asarray(depth, np.float64)
+    gt = np.asarray(gt_depth, np.float64)
+    has_gt = np.isfinite(gt) & (gt > 0)
+    both = has_gt & np.isfinite(depth) & (depth > 0)
+    return int(has_gt.sum()), np.abs(depth[both] - gt[both]) / gt[both]
+
+
+def pooled_depth_metrics(names: Sequence[str], depth_of: Callable[[int], np.ndarray],
+                         gt_of: Callable[[int], np.ndarray]) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """:func:`depth_metrics` pooled over every pixel of the views ``names`` (the ``DEPTH_KEYS``), and per view
+    (``{"view": name, **depth_metrics}``), without holding every view's pixels at once.
+
+    ``depth_of(i)`` and ``gt_of(i)`` give view ``i``'s (H, W) depth and GT depth (0 = none); each is called twice
+    per view: once for the counts, once for the sum of the errors. The pooled numbers equal ``depth_metrics`` of the
+    concatenated maps to the last bit: counts are exact, and the errors are summed as numpy sums the concatenation
+    (:func:`engine.evaluation.pooled.pairwise_sum`).
+    """
+    per_view, n_gt, n_both, within1, within5 = [], 0, 0, 0, 0
+    for i, name in enumerate(names):
+        depth, gt = depth_of(i), gt_of(i)
+        per_view.append({"view": name, **depth_metrics(depth, gt)})
+        has_gt, rel = relative_errors(depth, gt)
+        n_gt, n_both = n_gt + has_gt, n_both + rel.size
+        within1, within5 = within1 + int((rel < 0.01).sum()), within5 + int((rel < 0.05).sum())
+    pooled = {"valid_fraction": 100.0 * n_both / n_gt if n_gt else float("nan")}
+    if n_both:
+        total = pairwise_sum((relative_errors(depth_of(i), gt_of(i))[1] for i in range(len(names))), n_both)
+        pooled.update(abs_rel=float(total / n_both), within_1pct=100.0 * float(within1 / n_both),
+                      within_5pct=100.0 * float(within5 / n_both))
+    else:
+        pooled.update(abs_rel=float("nan"), within_1pct=float("nan"), within_5pct=float("nan"))
+    return {k: pooled[k] for k in DEPTH_KEYS}, per_view

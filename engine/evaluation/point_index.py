@@ -19,7 +19,7 @@ from engine.evaluation.voxels import as_points
 
 
 @numba.njit(cache=True, nogil=True)
-def _spread_bits(x: np.ndarray) -> np.ndarray:
+def spread_bits(x: np.ndarray) -> np.ndarray:
     x = x & 0x1FFFFF
     x = (x | (x << 32)) & 0x1F00000000FFFF
     x = (x | (x << 16)) & 0x1F0000FF0000FF
@@ -44,7 +44,7 @@ def _morton_keys(points: np.ndarray, lo: np.ndarray, scale: float) -> np.ndarray
         c0 = np.int64((points[i, 0] - lo[0]) * scale)
         c1 = np.int64((points[i, 1] - lo[1]) * scale)
         c2 = np.int64((points[i, 2] - lo[2]) * scale)
-        key[i] = _spread_bits(c0) | (_spread_bits(c1) << 1) | (_spread_bits(c2) << 2)
+        key[i] = spread_bits(c0) | (spread_bits(c1) << 1) | (spread_bits(c2) << 2)
     return key
 
 

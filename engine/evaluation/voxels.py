@@ -7,7 +7,7 @@ import numpy as np
 
 from engine.core.errors import DeepCError
 
-_GRID_SHIFTS = (0.0, 0.5)
+GRID_SHIFTS = (0.0, 0.5)
 
 
 
@@ -141,7 +141,7 @@ def voxel_completeness(gt: np.ndarray, first_ok: np.ndarray, n_tol: int, voxel_s
     """Mean over voxels (both grids) of the fraction of GT points complete at each tolerance."""
     sums = np.zeros(n_tol)
     n_cells = 0
-    for shift in _GRID_SHIFTS:
+    for shift in GRID_SHIFTS:
         ids = _cell_ids(gt, voxel_size, shift)
         total = np.bincount(ids).astype(np.float64)
         n_cells += len(total)
@@ -163,7 +163,7 @@ def voxel_accuracy(recon: np.ndarray, first_ok: np.ndarray, inaccurate: np.ndarr
     sums = np.zeros(n_tol)
     counts = np.zeros(n_tol)
     ids = None
-    for shift in _GRID_SHIFTS:
+    for shift in GRID_SHIFTS:
         del ids  # the last grid's ids go before this grid's are made
         ids = _cell_ids(recon, voxel_size, shift)
         m = int(ids.max()) + 1 if len(ids) else 0

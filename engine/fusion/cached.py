@@ -1,7 +1,7 @@
 """Fusion through a bounded cache of views, as COLMAP's StereoFusion reads its workspace through a cache that evicts
 the least recently used images (Schönberger et al. 2016; COLMAP ``src/colmap/mvs/workspace.h``, ``CachedWorkspace``).
 
-The kernel is :func:`engine.fusion.kernel._fuse_kernel`, the one the in-memory :func:`engine.fusion.fuse` runs: the
+The kernel is :func:`engine.fusion.kernel.fuse_kernel`, the one the in-memory :func:`engine.fusion.fuse` runs: the
 maps of at most ``cache_views`` views sit in slots; when the traversal pops a pixel of a view that is not resident,
 the kernel stores its state and returns; this module loads that view (``load(i)``, e.g. from a run folder) into a
 slot, evicting the least recently used view other than the seed view, and calls the kernel again. The cloud is the
@@ -32,14 +32,14 @@ import numpy as np
 from engine.core.camera import Camera
 from engine.fusion.cloud import FusedCloud, FusionView
 from engine.fusion.kernel import (
-    _FUSED,
-    _IMG,
-    _N_OUT,
-    _SP,
-    _ST_IMG,
+    FUSED,
+    IMG,
+    N_OUT,
     NEED_ROOM,
-    _fuse_kernel,
+    SP,
+    ST_IMG,
     cloud_of,
+    fuse_kernel,
     kernel_options,
     output_arrays,
     sanitize_depth,
@@ -161,28 +161,28 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
     n_px = geometry[0] * geometry[1]
     slots = _Slots(n, min(cache_views, n), int(n_px.max()), confidence)
     work = work_arrays(n, geometry[6], int(options.max_num_pixels))
-    fused = work[_FUSED]
+    fused = work[FUSED]
     room = max(CHUNK_POINTS, int(options.max_num_pixels))  # a cluster of max_num_pixels points fits one chunk
     chunks, out = [], output_arrays(room)
     thresholds = kernel_options(options)
     while True:
         stats.calls += 1
-        need = _fuse_kernel(slots.maps(), geometry, work, out, *thresholds, confidence)
+        need = fuse_kernel(slots.maps(), geometry, work, out, *thresholds, confidence)
         if need in (-1, NEED_ROOM):  # done, or the chunk is full
             if sink is not None:
-                sink(out, int(work[0][_N_OUT]))
+                sink(out, int(work[0][N_OUT]))
             else:
-                chunks.append((out, int(work[0][_N_OUT])))
+                chunks.append((out, int(work[0][N_OUT])))
             if need == -1:
                 return None if sink is not None else cloud_of(chunks)
             if sink is None:
                 out = output_arrays(room)
-            work[0][_N_OUT] = 0
+            work[0][N_OUT] = 0
             continue
         if -1 in slots.view:
             s = slots.view.index(-1)
         else:
-            s = _victim(slots, int(work[0][_IMG]), work[_ST_IMG][:int(work[0][_SP])])
+            s = _victim(slots, int(work[0][IMG]), work[ST_IMG][:int(work[0][SP])])
             slots.evict(s, fused, int(n_px[slots.view[s]]))
             stats.evictions += 1
         view = load(need)

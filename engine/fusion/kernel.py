@@ -103,14 +103,14 @@ def sanitize_depth(dep: np.ndarray) -> int:
 
 
 # The traversal's scalars between calls of the kernel (``FusionState.si`` and ``.sf``).
-_IMG, _P0, _PHASE, _IN_SEED, _SP, _N, _N_VIS, _CONF_N, _SEED_ID, _N_OUT, _TICK = range(11)
-_CONF_SUM, _RNX, _RNY, _RNZ = range(4)
+IMG, P0, PHASE, IN_SEED, SP, N, N_VIS, CONF_N, SEED_ID, N_OUT, TICK = range(11)
+CONF_SUM, RNX, RNY, RNZ = range(4)
 NEED_ROOM = -2  # the kernel's answer when the output arrays are full
-_ST_IMG, _FUSED = 2, 17  # the stack's views and the per-view fused flags in work_arrays()
+ST_IMG, FUSED = 2, 17  # the stack's views and the per-view fused flags in work_arrays()
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_cos, min_px, max_px, max_trav,
+def fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_cos, min_px, max_px, max_trav,
                  per_pixel, has_conf):
     """COLMAP's traversal with two equivalent reorganisations for speed (memory traffic dominates):
 
@@ -127,8 +127,8 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
     rejects the same pixels (a pixel's |depth| and the seed's projection do not change while the seed's stack
     lives, a consumed pixel stays consumed). A pop from a non-resident view puts the entry back, stores the
     traversal in ``work`` and returns that view; called again once it is resident, the kernel goes on where it
-    stopped. The points go into ``out`` from ``si[_N_OUT]`` on; when a cluster does not fit, the kernel returns
-    ``NEED_ROOM`` with the cluster pending (the caller takes the points and resets ``si[_N_OUT]``). Returns -1 when
+    stopped. The points go into ``out`` from ``si[N_OUT]`` on; when a cluster does not fit, the kernel returns
+    ``NEED_ROOM`` with the cluster pending (the caller takes the points and resets ``si[N_OUT]``). Returns -1 when
     done, the view it needs, or ``NEED_ROOM``.
     """
     dep, nrm, rgb, conf, base, used = maps
@@ -137,21 +137,21 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
      pw, pc, pr, fused, stamp) = work
     out_xyz, out_nrm, out_rgb, out_nv, out_np, out_conf, out_src = out
     n_views = len(widths)
-    img = si[_IMG]
-    p0 = si[_P0]
-    phase = si[_PHASE]  # 0: the seed view's overlap lists are not built yet
-    in_seed = si[_IN_SEED] != 0
-    sp = si[_SP]
-    n = si[_N]
-    n_vis = si[_N_VIS]
-    conf_n = si[_CONF_N]
-    seed_id = si[_SEED_ID]
-    n_out = si[_N_OUT]
-    tick = si[_TICK]
-    conf_sum = sf[_CONF_SUM]
-    rnx = sf[_RNX]
-    rny = sf[_RNY]
-    rnz = sf[_RNZ]
+    img = si[IMG]
+    p0 = si[P0]
+    phase = si[PHASE]  # 0: the seed view's overlap lists are not built yet
+    in_seed = si[IN_SEED] != 0
+    sp = si[SP]
+    n = si[N]
+    n_vis = si[N_VIS]
+    conf_n = si[CONF_N]
+    seed_id = si[SEED_ID]
+    n_out = si[N_OUT]
+    tick = si[TICK]
+    conf_sum = sf[CONF_SUM]
+    rnx = sf[RNX]
+    rny = sf[RNY]
+    rnz = sf[RNZ]
     need = -1
 
     while img >= 0:
@@ -366,21 +366,21 @@ def _fuse_kernel(maps, geometry, work, out, max_reproj_sq, max_depth_err, min_co
                     nxt = j
                     break
         img = nxt
-    si[_IMG] = img
-    si[_P0] = p0
-    si[_PHASE] = phase
-    si[_IN_SEED] = 1 if in_seed else 0
-    si[_SP] = sp
-    si[_N] = n
-    si[_N_VIS] = n_vis
-    si[_CONF_N] = conf_n
-    si[_SEED_ID] = seed_id
-    si[_N_OUT] = n_out
-    si[_TICK] = tick
-    sf[_CONF_SUM] = conf_sum
-    sf[_RNX] = rnx
-    sf[_RNY] = rny
-    sf[_RNZ] = rnz
+    si[IMG] = img
+    si[P0] = p0
+    si[PHASE] = phase
+    si[IN_SEED] = 1 if in_seed else 0
+    si[SP] = sp
+    si[N] = n
+    si[N_VIS] = n_vis
+    si[CONF_N] = conf_n
+    si[SEED_ID] = seed_id
+    si[N_OUT] = n_out
+    si[TICK] = tick
+    sf[CONF_SUM] = conf_sum
+    sf[RNX] = rnx
+    sf[RNY] = rny
+    sf[RNZ] = rnz
     return need
 
 
@@ -457,7 +457,7 @@ def fuse(views: list[FusionView], options: FusionOptions | None = None) -> Fused
     maps = (dep, nrm, rgb, conf, offsets[:-1].copy(), np.zeros(len(views), np.int64))
     work = work_arrays(len(views), ov_ptr, int(max_px))
     out = output_arrays(n_valid + 1 if per_pixel else n_valid // max(min_px, 1) + 1)  # room for every point
-    need = _fuse_kernel(maps, (widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx), work, out,
+    need = fuse_kernel(maps, (widths, heights, P, Kinv, Rt, tvec, ov_ptr, ov_idx), work, out,
                         *kernel_options(options), conf.shape[0] == dep.shape[0])
     assert need == -1, "a view packed in memory was reported missing"
-    return cloud_of([(out, int(work[0][_N_OUT]))])
+    return cloud_of([(out, int(work[0][N_OUT]))])

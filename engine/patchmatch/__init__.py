@@ -17,7 +17,8 @@ plane propagation, normals), ``ncc`` (bilateral NCC), ``propagation`` (sampling 
 ``view_selection`` (ACMM multi-hypothesis view weights), ``records`` (the named records the kernels take),
 ``kernels`` (numba half-step and init kernels), ``state`` (a view's maps and cost caches), ``view_pass``
 (one view at one level), ``pyramid`` (area downsampling, JBU), ``context`` (per-view precomputation),
-``engine`` (the multi-scale driver) and ``reference`` (slow plain-Python references for the tests).
+``multiscale`` (the multi-scale driver) and ``probe/`` (the pixel probe and why each candidate won or lost).
+Plain-numpy references of the kernels live in ``support/patchmatch_reference.py``.
 """
 
 from engine.patchmatch.context import ViewContext, build_context

@@ -27,7 +27,7 @@ from engine.core.observer import IterationEvent, readonly
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
-from engine.patchmatch.probe import PassProbe, PixelProbe
+from engine.patchmatch.probe.pixel_probe import PassProbe, PixelProbe
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
 from engine.patchmatch.rng import stream_key
 from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, ViewState, row_cache_bytes
@@ -150,8 +150,9 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
             and after each view finishes it, e.g. ``("level 2 photometric", 3, 11)``.
         checkpoint: optional :class:`engine.run.checkpoint.PatchMatchCheckpoint`: every view's state is saved
             after each pass, and states saved by an interrupted run with the same inputs are reused.
-        probe: optional :class:`engine.patchmatch.probe.PixelProbe`: traces of its pixels of its view (passes
-            restored from a checkpoint are not traced); the maps are the same with or without it.
+        probe: optional :class:`~engine.patchmatch.probe.pixel_probe.PixelProbe`:
+            traces of its pixels of its view (passes restored from a checkpoint are not traced); the maps are the
+            same with or without it.
         history: optional; ``save_snapshot(level, pass_index, depths)`` receives every view's depth map that the
             geometric pass ``pass_index`` of ``level`` reads (``engine.run.pass_history.PassHistory``), so that one
             view can be re-run alone later (:func:`replay_view`).

@@ -19,7 +19,7 @@ from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.convergence import Convergence
 from engine.patchmatch.options import PatchMatchOptions
-from engine.patchmatch.probe import PassProbe
+from engine.patchmatch.probe.pixel_probe import PassProbe
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.records import KernelParams, SamplingPattern, kernel_params
 from engine.patchmatch.rng import stream_key

@@ -121,7 +121,7 @@ class PatchMatchCheckpoint:
 
     # ---- per view and pass --------------------------------------------------------------------------
     @staticmethod
-    def _name(level: int, pass_index: int, view: int) -> str:
+    def file_name(level: int, pass_index: int, view: int) -> str:
         """The file of ``view``'s state after pass ``pass_index`` of ``level``, relative to the folder."""
         return f"L{level}_P{pass_index}/{view}.npz"
 
@@ -131,7 +131,7 @@ class PatchMatchCheckpoint:
 
     def load(self, level: int, pass_index: int, view: int, shape: tuple[int, int]) -> dict[str, np.ndarray] | None:
         """The saved state {Z, N, C, S} of ``view`` after pass ``pass_index`` of ``level``, verified; or None."""
-        name = self._name(level, pass_index, view)
+        name = self.file_name(level, pass_index, view)
         expected = self.entries.get(name)
         if expected is None:
             return None
@@ -167,7 +167,7 @@ class PatchMatchCheckpoint:
         """Record a state :func:`write_state` wrote (here or in a per-view task elsewhere) in the manifest; with
         ``write`` False only in memory (the next record or :meth:`pass_complete` writes it: a driver of
         thousands of tasks need not rewrite the manifest after each)."""
-        self.entries[self._name(level, pass_index, view)] = sha256
+        self.entries[self.file_name(level, pass_index, view)] = sha256
         self.stats.saved += 1
         if write:
             self._write_manifest()
@@ -209,7 +209,7 @@ def write_state(folder: str | Path, level: int, pass_index: int, view: int, stat
     buffer = io.BytesIO()
     np.savez(buffer, **{k: np.ascontiguousarray(state[k]) for k in _ARRAYS})
     data = buffer.getvalue()
-    atomic_write_bytes(Path(folder) / PatchMatchCheckpoint._name(level, pass_index, view), data)
+    atomic_write_bytes(Path(folder) / PatchMatchCheckpoint.file_name(level, pass_index, view), data)
     return hashlib.sha256(data).hexdigest()
 
 

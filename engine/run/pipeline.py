@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from engine import __version__
-from engine.confidence.metrics import roc_auc
 from engine.confidence.options import ConfidenceOptions
 from engine.consistency import CounterOptions, compute_counter_maps
 from engine.core.errors import DeepCError
@@ -26,7 +25,6 @@ from engine.core.interrupt import check_interrupt
 from engine.core.observer import ObserverList
 from engine.core.options import Options, option
 from engine.evaluation import EvaluationOptions, evaluate_point_chunks, evaluate_points
-from engine.evaluation.depth import depth_metrics
 from engine.filtering import filter_by_confidence
 from engine.fusion import (
     DEFAULT_PRESET,
@@ -56,8 +54,9 @@ from engine.run.folder import (
     write_refined_maps,
     write_stamp,
 )
-from engine.run.per_view import SceneView, patchmatch_view, view_auc, view_confidence
+from engine.run.per_view import SceneView, patchmatch_view, view_confidence
 from engine.run.probe_output import finish_probe
+from engine.run.scores import confidence_auc, depth_block
 from engine.scene import Scene
 
 PIPELINES = ("vanilla", "fast", "full")
@@ -104,7 +103,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     ``checkpoint`` (an :class:`engine.run.checkpoint.PatchMatchCheckpoint`) saves PatchMatch states as it
     goes and reuses those of an interrupted run; it is cleared once metrics.json is written. ``mesh``, unless
     its method is ``none``, adds ``mesh.ply`` made from the fused cloud or the maps fusion used. ``probe`` (an
-    :class:`engine.patchmatch.probe.PixelProbe`) traces pixels of one view and writes ``OUT/probes/``;
+    :class:`engine.patchmatch.probe.pixel_probe.PixelProbe`) traces pixels of one view and writes ``OUT/probes/``;
     ``history`` (an :class:`engine.run.pass_history.PassHistory`) keeps what re-running one view needs
     (``engine.run.probe``).
     ``executor`` (an :class:`engine.run.distributed.Executor`) runs PatchMatch, counter maps and confidence as per-view
@@ -257,16 +256,15 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if streamed:  # the same entries, view by view from the run folder
         metrics.update(streamed_metrics(scene, out_dir, tau))
     elif scene.has_gt_depth:
-        metrics["depth"], metrics["depth_per_view"] = _depth_block(scene, maps)
+        metrics["depth"], metrics["depth_per_view"] = depth_block(scene, lambda i: maps[i].depth)
         if confidence is not None:
-            auc = confidence_auc(scene, [m.depth for m in maps], confidence)
+            auc = confidence_auc(scene, lambda i: maps[i].depth, lambda i: confidence[i])
             metrics["confidence_auc"] = auc["pooled"]
             metrics["confidence_auc_per_view"] = auc["per_view"]
         if refined is not None:
-            metrics["refined_depth"], metrics["refined_depth_per_view"] = _depth_block(scene, refined)
-            metrics["full_depth"], _ = _depth_block(scene, [ViewMaps(f[0], f[1], m.cost, m.selected_views)
-                                                            for f, m in zip(fused_maps, maps, strict=True)])
-            auc = confidence_auc(scene, [r.depth for r in refined], refined_confidence)
+            metrics["refined_depth"], metrics["refined_depth_per_view"] = depth_block(scene, lambda i: refined[i].depth)
+            metrics["full_depth"], _ = depth_block(scene, lambda i: fused_maps[i][0])
+            auc = confidence_auc(scene, lambda i: refined[i].depth, lambda i: refined_confidence[i])
             metrics["refined_confidence_auc"] = auc["pooled"]
             metrics["refined_confidence_auc_per_view"] = auc["per_view"]
     if confidence is not None and not streamed:
@@ -335,20 +333,6 @@ def refinement_stage(scene: Scene, maps: list[ViewMaps], confidence: list[np.nda
     return out
 
 
-def confidence_auc(scene: Scene, depths: list[np.ndarray], confidence: list[np.ndarray]) -> dict[str, Any]:
-    """ROC-AUC ×100 of the confidence maps against the label maps of Kuhn et al. 2020, §3.2 (pooled and per view)."""
-
-    scores, labels, per_view = [], [], []
-    for view, depth, c in zip(scene.views, depths, confidence, strict=True):
-        auc = view_auc(scene, view, depth, c)
-        if auc is not None:
-            per_view.append(auc[0])
-            scores.append(auc[1])
-            labels.append(auc[2])
-    pooled = 100 * roc_auc(np.concatenate(scores), np.concatenate(labels)) if scores else float("nan")
-    return {"pooled": pooled, "per_view": per_view}
-
-
 def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     """ETH3D-style scores of a fused cloud against the scene's GT points; GT depth maps, when present,
     enable the unobserved-space rule (Schöps et al. 2017). A cloud on disk (a streamed run's) is scored a chunk of
@@ -360,18 +344,3 @@ def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     if isinstance(cloud, DiskCloud):
         return evaluate_point_chunks(len(cloud), cloud.read_xyz, gt, options, gt_views, scratch=cloud.path.parent)
     return evaluate_points(np.asarray(cloud.xyz, np.float64), gt, options, gt_views)
-
-
-def _depth_block(scene: Scene, maps: list[ViewMaps]) -> tuple[dict[str, float], list[dict[str, Any]]]:
-    """Depth metrics pooled over all pixels of all views, and per view."""
-    per_view, pooled_est, pooled_gt = [], [], []
-    for view, m in zip(scene.views, maps, strict=True):
-        gt = scene.gt_depth(view.index)
-        if gt is None:
-            continue
-        per_view.append({"view": view.name, **depth_metrics(m.depth, gt)})
-        pooled_est.append(m.depth.ravel())
-        pooled_gt.append(gt.ravel())
-    pooled = depth_metrics(np.concatenate(pooled_est), np.concatenate(pooled_gt))
-    keys = ("abs_rel", "within_1pct", "within_5pct", "valid_fraction")
-    return {k: pooled[k] for k in keys}, per_view

@@ -26,7 +26,7 @@ from engine.core.camera import Camera
 from engine.core.errors import DeepCError
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, effective_levels
 from engine.patchmatch.multiscale import level_start, replay_view, run_view_pass
-from engine.patchmatch.probe import PixelProbe, level_pixel
+from engine.patchmatch.probe.pixel_probe import PixelProbe, level_pixel
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import level_size
 from engine.patchmatch.state import ViewState

@@ -141,7 +141,8 @@ def final_entries(scene: Any, index: int, views: list[PatchMatchView], depths: l
 def finish_probe(probe: Any, scene: Any, views: list[PatchMatchView], maps: list[Any], counter: list[np.ndarray] | None,
                  confidence: list[np.ndarray] | None, counter_options: CounterOptions | None,
                  out_dir: str | Path | None) -> list[dict[str, Any]]:
-    """Fill the ``final`` entries of a :class:`engine.patchmatch.probe.PixelProbe` that ran with the PatchMatch of
+    """Fill the ``final`` entries of a
+    :class:`engine.patchmatch.probe.pixel_probe.PixelProbe` that ran with the PatchMatch of
     ``views`` (``maps``: every view's final ``ViewMaps``) and write its traces into ``out_dir`` (None: don't)."""
     i = probe.view
     finals = final_entries(scene, i, views, [m.depth for m in maps], maps[i].normal, maps[i].cost,

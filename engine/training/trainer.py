@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from engine.confidence.data import ViewSample, flip_horizontal
-from engine.confidence.inference import _autocast, predict_confidence
+from engine.confidence.inference import autocast, predict_confidence
 from engine.confidence.inputs import NORMAL, encode_normals
 from engine.confidence.losses import loss_function
 from engine.confidence.metrics import roc_auc
@@ -216,7 +216,7 @@ def train(train_samples: list[ViewSample], validation: list[ValidationSet], opti
                 group["lr"] = learning_rate(options, step)
             x, y = draw_batch(train_samples, options, size, rng, probabilities)
             x, y = x.to(device), y.to(device)
-            with _autocast(options.bf16, device.type):
+            with autocast(options.bf16, device.type):
                 logits = model(x.contiguous(memory_format=torch.channels_last))
             loss = loss_fn(logits.float(), y)
             optimizer.zero_grad(set_to_none=True)

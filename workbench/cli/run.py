@@ -18,7 +18,7 @@ from engine.core.errors import DeepCError
 from engine.core.interrupt import deferred_interrupts
 from engine.core.observer import ObserverList
 from engine.io.atomic import remove_stale_temp_files
-from engine.patchmatch.probe import PixelProbe
+from engine.patchmatch.probe.pixel_probe import PixelProbe
 from engine.run.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
 from engine.run.folder import RunMetrics
 from engine.run.memory import estimate_run_memory, largest_fitting_size, load_kernels

@@ -7,7 +7,7 @@ ACMM schedule) converges, so that a user watches the confidence rise where the e
 red-black iteration of a view (its ``view_iteration`` + 1 a multiple of k) it logs, at that iteration's time on the
 stream's timelines (``view_iteration``, ``pass``, ``iteration``):
 
-    maps/<view>/counter       consistent source views, class-coded as after PatchMatch (stream_legends)
+    maps/<view>/counter       consistent source views, class-coded as after PatchMatch (workbench.rerun.legends)
     maps/<view>/confidence    the network's confidence on the current maps, class-coded
     maps/<view>/label         GT labels of the current depth (when the view has GT depth)
     stats/<view>/confidence_kept_pct   share of the view's estimates with confidence >= tau [%]

@@ -15,7 +15,7 @@ Entity tree (one per recording; the same code writes to a live viewer or an ``.r
     maps/<view>/label               GT inlier/outlier labels of the depth the confidence scored, when GT exists
     stats/<view>/{mean_cost,changed_pct,within_1pct,seconds,level,pass}   scalars
     stats/<view>/{confidence_kept_pct,confidence_auc,confidence_seconds}  scalars of the k-th iterations' scoring
-    legend, legend/<kind>           markdown: colour scale, unit and 'no data' of every map (stream_legends)
+    legend, legend/<kind>           markdown: colour scale, unit and 'no data' of every map (workbench.rerun.legends)
     world/fused/<pipeline>          fused cloud, when a fusion stage reports one
 
 Timelines: ``view_iteration`` counts one view's red-black iterations over the whole run (scrub it to watch one
@@ -100,7 +100,7 @@ class RerunStream(NullObserver):
         self._passes: list[tuple[int, int]] = []  # (level, pass_index) in the order they ran
         self._last_time: dict[int, tuple[int, int, int]] = {}  # per view: (view_iteration, pass, step) last logged
         self.event_time = (0, 0, 0)  # (view_iteration, pass, step) of the event being handled, logged or not
-        # observers that get every event after this stream handled it and log through it (stream_confidence)
+        # observers that get every event after this stream handled it and log through it (workbench.rerun.confidence)
         self.companions: list[Any] = []
         self._contexts: set[str] = set()  # class-coded entities whose AnnotationContext is logged
         self._depth_range = [(0.0, 1.0)] * len(views)
@@ -163,7 +163,7 @@ class RerunStream(NullObserver):
         self._set_time(*self.event_time)
 
     def log_view_classes(self, view: int, kind: str, ids: np.ndarray) -> None:
-        """Log the class-coded map ``maps/<view>/<kind>`` (a kind of ``stream_legends.CONTEXTS``) at the current
+        """Log the class-coded map ``maps/<view>/<kind>`` (a kind of ``legends.CONTEXTS``) at the current
         time."""
         self._log_classes(f"maps/{entity_name(view, self.views[view][0])}/{kind}", kind, ids)
 

@@ -125,7 +125,7 @@ class ViewerApp(ControlPanel):
         self.cloud_params: ViewParams | None = None
         self._cloud_message_id = -1  # broadcast-buffer id of the last cloud push (see _wait_for_delivery)
         self._base_colors_cache: tuple | None = None  # (base cloud, colour mode, colours)
-        self._selected_view = 0
+        self.selected_view = 0
         self._recolor_latest = LatestOnly(self._recolor)
         self._exact_generation = 0  # newest generation whose exact cloud is shown: older previews must not cover it
         self._scored: tuple | None = None  # (params, scores) of the newest exact result shown with its scores
@@ -307,7 +307,7 @@ class ViewerApp(ControlPanel):
     def select_view(self, index: int) -> None:
         """Show view ``index``'s image and maps in the side panel (also on a frustum click, the view
         dropdown and the previous / next buttons)."""
-        self._selected_view = index
+        self.selected_view = index
         view = self.session.scene.views[index]
         label = view_label(index, view.name)
         if self.view_dropdown.value != label:
@@ -319,7 +319,7 @@ class ViewerApp(ControlPanel):
 
     def _refresh_view(self) -> None:
         """The selected view's maps, legends and numbers under the current controls."""
-        index = self._selected_view
+        index = self.selected_view
         params = self.params() if hasattr(self, "_fusion_handles") else self.run_params
         try:
             maps = self.session.view_maps(index, params)
@@ -356,9 +356,9 @@ class ViewerApp(ControlPanel):
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
         write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, float(self.point_size.value),
-                        self._selected_view,
+                        self.selected_view,
                         {k.replace(" ", "_"): image for k, (image, _) in
-                         self.session.view_maps(self._selected_view, self.cloud_params).items()})
+                         self.session.view_maps(self.selected_view, self.cloud_params).items()})
         self.export_status.content = f"wrote `{path}`"
         return path
 

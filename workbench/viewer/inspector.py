@@ -6,7 +6,7 @@ pixel: the probe (``engine.run.probe.probe_run``) replays the pixel's PatchMatch
 folder's maps and checkpoints in a worker thread, and the Inspector folder shows its trace — cost and depth
 against the iteration, the winner's per-view costs with the selected views marked, the candidate table of
 any iteration, the pixel's window projected into each source image, and the final depth against GT, its
-label, confidence and the counter's verdicts (``workbench/trace/figures.py``, ``probe_windows.py``).
+label, confidence and the counter's verdicts (``workbench/trace/``).
 
 The "Re-run region" folder re-runs PatchMatch on a box of the view (``engine.run.probe.rerun_region``) with
 the common options changed and shows the depth and error maps before and after side by side, the region's
@@ -111,7 +111,7 @@ class InspectorPanel:
     """The Inspector and Re-run region folders of a :class:`workbench.viewer.app.ViewerApp` (``app``).
 
     Args:
-        app: the viewer (its ``server``, ``session``, ``cloud``, ``_selected_view`` and ``select_view``).
+        app: the viewer (its ``server``, ``session``, ``cloud``, ``selected_view`` and ``select_view``).
         probe: ``probe_run(run_dir, view, pixels, progress=None) -> list[trace]`` (default: the engine's).
         rerun_region: ``rerun_region(run_dir, view, box=..., level=..., pass_index=..., overrides=...,
             probe_pixels=...) -> RegionResult`` (default: the engine's).
@@ -215,7 +215,7 @@ class InspectorPanel:
     # ---- requests ----------------------------------------------------------------------------------
     def inspect_typed(self) -> None:
         x, y = self.pixel.value
-        self.inspect(self.app._selected_view, int(round(x)), int(round(y)), source="typed")
+        self.inspect(self.app.selected_view, int(round(x)), int(round(y)), source="typed")
 
     def inspect(self, view: int | str, x: int, y: int, source: str = "typed") -> ProbeRequest:
         """Probe pixel (x, y) of ``view`` (index or name) in the worker; the newest request wins."""
@@ -426,7 +426,7 @@ class InspectorPanel:
         if picked is None:
             return
         view, x, y, source = picked
-        if view != self.app._selected_view:
+        if view != self.app.selected_view:
             self.app.select_view(view)
         self.inspect(view, x, y, source=source)
 
@@ -447,7 +447,7 @@ class InspectorPanel:
         if point_hit is None:
             return None
         point = np.asarray(cloud.xyz[point_hit[0]], np.float64)
-        selected = self.app._selected_view
+        selected = self.app.selected_view
         for view in (selected, int(cloud.source_view[point_hit[0]])):
             pixel = self._pixel_of(view, point)
             if pixel is not None:
@@ -506,7 +506,7 @@ class InspectorPanel:
             return
         from viser.transforms import SO3  # lazy: viser
 
-        view = app._selected_view
+        view = app.selected_view
         maps = app.session.view_maps(view, app.params())
         if kind not in maps:
             self.status.content = f"**no {kind} map** for this view"
@@ -536,12 +536,12 @@ class InspectorPanel:
         """Put a browser's camera where the selected view's camera is, with its field of view."""
         if client is None:
             return
-        camera = self.app.session.scene.views[self.app._selected_view].camera
+        camera = self.app.session.scene.views[self.app.selected_view].camera
         with client.atomic():
             client.camera.fov = float(2 * np.arctan2(camera.height / 2, camera.fy))
             client.camera.position = camera.center
             client.camera.look_at = camera.center + camera.R[2] * float(
-                np.mean(self.app.session.scene.views[self.app._selected_view].depth_range))
+                np.mean(self.app.session.scene.views[self.app.selected_view].depth_range))
             client.camera.up_direction = -camera.R[1]
 
     # ---- region re-run --------------------------------------------------------------------------------
@@ -560,7 +560,7 @@ class InspectorPanel:
     def rerun_from_form(self) -> None:
         x0, y0 = (int(round(v)) for v in self.box_origin.value)
         w, h = (int(round(v)) for v in self.box_size.value)
-        self.rerun(self.app._selected_view, (x0, y0, w, h), level=int(self.level.value),
+        self.rerun(self.app.selected_view, (x0, y0, w, h), level=int(self.level.value),
                    pass_index=int(self.pass_index.value), overrides=self.region_overrides())
 
     def rerun(self, view: int | str, box: tuple[int, int, int, int], level: int = 0, pass_index: int = 0,

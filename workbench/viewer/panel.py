@@ -230,12 +230,12 @@ class ControlPanel:
 
     def _view_dropdown_changed(self) -> None:
         index = int(str(self.view_dropdown.value).split(":", 1)[0])
-        if index != self._selected_view:
+        if index != self.selected_view:
             self.select_view(index)
 
     def step_view(self, step: int) -> None:
         """The previous (-1) or next (+1) view, wrapping around."""
-        self.select_view((self._selected_view + step) % len(self.session.scene.views))
+        self.select_view((self.selected_view + step) % len(self.session.scene.views))
 
     def _apply_preset(self) -> None:
         """Set the fusion controls to the chosen preset; one recomputation, not five."""

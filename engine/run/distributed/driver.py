@@ -128,7 +128,7 @@ def run_patchmatch_tasks(scene: Scene, out_dir: str | Path, options: PatchMatchO
             # the manifest (every entry) at most once a second: a stopped driver loses at most a second of tasks
             flush = time.monotonic() - flushed > MANIFEST_EVERY_S
             checkpoint.record(level, p, i, result.sha256, write=flush)
-            written[PatchMatchCheckpoint._name(level, p, i)] = result.depth_sha256
+            written[PatchMatchCheckpoint.file_name(level, p, i)] = result.depth_sha256
             flushed = time.monotonic() if flush else flushed
             finished += 1
             if on_iter is not None and active[i]:
@@ -178,7 +178,7 @@ def _inputs(checkpoint: PatchMatchCheckpoint, known: dict[str, str], at: tuple[i
         return {}, {}
     whole, depths = {}, {}
     for j in [view, *sources]:
-        name = PatchMatchCheckpoint._name(*at, j)
+        name = PatchMatchCheckpoint.file_name(*at, j)
         if j != view and known.get(name):
             depths[name] = known[name]
         elif name in checkpoint.entries:

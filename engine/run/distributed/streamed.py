@@ -3,30 +3,26 @@ so that the driver holds no list of per-view maps: fusion reads the views throug
 (:mod:`engine.fusion.cached`, COLMAP's workspace cache) and filters each one as it is loaded (DeepC-MVS_fast's
 confidence filter, Kuhn et al. 2020, §4.1), writing its points into ``fused.ply`` as they come
 (:mod:`engine.fusion.stream`: the cloud stays on disk); the metrics are accumulated view by view
-(:mod:`engine.run.distributed.pooled`). Cloud and metrics equal those of the in-process pipeline on the same maps.
+(:mod:`engine.run.scores`). Cloud and metrics equal those of the in-process pipeline on the same maps.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from engine.core.errors import DeepCError
-from engine.evaluation.depth import depth_metrics
 from engine.filtering import filter_by_confidence
 from engine.fusion import FusedCloud, FusionOptions, FusionView
 from engine.fusion.cached import CacheStats, fuse_cached
 from engine.fusion.stream import write_fused_stream
 from engine.fusion.views import scene_view
-from engine.run.distributed.pooled import PooledRankSum, pairwise_sum
 from engine.run.folder import read_map
-from engine.run.per_view import view_auc
+from engine.run.scores import confidence_auc, depth_block, views_with_gt_depth
 from engine.scene import Scene
-
-DEPTH_KEYS = ("abs_rel", "within_1pct", "within_5pct", "valid_fraction")  # the pooled block, as engine.run.pipeline's
 
 
 def read_view_map(out_dir: str | Path, kind: str, name: str) -> np.ndarray:
@@ -75,48 +71,20 @@ def fuse_run_folder(scene: Scene, out_dir: str | Path, options: FusionOptions, t
                               max_points=sum(c.width * c.height for c in cameras))  # a point consumes a pixel
 
 
-def _relative_errors(depth: np.ndarray, gt: np.ndarray) -> tuple[int, np.ndarray]:
-    """(pixels with GT, |z - z*| / z* where both exist) in float64, exactly as
-    ``engine.evaluation.depth.depth_metrics``."""
-    depth = np.asarray(depth, np.float64)
-    gt = np.asarray(gt, np.float64)
-    has_gt = np.isfinite(gt) & (gt > 0)
-    both = has_gt & np.isfinite(depth) & (depth > 0)
-    return int(has_gt.sum()), np.abs(depth[both] - gt[both]) / gt[both]
-
-
 def streamed_metrics(scene: Scene, out_dir: str | Path, tau: float | None) -> dict[str, Any]:
     """The metrics.json entries an in-process run computes from its maps, read view by view from ``out_dir``, in its
     order: ``depth`` and ``depth_per_view`` (with GT depth), ``confidence_auc`` and ``confidence_auc_per_view`` (with
-    GT depth and a confidence filter ``tau``), ``confidence_kept_pct`` (with ``tau``)."""
+    GT depth and a confidence filter ``tau``), ``confidence_kept_pct`` (with ``tau``). Scored by the pipeline's own
+    functions (``engine.run.scores``)."""
     out: dict[str, Any] = {}
-    with_gt = [v for v in scene.views if scene.gt_depth_paths[v.index] is not None]
-    if with_gt:
-        per_view, n_gt, n_both, within1, within5 = [], 0, 0, 0, 0
-        ranks, auc_per_view = PooledRankSum(), []
-        for view in with_gt:
-            gt, depth = scene.gt_depth(view.index), read_view_map(out_dir, "depth", view.name)
-            per_view.append({"view": view.name, **depth_metrics(depth, gt)})
-            has_gt, rel = _relative_errors(depth, gt)
-            n_gt, n_both = n_gt + has_gt, n_both + rel.size
-            within1, within5 = within1 + int((rel < 0.01).sum()), within5 + int((rel < 0.05).sum())
-            if tau is not None:
-                auc = view_auc(scene, view, depth, read_view_map(out_dir, "confidence", view.name))
-                if auc is not None:
-                    auc_per_view.append(auc[0])
-                    ranks.add(*auc[1:])
-        # depth_metrics of the concatenated maps: counts exact, the mean of the errors summed as numpy sums them
-        pooled = {"valid_fraction": 100.0 * n_both / n_gt if n_gt else float("nan")}
-        if n_both:
-            total = pairwise_sum(_errors(scene, out_dir, with_gt), n_both)
-            pooled.update(abs_rel=float(total / n_both), within_1pct=100.0 * float(within1 / n_both),
-                          within_5pct=100.0 * float(within5 / n_both))
-        else:
-            pooled.update(abs_rel=float("nan"), within_1pct=float("nan"), within_5pct=float("nan"))
-        out["depth"], out["depth_per_view"] = {k: pooled[k] for k in DEPTH_KEYS}, per_view
+    if views_with_gt_depth(scene):
+        def depth_of(i: int) -> np.ndarray:
+            return read_view_map(out_dir, "depth", scene.views[i].name)
+
+        out["depth"], out["depth_per_view"] = depth_block(scene, depth_of)
         if tau is not None:
-            out["confidence_auc"] = 100 * ranks.auc() if ranks.views else float("nan")
-            out["confidence_auc_per_view"] = auc_per_view
+            auc = confidence_auc(scene, depth_of, lambda i: read_view_map(out_dir, "confidence", scene.views[i].name))
+            out["confidence_auc"], out["confidence_auc_per_view"] = auc["pooled"], auc["per_view"]
     if tau is not None:
         kept = before = 0
         for view in scene.views:
@@ -128,7 +96,3 @@ def streamed_metrics(scene: Scene, out_dir: str | Path, tau: float | None) -> di
         out["confidence_kept_pct"] = 100.0 * kept / max(1, before)
     return out
 
-
-def _errors(scene: Scene, out_dir: str | Path, views: list) -> Iterator[np.ndarray]:
-    for view in views:
-        yield _relative_errors(read_view_map(out_dir, "depth", view.name), scene.gt_depth(view.index))[1]

@@ -152,7 +152,7 @@ def load_depth(folder: str, inputs: dict[str, str], depths: dict[str, str], leve
                shape: tuple[int, int]) -> np.ndarray:
     """A view's depth after a pass: only the depth array of its state file when ``depths`` holds its digest (the
     archive's other members are not read), else from the whole state verified against ``inputs``."""
-    name = PatchMatchCheckpoint._name(level, pass_index, view)
+    name = PatchMatchCheckpoint.file_name(level, pass_index, view)
     if name not in depths:
         return load_state(state_reader(folder, inputs), level, pass_index, view, shape).depth
     try:

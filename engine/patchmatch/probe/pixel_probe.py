@@ -18,8 +18,8 @@ import numpy as np
 
 from engine.core.errors import DeepCError
 from engine.patchmatch.context import ViewContext
-from engine.patchmatch.explain import explain_pixel
 from engine.patchmatch.kernels import ACTIVE_DRAW, neighbourhood_changed
+from engine.patchmatch.probe.explain import explain_pixel
 from engine.patchmatch.records import KernelParams, SamplingPattern
 from engine.patchmatch.rng import combine, uniform
 from engine.patchmatch.state import ViewState
