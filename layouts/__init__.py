@@ -1,7 +1,9 @@
 """Rerun blueprints, one per debugging task. Change what you see here, not in engine code.
 
 Each layout is a function of a recording's :class:`Contents` (which views and entities it holds, which
-timelines) and the view to show, returning an ``rrb.Blueprint``. Panel titles name the view. A map the
+timelines) and the view to show, returning an ``rrb.Blueprint``. Panel titles name the view first, short enough
+to stay readable in a narrow panel (``003 · depth``; the view's image name is in the tab and ``about``). A
+recording opened from a file starts paused at its start; a live stream follows the run. A map the
 recording lacks gets a text panel saying so (``missing/<view>/<kind>``, written by ``deepc replay`` next
 to the recording) instead of an empty "No data available" panel.
 
@@ -42,6 +44,7 @@ class Contents:
     views: list[str]
     entities: set[str] | None = None
     timelines: set[str] = dataclasses.field(default_factory=lambda: {SCRUB_TIMELINE, "pass", "iteration"})
+    live: bool = False  # a run streaming now: the viewer follows it (a file opens paused at its start)
 
     def has(self, path: str) -> bool:
         return self.entities is None or path in self.entities
@@ -59,9 +62,15 @@ def view_title(view: str) -> str:
     return f"{name} (view {int(index)})" if index.isdigit() and name else raw
 
 
+def view_label(view: str) -> str:
+    """Short name of a view entity for panel titles: ``012_img\\/a.png`` -> ``012``."""
+    index = view.replace("\\", "").partition("_")[0]
+    return index if index.isdigit() else view_title(view)
+
+
 def map_panel(contents: Contents, view: str, kind: str):
     """A 2-D panel of ``maps/<view>/<kind>`` titled with the view, or a text panel saying it is not recorded."""
-    label = f"{MAP_LABELS.get(kind, kind)} · {view_title(view)}"
+    label = f"{view_label(view)} · {MAP_LABELS.get(kind, kind)}"
     path = f"/maps/{view}/{kind}"
     if contents.has(path):
         return rrb.Spatial2DView(name=label, origin=path)
@@ -75,15 +84,15 @@ def _text_panels() -> rrb.Tabs:
 
 
 def _panels(contents: Contents, state: str = "expanded") -> list:
-    # following: the viewer opens at the end of the recording (final maps, counter, confidence, labels)
-    return [rrb.TimePanel(state=state, timeline=contents.timeline, play_state="following"),
+    # a file: paused, no loop (scrub it; playing a loaded file from the start replays the run); live: follow the run
+    play = {"play_state": "following"} if contents.live else {"play_state": "paused", "loop_mode": "off"}
+    return [rrb.TimePanel(state=state, timeline=contents.timeline, **play),
             rrb.SelectionPanel(state="collapsed"),
             rrb.BlueprintPanel(state="collapsed")]
 
 
 def iterations(contents: Contents, view: str) -> rrb.Blueprint:
-    title = view_title(view)
-    stats = [rrb.TimeSeriesView(name=f"{label} · {title}", origin=f"/stats/{view}/{stat}")
+    stats = [rrb.TimeSeriesView(name=f"{view_label(view)} · {label}", origin=f"/stats/{view}/{stat}")
              for stat, label in STATS_LABELS.items() if contents.has(f"/stats/{view}/{stat}")]
     kinds = ("depth", "normal", "cost", "selected_count", "error", "counter")
     if contents.entities is not None and contents.has(f"/maps/{view}/confidence"):
@@ -123,7 +132,7 @@ def pipelines(contents: Contents, view: str) -> rrb.Blueprint:
 
 def _confidence_tab(contents: Contents, view: str):
     return rrb.Grid(
-        rrb.Spatial2DView(name=f"image · {view_title(view)}", origin=f"/world/cameras/{view}/rgb"),
+        rrb.Spatial2DView(name=f"{view_label(view)} · image", origin=f"/world/cameras/{view}/rgb"),
         map_panel(contents, view, "confidence"),
         map_panel(contents, view, "label"),
         map_panel(contents, view, "error"),

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import io
+import os
+import re
+import signal
 import socket
 import subprocess
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -70,26 +75,26 @@ def test_recording_views_and_layouts(recording, tmp_path):
 
 
 def test_layouts_name_the_chosen_view_and_say_what_is_missing(recording, tmp_path):
-    """--view by image name or index; every map panel is titled with the view; a map the recording lacks
+    """--view by image name or index; every map panel is titled with the view first; a map the recording lacks
     (view 1 has no GT, nothing has a counter) is a text panel saying why, not an empty panel."""
     contents = recording_contents(recording).contents
     assert {"view_iteration", "pass", "iteration"} <= contents.timelines
     for view in ("img/1.png", "1"):
         rbl, notes_rrd = layout_files(recording, "iterations", tmp_path, view=view)
         titles = blueprint_titles(rbl)
-        assert "depth · img/1.png (view 1)" in titles and "cost · img/1.png (view 1)" in titles
-        assert "error vs GT · img/1.png (view 1): not recorded" in titles
-        assert not [t for t in titles if "view 0" in t]
+        assert "001 · depth" in titles and "001 · cost" in titles
+        assert "001 · error vs GT: not recorded" in titles
+        assert not [t for t in titles if t.startswith("000")]
     docs = notes(notes_rrd)
     assert "no GT depth" in docs[f"/missing/{entity_name(1, 'img/1.png')}/error"]
     assert f"/missing/{entity_name(0, 'img/0.png')}/error" not in docs  # view 0 has its error map
     assert "img/1.png (view 1)" in docs["/about"] and "view_iteration" in docs["/about"]
     # the confidence layout: a tab per view (not only the first 4), each with confidence, labels and error
     titles = blueprint_titles(layout_files(recording, "confidence", tmp_path, view="img/0.png")[0])
-    for view in ("img/0.png (view 0)", "img/1.png (view 1)"):
-        assert view in titles
-        assert f"confidence · {view}: not recorded" in titles and f"GT labels · {view}: not recorded" in titles
-    assert "error vs GT · img/0.png (view 0)" in titles
+    for view, short in (("img/0.png (view 0)", "000"), ("img/1.png (view 1)", "001")):
+        assert view in titles  # the tab
+        assert f"{short} · confidence: not recorded" in titles and f"{short} · GT labels: not recorded" in titles
+    assert "000 · error vs GT" in titles
 
 
 def test_bad_recordings_are_refused(tmp_path):
@@ -100,17 +105,30 @@ def test_bad_recordings_are_refused(tmp_path):
         WebViewer(tmp_path / "missing.rrd")
 
 
-def test_replay_on_a_port_in_use_is_one_line(recording):
+def test_replay_on_a_port_in_use_serves_on_the_next_one_and_says_so(recording):
+    """As `deepc view` and `deepc run` do: a busy port is not an error, the next free one is used and named."""
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        result = subprocess.run([sys.executable, "-m", "workbench.cli", "replay", str(recording), "--web",
-                                 "--port", str(port)], capture_output=True, text=True, timeout=120)
-    assert result.returncode == 2
-    assert result.stderr.strip() == (f"deepc: error: port {port} on 127.0.0.1 is in use (another viewer?): "
-                                     "pass --port N, or --port 0 for any free port")
-    assert "\x1b[" not in result.stderr + result.stdout
+        proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", "replay", str(recording), "--web",
+                                 "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(line.strip() for line in proc.stdout), daemon=True)
+        reader.start()
+        try:
+            deadline = time.monotonic() + 120
+            while len(lines) < 2 and time.monotonic() < deadline and proc.poll() is None:
+                time.sleep(0.1)
+        finally:
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(timeout=30)
+    assert len(lines) == 2, (lines, proc.stderr.read())
+    moved = re.fullmatch(rf"rerun web viewer: port {port} is in use; serving on port (\d+) instead", lines[0])
+    assert moved and int(moved.group(1)) > port, lines
+    assert lines[1].startswith(f"rerun web viewer: http://127.0.0.1:{moved.group(1)}"), lines
+    assert "\x1b[" not in "".join(lines)
 
 
 def _shot(browser_context, viewer) -> np.ndarray:
@@ -165,7 +183,7 @@ def test_a_run_recording_says_what_it_will_not_record(tmp_path):
     assert "fast and full pipelines" in docs[f"/missing/{second}/confidence"]
     assert f"/missing/{second}/depth" not in docs
     titles = blueprint_titles(tmp_path / "run.rrd")
-    assert f"depth · {scene.views[1].name} (view 1)" in titles
+    assert "001 · depth" in titles
 
 
 def test_a_recording_from_before_per_view_timelines_still_replays(tmp_path):
@@ -183,6 +201,17 @@ def test_a_recording_from_before_per_view_timelines_still_replays(tmp_path):
     contents = recording_contents(path).contents
     assert contents.timelines == {"iteration"} and contents.timeline == "iteration"
     rbl, notes_rrd = layout_files(path, "iterations", tmp_path)
-    assert "depth · a.png (view 0)" in blueprint_titles(rbl)
+    assert "000 · depth" in blueprint_titles(rbl)
     docs = notes(notes_rrd)
     assert "Recorded before per-view timelines" in docs["/about"] and "Colour legends" in docs["/legend"]
+
+
+@pytest.mark.parametrize("live", [False, True])
+def test_a_file_opens_paused_without_looping_and_a_live_run_is_followed(live):
+    """Replaying a file must not auto-play and loop it; a run streaming now is followed as it goes."""
+    from layouts import LAYOUTS, Contents
+
+    view = entity_name(0, "a.png")
+    for layout in LAYOUTS.values():
+        panel = layout(Contents([view], {f"/maps/{view}/depth"}, live=live), view).time_panel
+        assert (panel.play_state, panel.loop_mode) == (("following", None) if live else ("paused", "off"))

@@ -114,3 +114,20 @@ def test_two_tabs_share_one_session(browser_context, app):
     finally:
         first.close()
         second.close()
+
+
+def test_a_new_page_opens_looking_through_the_first_camera(browser_context, app):
+    """`deepc view` opens as the live hand-over does: behind camera 0, looking where it looks (not viser's oblique
+    default), and the client reports that pose back."""
+    scene = app.session.scene
+    first = scene.views[0].camera
+    depth = float(np.median([np.mean(v.depth_range) for v in scene.views]))
+    page = _open(browser_context, app)
+    try:
+        client = next(iter(app.server.get_clients().values()))
+        home = first.center - first.R[2] * 0.2 * depth
+        wait_for(lambda: np.linalg.norm(client.camera.position - home) < 1e-3 * depth)
+        direction = client.camera.look_at - client.camera.position
+        assert np.dot(direction / np.linalg.norm(direction), first.R[2]) > 0.999
+    finally:
+        page.close()

@@ -155,8 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay = sub.add_parser("replay", help="replay a .rrd recording in the rerun viewer")
     replay.add_argument("recording", metavar="FILE.rrd")
     replay.add_argument("--layout", default=None,
-                        help="blueprint from layouts/: iterations, pipelines or confidence, built from what the "
-                             "recording holds (default: iterations, or pipelines for a recording of results only)")
+                        help="blueprint from layouts/: iterations, pipelines, confidence or probe, built from what "
+                             "the recording holds (default: iterations; pipelines for a recording of results only, "
+                             "probe for one of probed pixels only)")
     replay.add_argument("--view", metavar="NAME", default=None,
                         help="the view to show: its image name (e.g. view_003.png), its index or its entity name "
                              "(default: the first view)")

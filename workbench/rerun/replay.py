@@ -139,18 +139,25 @@ def layout_files(path: str | Path, layout: str, folder: Path, view: str | None =
     return [target] + ([notes] if notes else [])
 
 
-def check_port(host: str, port: int) -> None:
-    """A one-line DeepCError if ``port`` on ``host`` is taken (0 = any free port: never)."""
+#: busy ports tried after the requested one before giving up, as viser does for ``deepc view``
+PORT_TRIES = 32
+
+
+def free_port(host: str, port: int) -> int:
+    """``port`` if it is free on ``host``, else the next free one (0 = any free port, chosen later); a port that
+    cannot be bound for another reason, or no free port among the next ``PORT_TRIES``, is a one-line DeepCError."""
     if port == 0:
-        return
-    with socket.socket() as sock:
-        try:
-            sock.bind((host, port))
-        except OSError as exc:
-            if exc.errno == errno.EADDRINUSE:
-                raise DeepCError(f"port {port} on {host} is in use (another viewer?): pass --port N, or --port 0 "
-                                 "for any free port") from None
-            raise DeepCError(f"cannot serve on {host}:{port}: {exc.strerror or exc}") from None
+        return 0
+    for candidate in range(port, port + PORT_TRIES):
+        with socket.socket() as sock:
+            try:
+                sock.bind((host, candidate))
+                return candidate
+            except OSError as exc:
+                if exc.errno != errno.EADDRINUSE:
+                    raise DeepCError(f"cannot serve on {host}:{candidate}: {exc.strerror or exc}") from None
+    raise DeepCError(f"ports {port}-{port + PORT_TRIES - 1} on {host} are all in use: pass --port N, or --port 0 "
+                     "for any free port")
 
 
 def _error_line(lines: list[str]) -> str:
@@ -176,7 +183,7 @@ class WebViewer:
 
     def __init__(self, path: str | Path | None = None, layout: str | None = None, host: str = "127.0.0.1",
                  port: int = 0, timeout: float = 60.0, view: str | None = None):
-        check_port(host, port)
+        self.port = free_port(host, port)
         self._tmp = tempfile.TemporaryDirectory(prefix="deepc-replay-")
         files = [] if path is None else [str(Path(path).resolve())]
         try:
@@ -186,7 +193,7 @@ class WebViewer:
         except BaseException:
             self._tmp.cleanup()
             raise
-        cmd = [str(rerun_binary()), "--serve-web", "--bind", host, "--port", "0", "--web-viewer-port", str(port),
+        cmd = [str(rerun_binary()), "--serve-web", "--bind", host, "--port", "0", "--web-viewer-port", str(self.port),
                *files]
         env = {**os.environ, "RERUN_ANALYTICS_DISABLED": "1"}
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -248,6 +255,8 @@ def replay(path: str, layout: str | None = None, web: bool = False, host: str = 
             files = [path, *(str(f) for f in layout_files(path, layout or default_layout(path), Path(tmp), view))]
             return subprocess.call([str(rerun_binary()), *files])
     viewer = WebViewer(path, layout, host, port, view=view)
+    if port and viewer.port != port:
+        print(f"rerun web viewer: port {port} is in use; serving on port {viewer.port} instead", flush=True)
     print(f"rerun web viewer: {viewer.url}  (Ctrl+C to stop)", flush=True)
     try:
         viewer.proc.wait()

@@ -49,6 +49,7 @@ def open_run_recording(path: str | None, scene: Scene, options: PipelineOptions,
     when streaming live, not to a file only), with the run's counter and confidence options."""
     every = stream_options.confidence_k(live=live_url is not None)
     contents = expected_contents(scene, options, stream_options, live_confidence=every > 0)
+    contents.live = live_url is not None  # a live viewer follows the run; the file alone opens paused
     names = contents.views
     focus = names[stream_options.view] if stream_options.view is not None and stream_options.view < len(names) \
         else names[0]

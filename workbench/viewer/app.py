@@ -67,11 +67,16 @@ def _shown_note(total: int) -> str:
 
 def set_home_camera(server: viser.ViserServer, scene: Scene) -> None:
     """Every client that connects starts behind the first camera, looking where it looks, its image "up" on
-    screen (viser also applies this to clients already connected: register it once per server)."""
+    screen, and "Reset View" returns there (viser's initial camera; the connect handler also moves clients
+    already connected: register it once per server)."""
     depth = float(np.median([np.mean(v.depth_range) for v in scene.views]))
     first = scene.views[0].camera
     home_position = first.center - first.R[2] * 0.2 * depth
     home_target = first.center + first.R[2] * depth
+    # a client that connects later takes its first pose from here, before any handler could move it
+    server.initial_camera.position = home_position
+    server.initial_camera.look_at = home_target
+    server.initial_camera.up = -first.R[1]
 
     @server.on_client_connect
     def _(client: viser.ClientHandle) -> None:
