@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 
@@ -32,6 +34,15 @@ def _stream(rec, n_views=2, options=None, gt=None):
     return RerunStream(rec, views, gt, options, pass_iterations=lambda p: 4)
 
 
+def _depth(table, base: str, row: int) -> np.ndarray:
+    """The depth map logged in ``row`` of ``table`` (a 16-bit PNG and its steps per model unit), in model units."""
+    from PIL import Image
+
+    blob = bytes(table[f"/maps/{base}/depth:EncodedDepthImage:blob"][row].as_py()[0])
+    meter = table[f"/maps/{base}/depth:EncodedDepthImage:meter"][row].as_py()[0]
+    return np.asarray(Image.open(io.BytesIO(blob))).astype(np.float64) / meter
+
+
 def _read(path):
     from rerun.chunk import RrdReader
     return RrdReader(str(path)).stream().collect()
@@ -50,12 +61,8 @@ def test_recording_holds_maps_stats_and_every_iteration(tmp_path):
     base = entity_name(0, "img/0.png")
     table = store.reader(index="iteration", contents=f"/maps/{base}/**").to_arrow_table()
     assert table.num_rows == 4
-    fmt = table[f"/maps/{base}/depth:DepthImage:format"][2].as_py()[0]
-    buf = table[f"/maps/{base}/depth:DepthImage:buffer"][2].as_py()[0]
-    raw = bytes(buf)
-    assert len(raw) == 2 * 12 * 16  # logged as float16 to keep recordings small
-    depth = np.frombuffer(raw, np.float16).reshape(fmt["height"], fmt["width"])
-    assert depth[0].max() == 0 and 1 <= depth[1:].min() <= depth.max() <= 2
+    depth = _depth(table, base, 2)  # a 16-bit PNG to keep recordings small, read back in model units
+    assert depth.shape == (12, 16) and depth[0].max() == 0 and 1 <= depth[1:].min() <= depth.max() <= 2
     # cost hovers as "matching cost 0.37 ..." (class-coded in 0.01 steps), no depth = class 0
     cost = np.frombuffer(bytes(table[f"/maps/{base}/cost:SegmentationImage:buffer"][2].as_py()[0]), np.uint8)
     cost = cost.reshape(12, 16)
@@ -81,8 +88,7 @@ def test_thinning_keeps_the_last_iteration_of_each_pass_and_one_view(tmp_path):
     base = entity_name(1, "img/1.png")
     table = store.reader(index="iteration", contents=f"/maps/{base}/depth").to_arrow_table()
     assert table.num_rows == 2
-    fmt = table[f"/maps/{base}/depth:DepthImage:format"][0].as_py()[0]
-    assert max(fmt["width"], fmt["height"]) <= 8
+    assert max(_depth(table, base, 0).shape) <= 8
     assert f"/maps/{entity_name(0, 'img/0.png')}/depth" not in str(store.summary())
 
 
@@ -170,3 +176,21 @@ def test_stream_options_are_validated():
     from engine.core.errors import OptionsError
     with pytest.raises(OptionsError, match="every"):
         StreamOptions(every=0).validate()
+
+
+def test_depth_maps_are_logged_losslessly_to_a_step_of_their_range():
+    """PNG depth: back in model units within half a step of the farther of the range and the map's maximum
+    (so a depth beyond the range is not cut), 'no depth' stays 0 and a valid depth never becomes 0."""
+    from PIL import Image
+
+    from workbench.rerun.stream import DEPTH_STEPS, depth_image
+
+    depth = np.random.default_rng(0).uniform(1, 9, (12, 16))
+    depth[0] = 0
+    depth[1, 0] = 1e-9  # valid, far below one step
+    image = depth_image(depth, (1.0, 8.0))
+    blob = bytes(image.blob.as_arrow_array().to_pylist()[0])
+    back = np.asarray(Image.open(io.BytesIO(blob))).astype(np.float64) / image.meter.as_arrow_array().to_pylist()[0]
+    step = depth.max() / DEPTH_STEPS
+    assert np.abs(back - depth)[2:].max() <= 0.5 * step * (1 + 1e-6)
+    assert (back[0] == 0).all() and (back[1:] > 0).all()

@@ -164,7 +164,7 @@ class LiveConfidence(NullObserver):
         conf = self.confidence_map(event, counter)
         depth = np.asarray(event.depth)
         valid = depth > 0
-        small = stream.options.max_size
+        small = stream.options.max_size or 0
         invalid = subsample(~valid, small)
         stream.set_event_time()
         stream.log_view_classes(view, "counter", counter_classes(subsample(counter, small), invalid))

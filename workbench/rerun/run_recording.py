@@ -6,9 +6,11 @@ both log the same entities with the same blueprint. Importing this module import
 
 from __future__ import annotations
 
+from engine.patchmatch import effective_levels
 from engine.run.pipeline import PipelineOptions
 from engine.scene import Scene
 from layouts import DEFAULT, LAYOUTS, Contents
+from workbench.rerun.budget import budget_plan
 from workbench.rerun.confidence import LiveConfidence
 from workbench.rerun.notes import log_notes
 from workbench.rerun.recording import Recording
@@ -40,14 +42,29 @@ def expected_contents(scene: Scene, options: PipelineOptions, stream_options: St
     return Contents(names, entities)
 
 
+def recording_plan(scene: Scene, options: PipelineOptions, stream_options: StreamOptions) -> StreamOptions:
+    """``stream_options`` with ``max_size`` and ``every`` chosen, where unset, so that the recording stays within
+    ``stream_options.budget_mb`` (:func:`workbench.rerun.budget.budget_plan`), from the views it logs, the pyramid
+    levels and the passes' iterations."""
+    pm = options.patchmatch
+    logged = [v for v in scene.views if stream_options.view is None or v.index == stream_options.view]
+    size, every = budget_plan([(v.camera.width, v.camera.height) for v in logged], effective_levels(scene.views, pm),
+                              [pm.pass_iterations(p) for p in range(1 + pm.geom_passes)], stream_options.budget_mb,
+                              stream_options.max_points, stream_options.max_size, stream_options.every)
+    return stream_options.replace(max_size=size, every=every)
+
+
 def open_run_recording(path: str | None, scene: Scene, options: PipelineOptions, stream_options: StreamOptions,
                        live_url: str | None = None) -> Recording:
     """A :class:`Recording` to ``path`` (and/or the live viewer at ``live_url``) whose ``stream`` is the
     :class:`RerunStream` observer to hand to ``run_pipeline``. Its layout shows the view the stream is thinned
     to (else the first), with a text panel in place of each map the run will not record. Counter and confidence
     maps are scored while PatchMatch runs every ``stream_options.confidence_k(live)`` iterations of a view (by default
-    when streaming live, not to a file only), with the run's counter and confidence options."""
+    when streaming live, not to a file only), with the run's counter and confidence options. Without a
+    ``stream_options.max_size`` or ``every``, they are chosen to keep the recording within its budget
+    (:func:`recording_plan`; the stream's ``options`` say which)."""
     every = stream_options.confidence_k(live=live_url is not None)
+    stream_options = recording_plan(scene, options, stream_options)  # sizes and thinning within the budget
     contents = expected_contents(scene, options, stream_options, live_confidence=every > 0)
     contents.live = live_url is not None  # a live viewer follows the run; the file alone opens paused
     names = contents.views

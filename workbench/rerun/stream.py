@@ -3,11 +3,13 @@
 Entity tree (one per recording; the same code writes to a live viewer or an ``.rrd`` file)::
 
     world/cameras/<view>            Transform3D (camera -> world) + Pinhole + rgb image
-    maps/<view>/depth               DepthImage in model units (colormapped)
-    maps/<view>/normal              normals colour-coded as RGB = (n + 1) / 2
+    maps/<view>/depth               depth in model units: a PNG depth image in steps of 1/4095 of the view's far
+                                    depth (hover reads the depth), colormapped
+    maps/<view>/normal              normals colour-coded as RGB = (n + 1) / 2, a JPEG
     maps/<view>/cost                matching cost, class-coded in 0.01 steps (0 = perfect, 2 = no match)
     maps/<view>/selected_count      number of selected source views per pixel, class-coded
-    maps/<view>/selected_views      uint32 bitmask over the view's source list (see selected_views_list)
+    maps/<view>/selected_views      bitmask over the view's source list (see selected_views_list), a lossless PNG
+                                    of 8 or 16 bits (32 as raw pixels for more than 16 sources)
     maps/<view>/error               |z - z_gt| / z_gt in %, class-coded (hover names it), when GT exists
     maps/<view>/counter             consistent source views after PatchMatch (and every k-th iteration with
                                     StreamOptions.confidence_every, workbench/rerun/confidence.py), class-coded
@@ -16,13 +18,15 @@ Entity tree (one per recording; the same code writes to a live viewer or an ``.r
     stats/<view>/{mean_cost,changed_pct,within_1pct,seconds,level,pass}   scalars
     stats/<view>/{confidence_kept_pct,confidence_auc,confidence_seconds}  scalars of the k-th iterations' scoring
     legend, legend/<kind>           markdown: colour scale, unit and 'no data' of every map (workbench.rerun.legends)
-    world/fused/<pipeline>          fused cloud, when a fusion stage reports one
+    world/fused/<pipeline>          fused cloud, when a fusion stage reports one (thinned to at most
+                                    StreamOptions.max_points: the full cloud is fused.ply)
 
 Timelines: ``view_iteration`` counts one view's red-black iterations over the whole run (scrub it to watch one
 view converge: every view's n-th iteration sits at n); ``pass`` numbers the passes over all levels, coarse to
 fine (0, 1, 2 at the coarsest level, then 3, ...); ``iteration`` is the engine's global step, all views
 interleaved (view 0 at steps 0-2, 24-26, ... with 8 views). Logging can be thinned (every k-th iteration, one
-view, reduced resolution); GT error is logged with the maps at every logged iteration of every level.
+view, reduced resolution; a run's recording chooses within its budget, ``workbench/rerun/budget.py``); GT error is
+logged with the maps at every logged iteration of every level.
 """
 
 from __future__ import annotations
@@ -52,6 +56,9 @@ from workbench.rerun.legends import (
 )
 from workbench.rerun.options import StreamOptions
 
+#: JPEG quality of the logged normal maps (colour-coded directions: 85 keeps them visually exact) and photographs
+NORMAL_JPEG_QUALITY, PHOTO_JPEG_QUALITY = 85, 90
+
 
 def entity_name(index: int, name: str) -> str:
     """Entity-path-safe name of a view: index plus the image name (which may hold '/' or '.')."""
@@ -64,6 +71,46 @@ def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
 
 
 TIMELINES = ("view_iteration", "pass", "iteration")  # the first is the one layouts show
+
+
+#: integer steps of a logged depth map from 0 to its far end (a 16-bit PNG): 0.025 % of the far depth, 40 times finer
+#: than the 1 % that counts as right, and a third of the bytes of whole 16-bit steps (bench_recording.py)
+DEPTH_STEPS = 4095
+
+
+def depth_image(depth: np.ndarray, depth_range: tuple[float, float]) -> rr.EncodedDepthImage | rr.DepthImage:
+    """(H, W) depth in model units (0 = none) as a PNG depth image: ``DEPTH_STEPS`` steps from 0 to the farther of
+    the range's far end and the map's largest depth (``meter`` = steps per model unit, so the viewer's hover reads
+    model units), a valid depth never rounded to 0; colormapped over ``depth_range``."""
+    dmin, dmax = depth_range
+    far = max(dmax, float(depth.max()) if depth.size else 0.0)
+    scale = DEPTH_STEPS / far if far > 0 else 1.0
+    steps = np.clip(np.rint(np.asarray(depth, np.float64) * scale), 0, DEPTH_STEPS).astype(np.uint16)
+    steps[(depth > 0) & (steps == 0)] = 1
+    return rr.DepthImage(steps, meter=scale, colormap="turbo", depth_range=[dmin * scale, dmax * scale]).compress(
+        compress_level=9)
+
+
+def png_image(values: np.ndarray) -> rr.EncodedImage:
+    """A lossless single-channel PNG of 8- or 16-bit (H, W) integers."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    array = np.ascontiguousarray(values)
+    Image.fromarray(array if array.dtype == np.uint8 else array.astype(np.uint16)).save(buffer, format="PNG")
+    return rr.EncodedImage(contents=buffer.getvalue(), media_type="image/png")
+
+
+def mask_image(mask: np.ndarray, n_sources: int) -> rr.EncodedImage | rr.Image:
+    """The selected-views bitmask (H, W) uint32 over ``n_sources`` views in the fewest bits that hold it: a PNG of
+    8 or 16 bits, raw 32-bit pixels beyond 16 sources."""
+    if n_sources <= 8:
+        return png_image(mask.astype(np.uint8))
+    if n_sources <= 16:
+        return png_image(mask.astype(np.uint16))
+    return rr.Image(np.ascontiguousarray(mask), color_model="L")
 
 
 def _popcount(mask: np.ndarray) -> np.ndarray:
@@ -99,6 +146,8 @@ class RerunStream(NullObserver):
         self._view_iterations: dict[int, int] = {}  # per view: iterations seen so far
         self._passes: list[tuple[int, int]] = []  # (level, pass_index) in the order they ran
         self._last_time: dict[int, tuple[int, int, int]] = {}  # per view: (view_iteration, pass, step) last logged
+        # per view: the last iteration thinning left out (its maps are the view's until its next iteration)
+        self._skipped: dict[int, tuple[IterationEvent, tuple[int, int, int], float]] = {}
         self.event_time = (0, 0, 0)  # (view_iteration, pass, step) of the event being handled, logged or not
         # observers that get every event after this stream handled it and log through it (workbench.rerun.confidence)
         self.companions: list[Any] = []
@@ -117,7 +166,8 @@ class RerunStream(NullObserver):
             rec.log(path, rr.Transform3D(translation=camera.center, mat3x3=camera.R.T), static=True)
             rec.log(path, rr.Pinhole(image_from_camera=camera.K, width=camera.width, height=camera.height,
                                      camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3), static=True)
-            rec.log(f"{path}/rgb", rr.Image((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)), static=True)
+            rec.log(f"{path}/rgb", rr.Image((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)).compress(
+                jpeg_quality=PHOTO_JPEG_QUALITY), static=True)
         rec.log("legend", rr.TextDocument(legend_markdown(), media_type=rr.MediaType.MARKDOWN), static=True)
         for kind, text in LEGENDS.items():
             rec.log(f"legend/{kind}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
@@ -136,7 +186,7 @@ class RerunStream(NullObserver):
     def _wanted(self, event: IterationEvent) -> bool:
         if self.options.view is not None and event.view != self.options.view:
             return False
-        return self._last_of_pass(event) or event.iteration % self.options.every == 0
+        return self._last_of_pass(event) or event.iteration % (self.options.every or 1) == 0
 
     def _gt_at(self, view: int, shape: tuple[int, int]) -> np.ndarray | None:
         """The view's GT depth at ``shape`` (coarser pyramid levels get a resampled copy, cached)."""
@@ -181,33 +231,44 @@ class RerunStream(NullObserver):
         pass_number = self._passes.index((event.level, event.pass_index))
         self.event_time = (view_iteration, pass_number, event.step)
         depth = event.depth
-        valid = depth > 0
         previous = self._previous_depth.get(view)
         changed = float("nan")
         if previous is not None and previous.shape == depth.shape:
             changed = 100.0 * float(np.count_nonzero(previous != depth)) / depth.size
         self._previous_depth[view] = depth.copy()
         if not self._wanted(event):
+            # a pass that converges ends before its planned last iteration: this one is logged if it was the last
+            self._skipped[view] = (event, (view_iteration, pass_number, event.step), changed)
             return
+        self._log_maps(event, (view_iteration, pass_number, event.step), changed)
+
+    def _log_maps(self, event: IterationEvent, times: tuple[int, int, int], changed: float,
+                  pass_end: bool = False) -> None:
+        """Log ``event``'s maps and scalars at ``times`` (``pass_end``: the last iteration of a pass that ended
+        early)."""
+        self._skipped.pop(event.view, None)
+        view, depth = event.view, event.depth
+        valid = depth > 0
         rec = self.rec
-        self._set_time(view_iteration, pass_number, event.step)
-        self._last_time[view] = (view_iteration, pass_number, event.step)
+        self._set_time(*times)
+        self._last_time[view] = times
         name, _camera, _rgb, sources = self.views[view]
         base = entity_name(view, name)
-        small = self.options.max_size
+        small = self.options.max_size or 0
         dmin, dmax = self._depth_range[view]
-        # Compact: depth as a float16 depth image (hovering shows the depth), the other scalar maps as uint8 class
-        # ids whose AnnotationContext names value and unit on hover; ~0.6 MB per view and iteration at 320x240.
-        rec.log(f"maps/{base}/depth", rr.DepthImage(subsample(depth, small).astype(np.float16), meter=1.0,
-                                                    colormap="turbo", depth_range=[dmin, dmax]))
-        rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(subsample(event.normal, small))))
+        # Compact: depth as a 16-bit PNG depth image (hovering shows the depth), normals as a JPEG, the other scalar
+        # maps as uint8 class ids whose AnnotationContext names value and unit on hover (benchmarks/performance/
+        # bench_recording.py measures the sizes)
+        rec.log(f"maps/{base}/depth", depth_image(subsample(depth, small), (dmin, dmax)))
+        rec.log(f"maps/{base}/normal", rr.Image(normal_to_rgb(subsample(event.normal, small))).compress(
+            jpeg_quality=NORMAL_JPEG_QUALITY))
         self._log_classes(f"maps/{base}/cost", "cost", cost_classes(subsample(event.cost, small),
                                                                      subsample(~valid, small)))
         mask = subsample(event.selected_views, small)
         self._log_classes(f"maps/{base}/selected_count", "selected_count", count_classes(_popcount(mask)),
                           lambda: selected_count_context(len(sources)))
-        if self.options.selected_views_mask and self._last_of_pass(event):
-            rec.log(f"maps/{base}/selected_views", rr.Image(np.ascontiguousarray(mask), color_model="L"))
+        if self.options.selected_views_mask and (pass_end or self._last_of_pass(event)):
+            rec.log(f"maps/{base}/selected_views", mask_image(mask, len(sources)))
         stats = f"stats/{base}"
         mean_cost = float(event.cost[valid].mean()) if valid.any() else float("nan")
         rec.log(f"{stats}/mean_cost", rr.Scalars(mean_cost))
@@ -234,8 +295,12 @@ class RerunStream(NullObserver):
         self.rec.log(f"maps/{entity_name(view, name)}/{kind}", rr.Image(image))
 
     def log_cloud(self, pipeline: str, xyz: np.ndarray, rgb: np.ndarray, radius: float = 0.01) -> None:
-        """Log a fused cloud under ``world/fused/<pipeline>``."""
-        self.rec.log(f"world/fused/{pipeline}", rr.Points3D(xyz, colors=rgb, radii=radius), static=True)
+        """Log a fused cloud under ``world/fused/<pipeline>``, every k-th point of it when it has more than
+        ``options.max_points`` (fusion emits points view by view, pixel by pixel: a stride keeps every part of the
+        scene at a k-th of its density)."""
+        stride = max(1, -(-len(xyz) // self.options.max_points)) if self.options.max_points else 1
+        self.rec.log(f"world/fused/{pipeline}", rr.Points3D(xyz[::stride], colors=rgb[::stride], radii=radius),
+                     static=True)
 
     def log_mesh(self, pipeline: str, mesh: Any) -> None:
         """Log a :class:`engine.meshing.TriangleMesh` under ``world/mesh/<pipeline>`` (shown beside the cloud)."""
@@ -266,12 +331,15 @@ class RerunStream(NullObserver):
         """Log what a finished stage produced: counter maps after PatchMatch, confidence maps (and GT labels of
         the depth they score) after the confidence stage, the fused cloud after fusion, the mesh after meshing."""
         if name == "patchmatch_view_converged":
+            skipped = self._skipped.get(info.get("view", -1))
+            if skipped is not None:  # the pass's last iteration, left out by thinning: its maps are the final ones
+                self._log_maps(*skipped, pass_end=True)
             self.rec.log("log", rr.TextLog(
                 f"{info['view_name']}: level {info['level']} pass {info['pass_index']} converged after "
                 f"{info['iterations']} of {info['planned']} iterations", level=rr.TextLogLevel.INFO))
             return
         self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
-        small = self.options.max_size
+        small = self.options.max_size or 0
         maps = info.get("maps") or []
         for view, counter in enumerate(info.get("counter") or []):
             invalid = maps[view].depth <= 0 if view < len(maps) else counter <= 0

@@ -15,6 +15,7 @@ import numpy as np
 from engine.fusion import FusedCloud
 from engine.io.ply import write_ply
 from engine.scene import Scene
+from workbench.rerun.options import StreamOptions
 from workbench.viewer.session import ViewParams
 
 
@@ -41,7 +42,7 @@ def write_state_rrd(path: Path, scene: Scene, cloud: FusedCloud, params: ViewPar
     recording = Recording(path)
     try:
         views = [(v.name, v.camera, scene.image(v.index), v.source_views) for v in scene.views]
-        stream = RerunStream(recording.rec, views)
+        stream = RerunStream(recording.rec, views, options=StreamOptions(max_points=0))  # an export keeps every point
         stream.log_cloud(str(params.pipeline), np.asarray(cloud.xyz, np.float32), cloud.rgb, radius=point_size / 2)
         for kind, image in images.items():
             stream.log_view_map(view, kind, image)
