@@ -81,12 +81,13 @@ def cached_workspace(cache_root: Path, key: str) -> Path | None:
 
 
 def _start_time(pid: int) -> str | None:
-    """The process's start time (clock ticks since boot, /proc/PID/stat field 22), or None if it is gone."""
+    """The process's start time (clock ticks since boot, /proc/PID/stat field 22), or None if it is gone (or a
+    zombie: dead, not yet reaped)."""
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
         return None
-    return stat.rsplit(")", 1)[1].split()[19]
+    return None if fields[0] in ("Z", "X") else fields[19]
 
 
 def _alive(owner: dict) -> bool:
@@ -107,6 +108,16 @@ def _alive(owner: dict) -> bool:
     return start is None or now == start
 
 
+def _write_owner(folder: Path, child: int | None = None) -> None:
+    """Record in ``folder`` the processes that write it: this one and its child."""
+    owner = {"pid": os.getpid(), "start": _start_time(os.getpid())}
+    if child is not None:
+        owner.update(child=child, child_start=_start_time(child))
+    tmp = folder / f".{OWNER_FILE}.new"
+    tmp.write_text(json.dumps(owner))
+    os.replace(tmp, folder / OWNER_FILE)
+
+
 def remove_stale_temporaries(cache_root: Path) -> list[Path]:
     """Remove the temporary folders under ``cache_root`` whose owner process is gone; returns them."""
     removed = []
@@ -119,7 +130,8 @@ def remove_stale_temporaries(cache_root: Path) -> list[Path]:
             continue
         try:
             owner = json.loads((folder / OWNER_FILE).read_text())
-            stale = not _alive(owner if isinstance(owner, dict) else {})
+            owner = owner if isinstance(owner, dict) else {}
+            stale = not _alive(owner) and not _alive({"pid": owner.get("child"), "start": owner.get("child_start")})
         except (OSError, ValueError):  # no owner file: from an older deepc, or just being made
             try:
                 stale = time.time() - folder.stat().st_mtime > _FRESH_SECONDS
@@ -174,7 +186,7 @@ def undistort_workspace(scene_root: Path, model_dir: Path, cache_root: Path, *, 
     failed_log = cache_root / f"{key}.failed.log"
     child = None
     try:
-        (tmp / OWNER_FILE).write_text(json.dumps({"pid": os.getpid(), "start": _start_time(os.getpid())}))
+        _write_owner(tmp)
         log = tmp / LOG_FILE
         env = dict(os.environ)
         package_root = str(Path(__file__).resolve().parents[2])  # the folder holding engine/
@@ -183,6 +195,7 @@ def undistort_workspace(scene_root: Path, model_dir: Path, cache_root: Path, *, 
                    str(scene_root / "images"), str(max_image_size), str(os.getpid())]
         with open(log, "wb") as sink:
             child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=sink, stderr=subprocess.STDOUT, env=env)
+        _write_owner(tmp, child.pid)
         seen = (0, 0)
         while child.poll() is None:
             time.sleep(poll)
