@@ -164,13 +164,18 @@ class Scene:
         lines = [f"scene {self.name}: {len(self.views)} views, {len(self.model.points)} sparse points, "
                  f"GT depth: {'yes' if self.has_gt_depth else 'no'}, GT points: "
                  f"{'yes' if self.has_gt_points else 'no'}"]
-        lines.append(f"{'view':<28} {'size':>10} {'points':>7} {'depth range':>21}  source views")
-        for v in self.views:
-            size = f"{v.camera.width}x{v.camera.height}"
-            rng = f"{v.depth_range[0]:.4g} .. {v.depth_range[1]:.4g}"
-            lines.append(f"{v.name[:28]:<28} {size:>10} {v.num_points:>7} {rng:>21}  "
-                         f"{' '.join(str(j) for j in v.source_views) or '(none)'}")
-        return "\n".join(lines)
+        return "\n".join(lines + views_table(self.views))
+
+
+def views_table(views: list[View]) -> list[str]:
+    """Lines of a table of ``views``: name, working size, sparse points, depth range, source views."""
+    lines = [f"{'view':<28} {'size':>10} {'points':>7} {'depth range':>21}  source views"]
+    for v in views:
+        size = f"{v.camera.width}x{v.camera.height}"
+        rng = f"{v.depth_range[0]:.4g} .. {v.depth_range[1]:.4g}"
+        lines.append(f"{v.name[:28]:<28} {size:>10} {v.num_points:>7} {rng:>21}  "
+                     f"{' '.join(str(j) for j in v.source_views) or '(none)'}")
+    return lines
 
 
 class SceneViews:
