@@ -36,7 +36,7 @@ def _params(model: str, fx: float, fy: float, cx: float, cy: float) -> list[floa
 
 def write_workspace(source: Path, dst: Path, *, camera_model: str = "SIMPLE_RADIAL", per_image: bool = False,
                     binary: bool = False, scale: int = 1, portrait: Collection[int] = (), unregistered: int = 0,
-                    camera_factor: float = 1.0, image_format: str | None = None) -> Path:
+                    camera_factor: float = 1.0) -> Path:
     """Write a workspace at ``dst`` from the pinhole scene ``source``; returns ``dst``.
 
     Args:
@@ -47,7 +47,6 @@ def write_workspace(source: Path, dst: Path, *, camera_model: str = "SIMPLE_RADI
         portrait: indices (in image-id order) of the views turned to portrait.
         unregistered: images put in ``images/`` that the model does not list.
         camera_factor: cameras this many times the images' size (a model that disagrees with its images).
-        image_format: re-encode the images in this format (e.g. "JPEG", names kept), else PNG as the sample.
     """
     rec = pycolmap.Reconstruction(str(find_model_dir(source)))
     out = pycolmap.Reconstruction()
@@ -70,7 +69,7 @@ def write_workspace(source: Path, dst: Path, *, camera_model: str = "SIMPLE_RADI
             width, height = height, width
             R, t = _QUARTER @ R, _QUARTER @ t
             xy = np.stack([xy[:, 1], height - xy[:, 0]], axis=1) if len(xy) else xy
-        pixels.save(dst / "images" / image.name, format=image_format or "PNG")
+        pixels.save(dst / "images" / image.name, format="PNG", compress_level=1)
         if per_image or turned not in shared:
             camera_id = len(out.cameras) + 1
             f = camera_factor
