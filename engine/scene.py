@@ -324,8 +324,13 @@ def survey_scene(path: str | Path, options: SceneOptions | None = None) -> Scene
     cameras = {}
     for c in used:
         cam = model.cameras[c]
-        cameras[c] = cam if cam.model in PINHOLE_MODELS else undistorted_camera(cam, options.max_image_size)
-        if min(cameras[c].pinhole()[:2]) <= 0 or min(cameras[c].width, cameras[c].height) <= 0:
+        try:
+            cameras[c] = cam if cam.model in PINHOLE_MODELS else undistorted_camera(cam, options.max_image_size)
+        except Exception as exc:  # pycolmap maps C++ failures to assorted Python exception types
+            raise DeepCError(f"camera {c} ({cam.model}) cannot be undistorted ({' '.join(str(exc).split())[:200]})",
+                             model_dir) from None
+        pinhole = cameras[c].pinhole()
+        if not np.isfinite(pinhole).all() or min(pinhole[:2]) <= 0 or min(cameras[c].width, cameras[c].height) <= 0:
             raise DeepCError(f"camera {c} ({cam.model}) has no usable undistorted camera "
                              f"({cameras[c].width}x{cameras[c].height})", model_dir)
     views, shared = _build_views(model, cameras, options, model_dir)
