@@ -1,13 +1,17 @@
 """Scenes: a COLMAP workspace turned into views with cameras, depth ranges and source views.
 
-``load_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap, checks the images and the
-optional ground truth, rescales every camera to the working resolution (``max_image_size``) with
-exact intrinsics, and computes per view (Schönberger et al. 2016):
+``survey_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap and checks everything that needs no
+pixels (model, image names, each image's header and size against its camera, points); for distorted camera models it
+computes the undistorted pinhole camera from the camera alone. It rescales every camera to the working resolution
+(``max_image_size``) with exact intrinsics, and computes per view (Schönberger et al. 2016):
 
 - the depth range from the sparse points the view observes: the 1st / 99th percentile of their
   depths, stretched by (0.75, 1.25) as COLMAP does, then relaxed by (0.6, 1.2) as ACMM does;
 - the source views: the views sharing most sparse points with it among those whose 75th-percentile
   triangulation angle is at least 1° (COLMAP's ``__auto__`` selection).
+
+``load_scene`` builds on the survey: it undistorts distorted workspaces at the working size into a cache
+(``engine.io.undistort``, in a child process) and checks the optional ground truth. ``deepc info`` prints the survey.
 
 Images and ground-truth depth are read lazily, at the working resolution; a cache holds an 8-bit image already at
 the working size as its file's bytes (3 B/px, converted to float32 on access, the same floats), others as float32.
