@@ -1,13 +1,17 @@
 """Scenes: a COLMAP workspace turned into views with cameras, depth ranges and source views.
 
-``load_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap, checks the images and the
-optional ground truth, rescales every camera to the working resolution (``max_image_size``) with
-exact intrinsics, and computes per view (Schönberger et al. 2016):
+``survey_scene`` reads ``SCENE/sparse`` (or ``sparse/0``) through pycolmap and checks everything that needs no
+pixels (model, image names, each image's header and size against its camera, points); for distorted camera models it
+computes the undistorted pinhole camera from the camera alone. It rescales every camera to the working resolution
+(``max_image_size``) with exact intrinsics, and computes per view (Schönberger et al. 2016):
 
 - the depth range from the sparse points the view observes: the 1st / 99th percentile of their
   depths, stretched by (0.75, 1.25) as COLMAP does, then relaxed by (0.6, 1.2) as ACMM does;
 - the source views: the views sharing most sparse points with it among those whose 75th-percentile
   triangulation angle is at least 1° (COLMAP's ``__auto__`` selection).
+
+``load_scene`` builds on the survey: it undistorts distorted workspaces at the working size into a cache
+(``engine.io.undistort``, in a child process) and checks the optional ground truth. ``deepc info`` prints the survey.
 
 Images and ground-truth depth are read lazily, at the working resolution; a cache holds an 8-bit image already at
 the working size as its file's bytes (3 B/px, converted to float32 on access, the same floats), others as float32.
@@ -20,7 +24,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
+import time
 import warnings
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
@@ -30,9 +37,10 @@ from engine.core.camera import Camera, rescaled_size
 from engine.core.errors import DeepCError
 from engine.core.options import Options, option
 from engine.core.resample import resample_depth
-from engine.io.colmap_model import PINHOLE_MODELS, SparseModel, find_model_dir, read_sparse_model, undistort_workspace
+from engine.io.colmap_model import PINHOLE_MODELS, SparseCamera, SparseModel, find_model_dir, read_sparse_model
 from engine.io.dense import read_dense_map_header, read_depth_map
 from engine.io.images import decode_image, image_size, image_to_float, resize_area, to_gray
+from engine.io.undistort import LOG_FILE, cache_key, cached_workspace, undistort_workspace, undistorted_camera
 
 # Fewer observed points than this and a view's depth range falls back to all points it sees.
 _MIN_POINTS_FOR_RANGE = 5
@@ -160,13 +168,18 @@ class Scene:
         lines = [f"scene {self.name}: {len(self.views)} views, {len(self.model.points)} sparse points, "
                  f"GT depth: {'yes' if self.has_gt_depth else 'no'}, GT points: "
                  f"{'yes' if self.has_gt_points else 'no'}"]
-        lines.append(f"{'view':<28} {'size':>10} {'points':>7} {'depth range':>21}  source views")
-        for v in self.views:
-            size = f"{v.camera.width}x{v.camera.height}"
-            rng = f"{v.depth_range[0]:.4g} .. {v.depth_range[1]:.4g}"
-            lines.append(f"{v.name[:28]:<28} {size:>10} {v.num_points:>7} {rng:>21}  "
-                         f"{' '.join(str(j) for j in v.source_views) or '(none)'}")
-        return "\n".join(lines)
+        return "\n".join(lines + views_table(self.views))
+
+
+def views_table(views: list[View]) -> list[str]:
+    """Lines of a table of ``views``: name, working size, sparse points, depth range, source views."""
+    lines = [f"{'view':<28} {'size':>10} {'points':>7} {'depth range':>21}  source views"]
+    for v in views:
+        size = f"{v.camera.width}x{v.camera.height}"
+        rng = f"{v.depth_range[0]:.4g} .. {v.depth_range[1]:.4g}"
+        lines.append(f"{v.name[:28]:<28} {size:>10} {v.num_points:>7} {rng:>21}  "
+                     f"{' '.join(str(j) for j in v.source_views) or '(none)'}")
+    return lines
 
 
 class SceneViews:
@@ -227,10 +240,60 @@ def _as_image(pixels: np.ndarray) -> np.ndarray:
     return image
 
 
-def load_scene(path: str | Path, options: SceneOptions | None = None) -> Scene:
-    """Load a COLMAP workspace (``images/``, ``sparse/``, optional ``ground_truth/``).
+@dataclasses.dataclass(eq=False)
+class SceneSurvey:
+    """A workspace as known without decoding a pixel or undistorting an image: the checked sparse model, the pinhole
+    camera of each COLMAP camera (its undistorted camera for distorted models, computed from the camera alone), and
+    the views at the working size with their depth ranges and source views. ``load_scene`` builds its
+    :class:`Scene` from it; ``deepc info`` prints it.
 
-    Raises :class:`DeepCError` naming the bad file.
+    Attributes:
+        model: the sparse model as read (distorted cameras included).
+        cameras: camera_id -> the pinhole camera the views use before rescaling (``model.cameras`` for pinhole
+            models, pycolmap's undistorted camera for the others).
+        distorted: the camera models that need undistortion (empty for a pinhole workspace).
+        image_sizes: (width, height) of each registered image's file, from its header, in ``model.images`` order.
+    """
+
+    root: Path
+    model_dir: Path
+    model: SparseModel
+    cameras: dict[int, SparseCamera]
+    views: list[View]
+    shared_points: np.ndarray
+    distorted: list[str]
+    image_sizes: list[tuple[int, int]]
+    options: SceneOptions
+    gt_depth_paths: list[Path | None]
+    gt_points_path: Path | None
+
+    @property
+    def name(self) -> str:
+        return self.root.resolve().name
+
+    @property
+    def cache_root(self) -> Path:
+        """Where undistorted copies of distorted workspaces are cached."""
+        base = self.options.cache_dir or os.environ.get("DEEPC_CACHE", Path.home() / ".cache" / "deepc")
+        return Path(base) / "undistorted"
+
+    def cache_key(self) -> str:
+        """The name of this workspace's undistorted copy in :attr:`cache_root`."""
+        return cache_key(self.root, self.model_dir, [im.name for im in self.model.images],
+                         self.options.max_image_size)
+
+    def undistorted_size(self) -> int:
+        """Longest side of the undistorted images, in pixels (0 for a pinhole workspace)."""
+        return max((max(self.cameras[im.camera_id].width, self.cameras[im.camera_id].height)
+                    for im in self.model.images), default=0) if self.distorted else 0
+
+
+def survey_scene(path: str | Path, options: SceneOptions | None = None) -> SceneSurvey:
+    """Check a COLMAP workspace and compute its views without decoding or undistorting an image (seconds).
+
+    Every check that needs no pixels is here: the folders and model files, the model's cameras, poses and points,
+    the image names, each registered image's presence, header and size against its camera (the distorted camera
+    for distorted models), and the sparse points depth ranges need. Raises :class:`DeepCError` naming the file.
     """
     options = (options or SceneOptions()).validate()
     root = Path(path)
@@ -241,54 +304,147 @@ def load_scene(path: str | Path, options: SceneOptions | None = None) -> Scene:
     model_dir = find_model_dir(root)
     model = read_sparse_model(model_dir)
     image_root = root / "images"
-
-    non_pinhole = sorted({c.model for c in model.cameras.values() if c.model not in PINHOLE_MODELS})
-    gt_usable = True
-    if non_pinhole:
-        if not options.undistort:
-            raise DeepCError(f"camera model(s) {', '.join(non_pinhole)} need undistortion; only PINHOLE and "
-                             "SIMPLE_PINHOLE are used directly (run colmap image_undistorter, or allow undistortion)",
-                             model_dir)
-        cache = Path(options.cache_dir or os.environ.get("DEEPC_CACHE", Path.home() / ".cache" / "deepc"))
-        undistorted = undistort_workspace(root, model_dir, cache / "undistorted")
-        model = read_sparse_model(undistorted / "sparse")
-        image_root = undistorted / "images"
-        gt_usable = False  # GT depth maps belong to the distorted images
-        warnings.warn(f"{root}: cameras {', '.join(non_pinhole)} undistorted into {undistorted}; "
-                      "ground-truth depth maps (if any) are ignored", stacklevel=2)
-
-    cameras = []
+    sizes = []
     for im in model.images:
         if Path(im.name).is_absolute() or ".." in Path(im.name).parts:
             # outputs are named after images: such a name would write outside the output folder
             raise DeepCError(f"image name {im.name!r} leaves the images/ folder", model_dir)
+        if im.camera_id not in model.cameras:
+            raise DeepCError(f"image {im.name} refers to camera {im.camera_id}, which the model lacks", model_dir)
         cam = model.cameras[im.camera_id]
-        size = image_size(image_root / im.name)
+        size = image_size(image_root / im.name)  # the header alone
         if size != (cam.width, cam.height):
-            raise DeepCError(f"image is {size[0]}x{size[1]} but its COLMAP camera {im.camera_id} is "
+            kind = "" if cam.model in PINHOLE_MODELS else f" ({cam.model})"
+            raise DeepCError(f"image is {size[0]}x{size[1]} but its COLMAP camera {im.camera_id}{kind} is "
                              f"{cam.width}x{cam.height}", image_root / im.name)
-        fx, fy, cx, cy = cam.pinhole()
-        full = Camera.from_params(cam.width, cam.height, fx, fy, cx, cy, im.R, im.t)
-        cameras.append(full.rescaled(*rescaled_size(cam.width, cam.height, options.max_image_size)))
+        sizes.append(size)
 
-    ranges, counts = _depth_ranges(model, cameras, options, model_dir)
-    shared = _shared_counts(model, len(cameras))
-    sources = _source_views(model, cameras, shared, options)
-    views = [View(i, im.name, im.image_id, cameras[i], (model.cameras[im.camera_id].width,
-                                                        model.cameras[im.camera_id].height),
-                  ranges[i], sources[i], counts[i]) for i, im in enumerate(model.images)]
+    used = sorted({im.camera_id for im in model.images})
+    distorted = sorted({model.cameras[c].model for c in used if model.cameras[c].model not in PINHOLE_MODELS})
+    if distorted and not options.undistort:
+        raise DeepCError(f"camera model(s) {', '.join(distorted)} need undistortion; only PINHOLE and "
+                         "SIMPLE_PINHOLE are used directly (run colmap image_undistorter, or allow undistortion)",
+                         model_dir)
+    cameras = {}
+    for c in used:
+        cam = model.cameras[c]
+        try:
+            cameras[c] = cam if cam.model in PINHOLE_MODELS else undistorted_camera(cam, options.max_image_size)
+        except Exception as exc:  # pycolmap maps C++ failures to assorted Python exception types
+            raise DeepCError(f"camera {c} ({cam.model}) cannot be undistorted ({' '.join(str(exc).split())[:200]})",
+                             model_dir) from None
+        pinhole = cameras[c].pinhole()
+        if not np.isfinite(pinhole).all() or min(pinhole[:2]) <= 0 or min(cameras[c].width, cameras[c].height) <= 0:
+            raise DeepCError(f"camera {c} ({cam.model}) has no usable undistorted camera "
+                             f"({cameras[c].width}x{cameras[c].height})", model_dir)
+    views, shared = _build_views(model, cameras, options, model_dir)
 
-    gt_depth_paths = [None] * len(views)
+    gt_depth_paths: list[Path | None] = [None] * len(views)
     gt_dir = root / "ground_truth" / "depth_maps"
-    if gt_usable and gt_dir.is_dir():
+    if not distorted and gt_dir.is_dir():  # GT depth maps belong to the distorted images otherwise
         for v in views:
             p = gt_dir / f"{v.name}.bin"
             if p.is_file():
-                _check_gt_depth(p, v)
                 gt_depth_paths[v.index] = p
     gt_points = root / "ground_truth" / "points.ply"
-    return Scene(root, image_root, model, views, options, shared, gt_depth_paths,
-                 gt_points if gt_points.is_file() else None)
+    return SceneSurvey(root, model_dir, model, cameras, views, shared, distorted, sizes, options, gt_depth_paths,
+                       gt_points if gt_points.is_file() else None)
+
+
+def _build_views(model: SparseModel, cameras: dict[int, SparseCamera], options: SceneOptions,
+                 model_dir: Path) -> tuple[list[View], np.ndarray]:
+    """Views at the working size of ``model``'s images seen through the pinhole ``cameras``, with their depth ranges
+    and source views (Schönberger et al. 2016), and the (n, n) counts of shared sparse points."""
+    working = []
+    for im in model.images:
+        cam = cameras[im.camera_id]
+        fx, fy, cx, cy = cam.pinhole()
+        full = Camera.from_params(cam.width, cam.height, fx, fy, cx, cy, im.R, im.t)
+        working.append(full.rescaled(*rescaled_size(cam.width, cam.height, options.max_image_size)))
+    ranges, counts = _depth_ranges(model, working, options, model_dir)
+    shared = _shared_counts(model, len(working))
+    sources = _source_views(model, working, shared, options)
+    views = [View(i, im.name, im.image_id, working[i], (cameras[im.camera_id].width, cameras[im.camera_id].height),
+                  ranges[i], sources[i], counts[i]) for i, im in enumerate(model.images)]
+    return views, shared
+
+
+def load_scene(path: str | Path, options: SceneOptions | None = None,
+               report: Callable[[str], None] | None = None) -> Scene:
+    """Load a COLMAP workspace (``images/``, ``sparse/``, optional ``ground_truth/``).
+
+    Everything :func:`survey_scene` checks is checked before any image is undistorted. Distorted workspaces are
+    then undistorted at the working size into a cache (``engine.io.undistort``: in a child process, its log off the
+    terminal); ``report`` receives deepc's own progress lines (default: stderr).
+
+    Raises :class:`DeepCError` naming the bad file.
+    """
+    survey = survey_scene(path, options)
+    root, options = survey.root, survey.options
+    model, views, shared, image_root = survey.model, survey.views, survey.shared_points, root / "images"
+    if survey.distorted:
+        undistorted = _undistort(survey, report or _stderr_line)
+        model = read_sparse_model(undistorted / "sparse")
+        image_root = undistorted / "images"
+        if not _same_geometry(model, survey):  # pycolmap's images disagree with the camera computed alone
+            views, shared = _build_views(model, model.cameras, options, model.path)
+        for v in views:
+            size = image_size(image_root / v.name)
+            if size != v.original_size:
+                raise DeepCError(f"undistorted image is {size[0]}x{size[1]}, its camera "
+                                 f"{v.original_size[0]}x{v.original_size[1]}", image_root / v.name)
+        if (root / "ground_truth" / "depth_maps").is_dir():
+            warnings.warn(f"{root}: cameras {', '.join(survey.distorted)} undistorted into {undistorted}; "
+                          "its ground-truth depth maps belong to the distorted images and are ignored", stacklevel=2)
+    for v in views:
+        if survey.gt_depth_paths[v.index] is not None:
+            _check_gt_depth(survey.gt_depth_paths[v.index], v)
+    return Scene(root, image_root, model, views, options, shared, list(survey.gt_depth_paths), survey.gt_points_path)
+
+
+def _stderr_line(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _undistort(survey: SceneSurvey, report: Callable[[str], None]) -> Path:
+    """Undistort ``survey``'s workspace into its cache entry (reused when complete), reporting what it does."""
+    cached = cached_workspace(survey.cache_root, survey.cache_key())
+    if cached is not None:
+        return cached
+    count = len(survey.model.images)
+    report(f"undistorting {count} images ({', '.join(survey.distorted)}) at {survey.undistorted_size()} px "
+           f"into {survey.cache_root}")
+    live = sys.stderr.isatty() and report is _stderr_line
+
+    def progress(done: int, total: int) -> None:
+        if live:
+            print(f"\rundistorting: {done}/{total} images", end="", file=sys.stderr, flush=True)
+
+    start = time.monotonic()
+    try:
+        target = undistort_workspace(survey.root, survey.model_dir, survey.cache_root, key=survey.cache_key(),
+                                     max_image_size=survey.options.max_image_size, progress=progress)
+    finally:
+        if live:
+            print(file=sys.stderr, flush=True)
+    report(f"undistorted {count} images in {time.monotonic() - start:.1f} s (pycolmap's log: "
+           f"{target / LOG_FILE})")
+    return target
+
+
+def _same_geometry(model: SparseModel, survey: SceneSurvey) -> bool:
+    """Whether the undistorted ``model`` has the images and cameras :func:`survey_scene` computed."""
+    if [im.name for im in model.images] != [im.name for im in survey.model.images]:
+        return False
+    if len(model.points) != len(survey.model.points):
+        return False
+    for im in model.images:
+        got, want = model.cameras.get(im.camera_id), survey.cameras.get(im.camera_id)
+        if got is None or want is None or (got.width, got.height) != (want.width, want.height):
+            return False
+        if not np.allclose(got.pinhole(), want.pinhole(), rtol=1e-9, atol=1e-9):
+            return False
+    return True
 
 
 def _check_gt_depth(path: Path, view: View) -> None:

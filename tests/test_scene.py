@@ -106,8 +106,9 @@ def test_non_pinhole_cameras_are_undistorted_or_refused(temple_copy, tmp_path):
     cameras.write_text("\n".join(lines) + "\n")
     with pytest.raises(DeepCError, match="SIMPLE_RADIAL.*undistort"):
         load_scene(temple_copy, SceneOptions(undistort=False))
-    with pytest.warns(UserWarning, match="undistorted"):
-        scene = load_scene(temple_copy, SceneOptions(cache_dir=str(tmp_path / "cache")))
+    lines = []
+    scene = load_scene(temple_copy, SceneOptions(cache_dir=str(tmp_path / "cache")), report=lines.append)
+    assert lines[0].startswith("undistorting 16 images (SIMPLE_RADIAL) at ") and "undistorted 16 images" in lines[1]
     assert len(scene.views) == 16 and scene.image(0).ndim == 3
     assert all(scene.model.cameras[c].model in ("PINHOLE", "SIMPLE_PINHOLE") for c in scene.model.cameras)
     assert not list((tmp_path / "cache" / "undistorted").glob(".undistort-*"))  # no partial cache left

@@ -2,19 +2,16 @@
 
 The model is flattened into :class:`SparseModel`: plain numpy arrays for cameras, poses, 3-D
 points and their tracks, so that the rest of the engine never touches pycolmap objects.
-Cameras that are not PINHOLE / SIMPLE_PINHOLE can be undistorted into a cache with
-:func:`undistort_workspace`.
+Cameras that are not PINHOLE / SIMPLE_PINHOLE are undistorted into a cache by
+``engine.io.undistort``.
 """
 
 from __future__ import annotations
 
 import array
 import dataclasses
-import hashlib
 import os
-import shutil
 import struct
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -299,33 +296,3 @@ def check_binary_model(model_dir: Path) -> None:
             cursor = _BinaryCursor(path)
             check_file(cursor)
             cursor.done()
-
-
-def undistort_workspace(scene_root: Path, model_dir: Path, cache_root: Path) -> Path:
-    """Undistort a workspace with non-pinhole cameras into ``cache_root``; returns the new root.
-
-    The result is cached under a key of the model's contents, so a second load is free. It is
-    written to a temporary folder first and renamed, so an interrupted run leaves no partial cache.
-    """
-    import pycolmap  # lazy: pycolmap
-
-    digest = hashlib.sha1()
-    for name in sorted(os.listdir(model_dir)):
-        digest.update(name.encode())
-        digest.update((model_dir / name).read_bytes() if (model_dir / name).is_file() else b"")
-    target = Path(cache_root) / f"{scene_root.resolve().name}-{digest.hexdigest()[:12]}"
-    if (target / "sparse").is_dir():
-        return target
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".undistort-", dir=target.parent))
-    try:
-        pycolmap.undistort_images(str(tmp), str(model_dir), str(scene_root / "images"))
-        shutil.rmtree(tmp / "stereo", ignore_errors=True)
-        for script in tmp.glob("run-colmap-*.sh"):
-            script.unlink()
-        os.replace(tmp, target)
-    except (ValueError, RuntimeError, OSError) as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise DeepCError(f"undistortion with pycolmap failed ({' '.join(str(exc).split())[:200]})",
-                         scene_root) from None
-    return target

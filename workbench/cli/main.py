@@ -16,9 +16,9 @@ from engine import __version__
 from engine.core.errors import DeepCError
 from engine.core.interrupt import deferred_interrupts
 from engine.meshing.options import MESH_METHODS
-from engine.scene import SceneOptions, load_scene
+from engine.scene import SceneOptions
 from workbench.cli.probe import add_probe_arguments
-from workbench.flags.options import add_options_flags, options_from_args
+from workbench.flags.options import add_options_flags
 from workbench.flags.run import add_executor_flags, add_probe_flags, add_run_option_flags
 from workbench.flags.train import add_train_arguments
 
@@ -78,10 +78,10 @@ def _replay(args: argparse.Namespace) -> int:
     return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port, view=args.view)
 
 
-def cmd_info(args: argparse.Namespace) -> int:
-    scene = load_scene(args.scene, options_from_args(SceneOptions, args))
-    print(scene.summary())
-    return EXIT_OK
+def _info(args: argparse.Namespace) -> int:
+    from workbench.cli.info import cmd_info  # lazy: the memory estimator (numba)
+
+    return cmd_info(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -126,10 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help="mesh options, e.g. --set mesh.poisson_depth=10, --set mesh.tsdf_voxel_px=1")
     mesh.set_defaults(handler=_mesh)
 
-    info = sub.add_parser("info", help="load a scene and print its views, depth ranges and source views")
+    info = sub.add_parser("info", help="check a scene in seconds: cameras, working size, undistortion, memory, "
+                                       "views, depth ranges and source views (undistorts nothing)")
     info.add_argument("scene", help="COLMAP workspace folder")
     add_options_flags(info, SceneOptions)
-    info.set_defaults(handler=cmd_info)
+    info.set_defaults(handler=_info)
 
     ev = sub.add_parser("eval", help="ETH3D-style accuracy, completeness and F1 of a point cloud")
     ev.add_argument("recon", metavar="RECON.ply")
