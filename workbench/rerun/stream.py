@@ -31,11 +31,13 @@ logged with the maps at every logged iteration of every level.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import rerun as rr
+from PIL import Image
 
 from engine.confidence.labels import label_map
 from engine.core.camera import Camera
@@ -93,10 +95,6 @@ def depth_image(depth: np.ndarray, depth_range: tuple[float, float]) -> rr.Encod
 
 def png_image(values: np.ndarray) -> rr.EncodedImage:
     """A lossless single-channel PNG of 8- or 16-bit (H, W) integers."""
-    import io
-
-    from PIL import Image
-
     buffer = io.BytesIO()
     array = np.ascontiguousarray(values)
     Image.fromarray(array if array.dtype == np.uint8 else array.astype(np.uint16)).save(buffer, format="PNG")
