@@ -21,6 +21,10 @@ from pathlib import Path
 from support import bench
 from support.option_sweep import sweep, sweep_summary
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"schedule": str, "seeds": list, "values": list, "rows": list}
+
 
 def config_name(value: float) -> str:
     return f"min_improvement_{value:g}"

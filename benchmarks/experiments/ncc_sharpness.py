@@ -28,6 +28,11 @@ from pathlib import Path
 from support import bench
 from support.option_sweep import sweep, sweep_summary
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"schedule?": str, "seed?": int, "configs?": dict, "rows?": list, "seeds?": list,
+          "heldout_paper_schedule?": dict}
+
 CONFIGS: dict[str, dict[str, float]] = {
     "window11": {"fine_window": 0},  # the paper's 11 px window everywhere ("default" in results before session 11)
     # dense windows (every pixel) with a colour weight 4x sharper than COLMAP's default

@@ -25,6 +25,12 @@ from engine.confidence.options import ConfidenceOptions
 from engine.confidence.weights import load_weights
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"variants?": dict, "runs?": dict, "refined_maps?": bool}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
+
 
 def _pair(text: str) -> tuple[str, Path]:
     name, sep, path = text.partition("=")

@@ -44,6 +44,10 @@ from engine.patchmatch.context import build_context
 from engine.patchmatch.rng import stream_key
 from engine.patchmatch import ViewState, kernel_params
 from engine.patchmatch.view_pass import half_step, init_cost, n_regions, pattern_of
+
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"baseline?": str, "scene?": str, "rounds?": int, "cases?": list, "steps?": list}
 def new_state(h, w):
     return ViewState.zeros(h, w)
 def maps(st):

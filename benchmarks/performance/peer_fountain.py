@@ -28,6 +28,11 @@ from engine.run.pipeline import evaluate_cloud
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "run": str, "fusion": dict, "points": int, "peer_openmvs": dict,
+          "peer rule (GT depth pixels)": dict, "points.ply + unobserved rule": dict, "depth?": dict}
+
 PEER = {"f1": (55.9, 90.8), "accuracy": (76.4, 96.5), "completeness": (44.1, 85.7)}
 RULES = ("peer rule (GT depth pixels)", "points.ply + unobserved rule")
 
