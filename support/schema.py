@@ -17,7 +17,7 @@ from typing import Any
 
 # Keys every result may carry, written by the harness (support/bench.py) or benchmarks/mark_stale.py.
 HARNESS = {"script": str, "argv": (list, None), "git": (str, None), "dirty?": (bool, None),
-           "environment?": dict, "inputs?": dict, "committed_in?": str, "stale?": dict}
+           "environment?": (dict, None), "inputs?": dict, "committed_in?": str, "stale?": dict}
 STALE = {"date": str, "reason": str, "by": str, "refresh?": str, "unexpected_keys?": list}
 
 _NAMES = {str: "string", int: "integer", float: "number", bool: "boolean", list: "list", dict: "object",

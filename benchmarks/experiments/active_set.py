@@ -24,6 +24,7 @@ from support.option_sweep import sweep, sweep_summary
 SCHEMA = {"schedule": str, "seeds": list, "share": float, "converge": float, "rows": list}
 
 
+
 def summary(result: dict) -> list[dict]:
     """Per scene and configuration (seeds averaged): depth within 1 %, fused F1 at 1 / 2 cm, PatchMatch seconds."""
     return sweep_summary(result.get("rows", []))

@@ -32,6 +32,7 @@ SCHEMA = {"tau": float, "tolerances": list, "runs": list}
 # The shipped networks this script runs by default: their sha256 is recorded with every result.
 WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
 
+
 TOLERANCES = (0.01, 0.02, 0.05)
 
 

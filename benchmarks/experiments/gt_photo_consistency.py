@@ -36,6 +36,7 @@ from workbench.viewer.session import ViewerSession
 SCHEMA = {"scene": str, "run": str, "ground_normal": list, "scales": list, "photo_consistency": dict,
           "within_1pct": dict}
 
+
 SCALES = (-0.03, -0.02, -0.01, -0.005, 0.0, 0.005, 0.01, 0.02)
 WINDOW = np.array([(dx, dy) for dy in range(-5, 6) for dx in range(-5, 6)], np.int64)
 

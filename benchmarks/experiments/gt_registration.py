@@ -41,6 +41,7 @@ SCHEMA = {"scene": str, "sparse_points": int, "gt_points": int, "sparse_vs_gt": 
           "peer_rule_registered": dict, "peer_rule_per_view_corrected": dict}
 
 
+
 def view_bias(scene, points: np.ndarray, depth_of_view) -> list[dict]:
     """Per view: median signed z / z_ref - 1 (%) of ``points`` seen by the view, against ``depth_of_view(i)``."""
     rows = []

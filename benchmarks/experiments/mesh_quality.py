@@ -31,6 +31,7 @@ SCHEMA = {"tolerances": list, "preset": str, "rows": list}
 # The shipped networks this script runs by default: their sha256 is recorded with every result.
 WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
 
+
 TOLERANCES = (0.01, 0.02, 0.05)
 
 

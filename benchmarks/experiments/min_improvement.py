@@ -26,13 +26,14 @@ from support.option_sweep import sweep, sweep_summary
 SCHEMA = {"schedule": str, "seeds": list, "values": list, "rows": list}
 
 
+
 def config_name(value: float) -> str:
     return f"min_improvement_{value:g}"
 
 
 def summary(result: dict) -> list[dict]:
     """Per scene and margin (seeds averaged): depth within 1 %, fused F1 at 1 / 2 cm, PatchMatch seconds."""
-    return sweep_summary(result.get("rows", []))
+    return sweep_summary(result["rows"])
 
 
 def main() -> None:

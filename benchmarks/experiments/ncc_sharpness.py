@@ -30,8 +30,8 @@ from support.option_sweep import sweep, sweep_summary
 
 # Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
-SCHEMA = {"schedule?": str, "seed?": int, "configs?": dict, "rows?": list, "seeds?": list,
-          "heldout_paper_schedule?": dict}
+SCHEMA = {"schedule": str, "seed?": int, "configs?": dict, "rows": list, "seeds?": list}
+
 
 CONFIGS: dict[str, dict[str, float]] = {
     "window11": {"fine_window": 0},  # the paper's 11 px window everywhere ("default" in results before session 11)
@@ -75,10 +75,6 @@ CONFIGS: dict[str, dict[str, float]] = {
 
 def summary(result: dict) -> list[dict]:
     """Per scene and configuration (seeds averaged): depth within 1 %, fused F1 at 1 / 2 cm, PatchMatch seconds."""
-    if "rows" not in result and "heldout_paper_schedule" in result:  # ncc_sharpness_tau_g_decay.json: by scene
-        return sweep_summary([{"scene": scene, "config": config, **r}
-                              for scene, configs in result["heldout_paper_schedule"].items()
-                              for config, r in configs.items()])
     return sweep_summary(result["rows"])
 
 

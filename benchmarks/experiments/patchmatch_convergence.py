@@ -45,6 +45,7 @@ SCHEMA = {"scene": str, "size": list, "views": int, "options": dict, "total_seco
           "active_from_iteration?": int}
 
 
+
 class _Convergence:
     """Counts per (level, pass, iteration) over all views: pixels, changed, changed > 1 %, within 1 % of GT."""
 

@@ -32,6 +32,7 @@ from workbench.viewer.session import ViewerSession
 SCHEMA = {"runs": list}
 
 
+
 def unseen_mask(scene, index: int, gt: np.ndarray) -> np.ndarray:
     """(H, W) GT pixels of view ``index`` that no other view of the scene observes."""
     cam = scene.views[index].camera

@@ -28,6 +28,7 @@ SCHEMA = {"runs": list}
 WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
 
 
+
 def _floats(text: str) -> list[float]:
     return [float(x) for x in text.split(",") if x]
 

@@ -23,6 +23,7 @@ from support import bench
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
 SCHEMA = {"scene": str, "schedule": str, "max_image_size": int, "variants": dict}
 
+
 VARIANTS = {
     "ours": {},
     "ours with ACMM pattern": {"pattern": "acmm"},

@@ -24,6 +24,7 @@ from support import bench
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
 SCHEMA = {"train_data": list, "validation": dict, "variants": dict}
 
+
 VARIANTS = (("deepc_squared", "middle"), ("bce", "middle"), ("wbce", "middle"), ("deepc_l2", "middle"),
             ("deepc_squared", "early"))
 

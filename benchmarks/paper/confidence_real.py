@@ -47,6 +47,7 @@ SCHEMA = {"variants": dict, "preset": str, "scenes": dict}
 WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
 
 
+
 def fused_row(session: ViewerSession, depths: list, normals: list, preset: str) -> dict:
     """Fuse (depth, normal) maps of a run's scene and score the cloud at :data:`TOLERANCES`."""
     scene, options = session.scene, FUSION_PRESETS[preset]

@@ -35,6 +35,7 @@ SCHEMA = {"runs": list}
 WEIGHTS = ("deepc_middle.pt",)
 
 
+
 def variants(session: ViewerSession, confidence: list | None = None) -> list[tuple[str, str, float]]:
     rows = [("ours", "none", 0), ("ours + mask1", "counter", 1), ("ours + mask2", "counter", 2)]
     if session.has_confidence or confidence is not None:

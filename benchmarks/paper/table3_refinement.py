@@ -63,6 +63,7 @@ SCHEMA = {"scene": str, "size": str, "run": str, "views": list, "confidence": st
 # The shipped networks this script runs by default: their sha256 is recorded with every result.
 WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
 
+
 PLANAR_WINDOW = 7
 PLANAR_MIN_RESULTANT = 0.999
 

@@ -51,6 +51,7 @@ from support import bench
 SCHEMA = {"scene?": str, "max_image_size?": int, "rows": list, "size?": list, "workers?": int, "pipeline?": str,
           "set?": list, "fusion_cache?": None}
 
+
 PASS_STATE_BYTES = 4 + 12 + 4 + 4  # depth, normal, cost, selected views per pixel in a checkpoint state
 
 

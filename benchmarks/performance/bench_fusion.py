@@ -49,6 +49,7 @@ SCHEMA = {"scene": str, "views": int, "map_size": list, "valid_pixels": int, "pr
           "per_pixel_points_equal_cluster_pixels?": bool}
 
 
+
 def summary(result: dict) -> list[dict]:
     """Wall and CPU seconds (best of runs) and points of ours and COLMAP's fusion, and the speed-up."""
     return [{"preset": result["preset"], "maps": f"{result['views']} x {result['map_size'][0]}x{result['map_size'][1]}",

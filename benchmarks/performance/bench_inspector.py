@@ -40,6 +40,7 @@ from workbench.viewer.session import ViewerSession
 SCHEMA = {"run": str, "scene": str, "size": str, "views": int, "summary": list, "clicks": list, "what": dict}
 
 
+
 def click_ray(app: ViewerApp, view: int, x: int, y: int) -> SimpleNamespace:
     """The click event a browser sends for a ray from view ``view``'s camera through pixel (x, y)."""
     camera = app.session.scene.views[view].camera

@@ -30,6 +30,7 @@ from support import bench
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
 SCHEMA = {"iterations": int, "args": list, "rows": dict, "worst_relative_error": float}
 
+
 REPO = bench.REPO_ROOT
 
 _ESTIMATE = re.compile(r"memory: estimated peak ([\d,]+) MiB")

@@ -43,6 +43,7 @@ from support.pm_synthetic import make_scene
 SCHEMA = {"cpu_count": int, "numba_threads": int, "threading_layer": str, "ncc": list, "iterations": list,
           "thread_speedup_1_to_2": float, "compile_seconds": dict, "peak_rss_mb": float}
 
+
 TINY_RUN = (
     "from support.pm_synthetic import make_scene; from engine.patchmatch import PatchMatchOptions, run_patchmatch;"
     "from engine.consistency import compute_counter_maps;"

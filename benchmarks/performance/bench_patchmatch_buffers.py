@@ -34,6 +34,7 @@ from support import bench
 SCHEMA = {"scene": str, "size": list, "view": int, "rounds": int, "rows": dict, "how": str}
 
 
+
 def summary(result: dict) -> list[dict]:
     """Per stage: best milliseconds with fresh and with pooled arrays, and their ratio."""
     return [{"stage": name, "fresh ms": 1e3 * r["fresh_s"], "pooled ms": 1e3 * r["pooled_s"], "ratio": r["ratio"]}

@@ -37,6 +37,7 @@ SCHEMA = {"scene": str, "views": int, "size": list, "schedule": str, "pixels": i
           "identical": bool, "history_mb": float, "stereo_mb": float, "history_ratio": float,
           "pipeline_seconds": float, "probe_run_seconds": float, "region_seconds": dict}
 
+
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -31,6 +31,7 @@ SCHEMA = {"run": str, "views": int, "size": list, "seconds": dict, "seconds_per_
           "refinement_seconds_per_view": float, "cpu_count": int, "load_average": list, "per_view": list}
 
 
+
 def summary(result: dict) -> list[dict]:
     """Seconds per stage over the run's views and per view, labelled pixels and inliers before and after."""
     rows = [{"views": f"{result['views']} x {result['size'][0]}x{result['size'][1]}",

@@ -33,6 +33,7 @@ from workbench.viewer.session import ViewerSession
 SCHEMA = {"scene": str, "view": str, "size": list, "confidence": str, "full": dict, "crops": list}
 
 
+
 def view_inputs(run_dir: Path, view: int) -> dict:
     session = ViewerSession.open(run_dir)
     scene, data = session.scene, session.data[view]

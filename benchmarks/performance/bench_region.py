@@ -25,6 +25,7 @@ from support import bench
 SCHEMA = {"scene": str, "size": list, "box": list, "run_schedule": str, "first_call_s": float, "rows": list}
 
 
+
 def summary(result: dict) -> list[dict]:
     """One row per schedule and starting pass: median and all latencies."""
     return [{"run": f"{result['scene']} {result['size'][0]}x{result['size'][1]}", "box": result["box"][2],

@@ -30,6 +30,7 @@ SCHEMA = {"scene": str, "views": int, "size": list, "iterations_per_pass": int, 
           "rrd_bytes_full_default_schedule": float, "targets": dict}
 
 
+
 def timed_run(scene, options: PatchMatchOptions, record: Path | None) -> tuple[float, int, int]:
     views = patchmatch_views(scene)
     recording = stream = None

@@ -38,6 +38,7 @@ SCHEMA = {"scene": str, "views": int, "size": list, "schedule": str, "modes": di
 WEIGHTS = ("deepc_middle.pt",)
 
 
+
 def timed_run(scene, options: PipelineOptions, record: Path | None, every: int | None) -> dict:
     """One PatchMatch run: headless (``record`` None), or streaming to ``record`` with confidence every ``every``-th
     iteration (None: no confidence). Wall seconds, scoring seconds, scored view-iterations, recording bytes."""

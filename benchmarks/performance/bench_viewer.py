@@ -39,6 +39,7 @@ SCHEMA = {"scene": str, "size": int, "views": int, "preview_ms_median": float, "
           "display_max_points": int, "moves": list}
 
 
+
 async def measure(app: ViewerApp, moves: list[tuple[object, float]]) -> list[dict]:
     uri = f"ws://127.0.0.1:{app.port}"
     metrics_id = app.metrics._impl.uuid

@@ -39,6 +39,7 @@ SCHEMA = {"scene": str, "views": int, "size": list, "iterations_per_pass": int, 
           "live_engine_cpu_s": list, "viewer_cpu_s": list, "viewer_cpu_pct": float, "server_start_s": list,
           "pushes": int, "frames": int, "client_bytes": int, "all_drawn": bool}
 
+
 CONNECT_TIMEOUT_S = 60.0
 
 

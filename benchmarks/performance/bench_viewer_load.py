@@ -43,6 +43,7 @@ SCHEMA = {"events": int, "exact_measured": int, "preview_measured": int, "events
           "clients": int, "rate": float, "seconds": float, "load_average_1min": float, "cpus": int}
 
 
+
 def summary(result: dict) -> list[dict]:
     """Events sent, preview and exact-result latencies (p50 / p95 / max), memory, reconnects, errors."""
     return [{"clients": result.get("clients"), "events": result["events"],

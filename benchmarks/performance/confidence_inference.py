@@ -21,18 +21,17 @@ from pathlib import Path
 from support import bench
 
 REPO = bench.REPO_ROOT
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"size": list, "threads": int, "rows": list, "loadavg": list, "target": dict}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt",)
 
 CHILD = r"""
 import json, resource, statistics, sys, time
 import numpy as np, torch
 from engine.confidence.inference import predict_confidence
 from engine.confidence.weights import load_weights
-
-# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
-# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
-SCHEMA = {"size": list, "threads": int, "rows": list, "loadavg": list, "target": dict}
-# The shipped networks this script runs by default: their sha256 is recorded with every result.
-WEIGHTS = ("deepc_middle.pt",)
 weights, threads, repeat, tile = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
 bf16 = sys.argv[5] == "1"
 torch.set_num_threads(threads)

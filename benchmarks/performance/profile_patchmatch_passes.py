@@ -33,6 +33,7 @@ SCHEMA = {"scene": str, "size": list, "views": int, "options": dict, "total_seco
           "depth": dict}
 
 
+
 class _Timer:
     def __init__(self) -> None:
         self.by_pass: dict[tuple[int, int], float] = collections.defaultdict(float)

@@ -25,6 +25,10 @@ from pathlib import Path
 from support import bench
 
 ROOT = bench.REPO_ROOT
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"baseline_revision": str, "scene": str, "rounds": int, "best": dict, "ratio": dict, "bit_identical": bool,
+          "per_round": dict}
 
 FUSE = """
 import sys, time
@@ -33,11 +37,6 @@ import numpy as np
 from engine.fusion import FUSION_PRESETS, fuse, views_from_scene
 from engine.io.dense import read_dense_map
 from engine.scene import load_scene
-
-# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
-# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
-SCHEMA = {"baseline_revision": str, "scene": str, "rounds": int, "best": dict, "ratio": dict, "bit_identical": bool,
-          "per_round": dict}
 run, scene_dir, n = Path(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 scene = load_scene(scene_dir)
 names = [v.name for v in scene.views]

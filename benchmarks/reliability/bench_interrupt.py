@@ -28,6 +28,7 @@ from support.interruption import check_no_partial, differences, kill_when, saved
 SCHEMA = {"runs": int, "interrupted": int, "resumed_identically": int, "partial_files": int, "data_lost": int,
           "rows": list}
 
+
 TOTAL_STATES = 20  # FAST schedule: 2 levels x 2 passes x 5 views
 
 

@@ -30,6 +30,7 @@ from support.fuzzing import TARGETS, FuzzCounts, FuzzTarget, check_input, damage
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
 SCHEMA = {"examples_per_reader": int, "seed": int, "readers": dict}
 
+
 REPO = bench.REPO_ROOT
 
 # command line per target: argv after "deepc" for a materialised input folder
