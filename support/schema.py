@@ -12,6 +12,7 @@ the script: the result is then shown as stale). No dependency beyond the standar
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Mapping
 from typing import Any
 
@@ -27,10 +28,10 @@ _NAMES = {str: "string", int: "integer", float: "number", bool: "boolean", list:
 def _accepts(kind: Any, value: Any) -> bool:
     if kind is None:
         return value is None
-    if kind is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind is float:  # numpy scalars too: the harness checks before writing
+        return isinstance(value, numbers.Real) and not isinstance(value, bool)
     if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool)
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
     return isinstance(value, kind)
 
 
