@@ -114,7 +114,7 @@ def check(page: Path, results: Path) -> list[str]:
     cache: dict[str, Any] = {}
     for line, block in blocks(page.read_text()):
         numbers = checked_numbers(block)
-        sources = SOURCE.findall(block)
+        sources = SOURCE.findall(CODE.sub(" ", block))
         if not numbers and not sources:
             continue
         if numbers and not sources:
