@@ -5,16 +5,16 @@ The convention (docs/decisions.md states it at its top):
 - A **source** is written ``[NAME.json: KEY/PATH, KEY/PATH ...]``: a file of benchmarks/results and one or
   more paths into it, keys (and list indices) joined by ``/``. A path may end at an object or a list: it then
   cites every number under it.
-- A **block** is a paragraph, a list item or a table with the lines directly under it (its source). Every checked number of a block must be found under one
-  of the block's sources: some number there (a value, or a number inside a key such as ``f1@0.02``) equals it
-  rounded as written (``93.05`` matches 93.0498; a share stored as a fraction may be written as a percentage).
-  Signs are prose (``−0.06`` matches -0.06 and 0.06).
+- A **block** is a paragraph, a list item, or a table with the lines directly under it (its source). Every
+  checked number of a block must be found under one of the block's sources: some number there (a value, or a
+  number inside a key such as ``f1@0.02``) equals it rounded as written (``93.05`` matches 93.0498; a share
+  stored as a fraction may be written as a percentage). Signs are prose (``−0.06`` matches -0.06 and 0.06).
 - **Checked numbers**: those with a decimal point, those followed by ``%`` or a unit of time, size or work
-  (``s``, ``ms``, ``CPU-s``, ``minutes``, ``MB``, ``MiB``, ``GB``, ``kB``, ``points``), and counts written with
-  thousands separators (``191,792``); not a tolerance written "within N %". Plain integers (views, pixels, iterations, seeds, sizes) are descriptions,
-  not measurements. Not checked: headings, code (option values and their defaults are written as code:
-  ``confidence.tau = 0.1``), and a paper's numbers, in the part of a block that starts with ``**Paper**`` (up
-  to ``**Ours**``).
+  (``s``, ``ms``, ``CPU-s``, ``minutes``, ``MB``, ``MiB``, ``GB``, ``kB``, ``points``), and counts written
+  with thousands separators (``191,792``); not a tolerance written "within N %". Plain integers (views,
+  pixels, iterations, seeds, sizes) are descriptions, not measurements. Not checked: headings, code (option
+  values and their defaults are written as code: ``confidence.tau = 0.1``), and a paper's numbers, in the part
+  of a block that starts with ``**Paper**`` (up to ``**Ours**``).
 - A block citing a result marked stale (benchmarks/mark_stale.py) says "stale".
 """
 
