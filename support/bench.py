@@ -25,6 +25,7 @@ from types import ModuleType
 from typing import Any
 
 from engine.io.atomic import write_json
+from engine.run.folder import file_sha256
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 BENCHMARKS = REPO_ROOT / "benchmarks"
@@ -136,15 +137,6 @@ def git_revision() -> str | None:
     from workbench.regress import git_revision as regress_git_revision
 
     return regress_git_revision(REPO_ROOT)
-
-
-def file_sha256(path: str | Path) -> str:
-    """sha256 of a file's bytes (hex)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def scene_digest(scene: str | Path) -> str:

@@ -54,7 +54,7 @@ CONFIGS: dict[str, dict[str, float]] = {
     "fine5_edges_var3": {"fine_window": 5, "fine_edge_radius": 5, "fine_min_var": 3e-4, "fine_crease_angle": 0.0},
     "fine5_edges_l1": {"fine_window": 5, "fine_edge_radius": 5, "fine_max_level": 1, "fine_crease_angle": 0.0},
     # the band with SPEC's decaying good-cost threshold (alpha 90; every result of this benchmark before session
-    # 12 ran with it, the default since then is a constant threshold, alpha 0: results/ncc_sharpness_tau_g_decay.json)
+    # 12 ran with it, the default since then is a constant threshold, alpha 0: docs/decisions.md)
     "fine5_edges_tau_decay": {"fine_window": 5, "fine_edge_radius": 5, "alpha": 90.0, "fine_crease_angle": 0.0},
     # a wider band (8 px: the starting map's edges sit a few pixels off the true ones where the large window
     # fattened the foreground), and with a lower weight for views that are neither good nor bad in the view
