@@ -1,15 +1,18 @@
 """The benchmark harness: timing, where a result was measured, and the one writer of result JSONs.
 
 Every benchmark script writes its JSON through :func:`write_result`, which puts in front of the numbers
-the script (repository-relative path), its arguments, the git revision (``+dirty`` when the tracked
-files differ from it) and the environment (versions, CPU model and count, load; never a host name),
-replaces absolute paths by machine-independent ones (:func:`scrub`) and writes atomically. Default
+the script (repository-relative path), its arguments, the git revision and a ``dirty`` flag (the tracked
+files differ from it), the environment (versions, CPU model and count, load; never a host name) and its
+inputs (sha256 of the weights files used, digests of the input scenes), checks the numbers against the
+script's declared ``SCHEMA`` (:mod:`support.schema`), replaces absolute paths by machine-independent ones
+(:func:`scrub`) and writes atomically. Default
 outputs are ``benchmarks/results/<script>[_<variant>].json`` (:func:`results_path`), so a result's file
 name always says which script made it.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import re
 import resource
@@ -22,12 +25,16 @@ from types import ModuleType
 from typing import Any
 
 from engine.io.atomic import write_json
+from engine.run.folder import file_sha256
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 BENCHMARKS = REPO_ROOT / "benchmarks"
 RESULTS = BENCHMARKS / "results"
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"  # the data sets beside the checkout (not in the repository)
-METADATA_KEYS = ("script", "argv", "git", "environment")
+METADATA_KEYS = ("script", "argv", "git", "dirty", "environment", "inputs")
+# The shipped networks: a script that runs them by default names them in its module-level WEIGHTS.
+SHIPPED_WEIGHTS = {"deepc_middle.pt": "engine/confidence/weights/deepc_middle.pt",
+                   "deepc_refined.pt": "engine/confidence/weights/deepc_refined.pt"}
 # benchmarks/<folder>/<script>.py, by purpose: the paper's tables, speed and memory, robustness, the studies
 # behind default choices
 FOLDERS = ("paper", "performance", "reliability", "experiments")
@@ -132,6 +139,39 @@ def git_revision() -> str | None:
     return regress_git_revision(REPO_ROOT)
 
 
+def scene_digest(scene: str | Path) -> str:
+    """sha256 over a scene folder's files (relative path and bytes of each, in sorted order): two folders with
+    the same digest hold the same images, model and ground truth."""
+    root = Path(scene)
+    digest = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + file_sha256(path).encode())
+    return digest.hexdigest()
+
+
+def _is_scene(path: Path) -> bool:
+    return path.is_dir() and (path / "sparse").is_dir() and (path / "images").is_dir()
+
+
+def inputs_record(argv: Sequence[str], weights: Sequence[str | Path] = (),
+                  scenes: Sequence[str | Path] = ()) -> dict[str, dict[str, str]]:
+    """sha256 of every weights file used and digest of every input scene, by scrubbed path: those given, the
+    ``.pt`` files and scene folders named in ``argv`` (also as ``NAME=PATH``)."""
+    named = [t.split("=", 1)[-1] for t in argv if isinstance(t, str)]
+    files = [Path(w) for w in weights] + [Path(t) for t in named if t.endswith(".pt") and Path(t).is_file()]
+    folders = [Path(s) for s in scenes] + [Path(t) for t in named if t and _is_scene(Path(t))]
+    record = {"weights": {}, "scenes": {}}
+    for path in files:
+        path = path if path.is_absolute() else (Path.cwd() / path)
+        if path.is_file():
+            record["weights"][scrub_path(str(path.resolve()))] = file_sha256(path)
+    for path in folders:
+        path = path if path.is_absolute() else (Path.cwd() / path)
+        if path.is_dir():
+            record["scenes"][scrub_path(str(path.resolve()))] = scene_digest(path)
+    return record
+
+
 def script_path(script: str | Path) -> str:
     """Repository-relative path of a script (``benchmarks/paper/table2_filters.py``)."""
     path = Path(script).resolve()
@@ -141,10 +181,16 @@ def script_path(script: str | Path) -> str:
         return path.name
 
 
-def run_record(script: str | Path, argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """The metadata every result JSON starts with (keys :data:`METADATA_KEYS`)."""
-    return {"script": script_path(script), "argv": scrub(list(sys.argv[1:] if argv is None else argv)),
-            "git": git_revision(), "environment": environment()}
+def run_record(script: str | Path, argv: Sequence[str] | None = None, weights: Sequence[str | Path] = (),
+               scenes: Sequence[str | Path] = ()) -> dict[str, Any]:
+    """The metadata every result JSON starts with (keys :data:`METADATA_KEYS`): ``git`` is the commit,
+    ``dirty`` whether tracked files differed from it."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    revision = git_revision()
+    return {"script": script_path(script), "argv": scrub(argv),
+            "git": revision.removesuffix("+dirty") if revision else None,
+            "dirty": revision.endswith("+dirty") if revision else None, "environment": environment(),
+            "inputs": inputs_record(argv, weights, scenes)}
 
 
 # ---- machine paths -------------------------------------------------------------------------------
@@ -231,11 +277,34 @@ def _main_script() -> str:
     return path
 
 
+def declared(script: str | Path) -> ModuleType:
+    """The script's module (``__main__`` when it is the running script): its ``SCHEMA`` and ``WEIGHTS``."""
+    main = sys.modules.get("__main__")
+    if getattr(main, "__file__", None) and Path(main.__file__).resolve() == Path(script).resolve():
+        return main
+    return load_script(Path(script).resolve())
+
+
+def schema_errors(data: dict[str, Any], script: str | Path, schema: dict[str, Any] | None = None) -> list[str]:
+    """What is wrong with a result of ``script`` against ``schema``, by default the script's ``SCHEMA``
+    (:mod:`support.schema`)."""
+    from support.schema import errors
+
+    schema = getattr(declared(script), "SCHEMA", None) if schema is None else schema
+    if schema is None:
+        return [f"{script_path(script)} declares no SCHEMA"]
+    return errors(data, schema)
+
+
 def write_result(data: dict[str, Any], path: str | Path | None = None, *, script: str | Path | None = None,
-                 argv: Sequence[str] | None = None) -> Path:
+                 argv: Sequence[str] | None = None, weights: Sequence[str | Path] = (),
+                 scenes: Sequence[str | Path] = (), schema: dict[str, Any] | None = None) -> Path:
     """Write ``data`` as a result JSON: :func:`run_record` first, then the numbers, paths scrubbed,
     atomically (a temporary sibling renamed over the target). ``script`` defaults to the running script,
-    ``path`` to its :func:`results_path`. A file in benchmarks/results must be named after its script."""
+    ``path`` to its :func:`results_path`. A file in benchmarks/results must be named after its script; the
+    result must match ``schema``, by default the script's ``SCHEMA``. The weights recorded are ``weights``,
+    the script's ``WEIGHTS`` (shipped networks it runs by default) and the ``.pt`` files in ``argv``; the
+    scenes, ``scenes`` and the scene folders in ``argv``."""
     script = script or _main_script()
     path = Path(path) if path is not None else results_path(script)
     stem = Path(script).stem
@@ -244,7 +313,14 @@ def write_result(data: dict[str, Any], path: str | Path | None = None, *, script
     clash = [k for k in METADATA_KEYS if k in data]
     if clash:
         raise ValueError(f"write_result: {clash} are the harness's keys")
-    write_json(path, scrub({**run_record(script, argv), **data}))
+    module = declared(script)
+    used = [REPO_ROOT / SHIPPED_WEIGHTS.get(w, w) for w in getattr(module, "WEIGHTS", ())] + list(weights)
+    record = scrub({**run_record(script, argv, used, scenes), **data})
+    problems = schema_errors(record, script, schema)
+    if problems:
+        raise ValueError(f"write_result: the result does not match {script_path(script)}'s SCHEMA: "
+                         + "; ".join(problems))
+    write_json(path, record)
     return path
 
 

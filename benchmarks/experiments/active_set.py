@@ -19,6 +19,11 @@ from pathlib import Path
 from support import bench
 from support.option_sweep import sweep, sweep_summary
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"schedule": str, "seeds": list, "share": float, "converge": float, "rows": list}
+
+
 
 def summary(result: dict) -> list[dict]:
     """Per scene and configuration (seeds averaged): depth within 1 %, fused F1 at 1 / 2 cm, PatchMatch seconds."""

@@ -31,6 +31,12 @@ from support.patchmatch_reference import homography_ref, ncc_cost_ref
 from support.scoring import within_by_region
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "run": str, "ground_normal": list, "scales": list, "photo_consistency": dict,
+          "within_1pct": dict}
+
+
 SCALES = (-0.03, -0.02, -0.01, -0.005, 0.0, 0.005, 0.01, 0.02)
 WINDOW = np.array([(dx, dy) for dy in range(-5, 6) for dx in range(-5, 6)], np.int64)
 

@@ -34,6 +34,13 @@ from engine.scene import SceneOptions, load_scene
 from support import bench
 from support.gt_normals import depth_normals
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "sparse_points": int, "gt_points": int, "sparse_vs_gt": list, "similarity": dict,
+          "sparse_vs_registered_gt": list, "run": str, "patchmatch_vs_gt": list, "peer_rule": dict,
+          "peer_rule_registered": dict, "peer_rule_per_view_corrected": dict}
+
+
 
 def view_bias(scene, points: np.ndarray, depth_of_view) -> list[dict]:
     """Per view: median signed z / z_ref - 1 (%) of ``points`` seen by the view, against ``depth_of_view(i)``."""

@@ -25,6 +25,13 @@ from engine.run.pipeline import evaluate_cloud
 from support import bench
 from support.scoring import shipped_pipeline_maps
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"tolerances": list, "preset": str, "rows": list}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
+
+
 TOLERANCES = (0.01, 0.02, 0.05)
 
 

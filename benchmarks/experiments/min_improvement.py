@@ -21,6 +21,11 @@ from pathlib import Path
 from support import bench
 from support.option_sweep import sweep, sweep_summary
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"schedule": str, "seeds": list, "values": list, "rows": list}
+
+
 
 def config_name(value: float) -> str:
     return f"min_improvement_{value:g}"
@@ -28,7 +33,7 @@ def config_name(value: float) -> str:
 
 def summary(result: dict) -> list[dict]:
     """Per scene and margin (seeds averaged): depth within 1 %, fused F1 at 1 / 2 cm, PatchMatch seconds."""
-    return sweep_summary(result.get("rows", []))
+    return sweep_summary(result["rows"])
 
 
 def main() -> None:

@@ -28,6 +28,11 @@ from pathlib import Path
 from support import bench
 from support.option_sweep import sweep, sweep_summary
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"schedule": str, "seed?": int, "configs?": dict, "rows": list, "seeds?": list}
+
+
 CONFIGS: dict[str, dict[str, float]] = {
     "window11": {"fine_window": 0},  # the paper's 11 px window everywhere ("default" in results before session 11)
     # dense windows (every pixel) with a colour weight 4x sharper than COLMAP's default
@@ -49,7 +54,7 @@ CONFIGS: dict[str, dict[str, float]] = {
     "fine5_edges_var3": {"fine_window": 5, "fine_edge_radius": 5, "fine_min_var": 3e-4, "fine_crease_angle": 0.0},
     "fine5_edges_l1": {"fine_window": 5, "fine_edge_radius": 5, "fine_max_level": 1, "fine_crease_angle": 0.0},
     # the band with SPEC's decaying good-cost threshold (alpha 90; every result of this benchmark before session
-    # 12 ran with it, the default since then is a constant threshold, alpha 0: results/ncc_sharpness_tau_g_decay.json)
+    # 12 ran with it, the default since then is a constant threshold, alpha 0: docs/decisions.md)
     "fine5_edges_tau_decay": {"fine_window": 5, "fine_edge_radius": 5, "alpha": 90.0, "fine_crease_angle": 0.0},
     # a wider band (8 px: the starting map's edges sit a few pixels off the true ones where the large window
     # fattened the foreground), and with a lower weight for views that are neither good nor bad in the view
@@ -70,10 +75,6 @@ CONFIGS: dict[str, dict[str, float]] = {
 
 def summary(result: dict) -> list[dict]:
     """Per scene and configuration (seeds averaged): depth within 1 %, fused F1 at 1 / 2 cm, PatchMatch seconds."""
-    if "rows" not in result and "heldout_paper_schedule" in result:  # ncc_sharpness_tau_g_decay.json: by scene
-        return sweep_summary([{"scene": scene, "config": config, **r}
-                              for scene, configs in result["heldout_paper_schedule"].items()
-                              for config, r in configs.items()])
     return sweep_summary(result["rows"])
 
 

@@ -38,6 +38,13 @@ from engine.scene import SceneOptions, load_scene
 from support import bench
 from workbench.flags.options import section_overrides
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": list, "views": int, "options": dict, "total_seconds": float, "cpu_seconds?": float,
+          "kernels?": dict, "fused?": dict, "pixel_iterations": float, "final_within_1pct": float, "rows": list,
+          "active_from_iteration?": int}
+
+
 
 class _Convergence:
     """Counts per (level, pass, iteration) over all views: pixels, changed, changed > 1 %, within 1 % of GT."""

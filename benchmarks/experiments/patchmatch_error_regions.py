@@ -27,6 +27,11 @@ from support import bench
 from support.scoring import within_by_region
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"runs": list}
+
+
 
 def unseen_mask(scene, index: int, gt: np.ndarray) -> np.ndarray:
     """(H, W) GT pixels of view ``index`` that no other view of the scene observes."""

@@ -21,6 +21,13 @@ from engine.scene import SceneOptions, load_scene
 from support import bench
 from support.scoring import fuse_and_score, pipeline_maps
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"runs": list}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
+
+
 
 def _floats(text: str) -> list[float]:
     return [float(x) for x in text.split(",") if x]

@@ -19,6 +19,11 @@ from engine.evaluation.depth import depth_metrics
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "schedule": str, "max_image_size": int, "variants": dict}
+
+
 VARIANTS = {
     "ours": {},
     "ours with ACMM pattern": {"pattern": "acmm"},

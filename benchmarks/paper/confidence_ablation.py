@@ -20,6 +20,11 @@ from engine.confidence.data import load_run
 from engine.training.trainer import TrainOptions, ValidationSet, train
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"train_data": list, "validation": dict, "variants": dict}
+
+
 VARIANTS = (("deepc_squared", "middle"), ("bce", "middle"), ("wbce", "middle"), ("deepc_l2", "middle"),
             ("deepc_squared", "early"))
 

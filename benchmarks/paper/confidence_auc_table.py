@@ -25,6 +25,13 @@ from engine.confidence.options import ConfidenceOptions
 from engine.confidence.weights import load_weights
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"variants": dict, "runs": dict, "refined_maps": bool}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
+
+
 
 def _pair(text: str) -> tuple[str, Path]:
     name, sep, path = text.partition("=")
@@ -35,10 +42,6 @@ def _pair(text: str) -> tuple[str, Path]:
 
 def summary(result: dict) -> list[dict]:
     """ROC-AUC x100 per weights variant and held-out scene (pooled over its labelled pixels)."""
-    if "variants" not in result:  # two engine configurations scored by hand-assembled runs of this script
-        return [{"maps": config, **{scene: r["auc"] for scene, r in scenes.items()}}
-                for config, scenes in result.items() if isinstance(scenes, dict) and
-                all(isinstance(r, dict) and "auc" in r for r in scenes.values())]
     return [{"variant": name, **{scene: r["auc"] for scene, r in row["scenes"].items()},
              "mean all": row["mean_all"]} for name, row in result["variants"].items()]
 

@@ -40,6 +40,13 @@ from support.scoring import TOLERANCES, score_columns
 from workbench.cli.train import recipe_run
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"variants": dict, "preset": str, "scenes": dict}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
+
+
 
 def fused_row(session: ViewerSession, depths: list, normals: list, preset: str) -> dict:
     """Fuse (depth, normal) maps of a run's scene and score the cloud at :data:`TOLERANCES`."""

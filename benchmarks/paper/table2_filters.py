@@ -28,6 +28,13 @@ from support import bench
 from support.scoring import TOLERANCES, score_cells, score_columns
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"runs": list}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt",)
+
+
 
 def variants(session: ViewerSession, confidence: list | None = None) -> list[tuple[str, str, float]]:
     rows = [("ours", "none", 0), ("ours + mask1", "counter", 1), ("ours + mask2", "counter", 2)]

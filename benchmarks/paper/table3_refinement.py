@@ -55,6 +55,15 @@ from support.gt_normals import depth_normals
 from support.scoring import fuse_and_score, network_confidence, score_cells
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": str, "run": str, "views": list, "confidence": str, "solver": str,
+          "refinement_options?": dict, "rows": list, "depth": dict, "normals": dict, "timing": dict,
+          "sky_pixels_dropped": int, "refined_counter_seconds?": float, "per_view?": list, "refine_run?": dict}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt", "deepc_refined.pt")
+
+
 PLANAR_WINDOW = 7
 PLANAR_MIN_RESULTANT = 0.999
 

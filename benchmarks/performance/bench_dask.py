@@ -46,6 +46,12 @@ from pathlib import Path
 
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene?": str, "max_image_size?": int, "rows": list, "size?": list, "workers?": int, "pipeline?": str,
+          "set?": list, "fusion_cache?": None}
+
+
 PASS_STATE_BYTES = 4 + 12 + 4 + 4  # depth, normal, cost, selected views per pixel in a checkpoint state
 
 

@@ -30,6 +30,11 @@ from engine.io.ply import read_points, write_ply
 from support import bench
 from support.synthetic_scan import make_synthetic_eth3d, sample_synthetic_reconstruction
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"timing": dict, "load_average": float, "cpu_count": int, "eth3d": dict}
+
+
 TOL = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 STEP_MRAD = 1.1  # scan ray step: 2.2-2.9 mm apart at the 2-2.7 m ranges of the synthetic scene
 

@@ -35,6 +35,20 @@ from support import bench
 from support.colmap_fusion import run_colmap_fusion, write_colmap_workspace
 from support.gt_normals import depth_normals
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "views": int, "map_size": list, "valid_pixels": int, "preset": str, "options": dict,
+          "ours_seconds_best": float, "ours_seconds_all": list, "ours_first_call_seconds": float,
+          "colmap_seconds_best": float, "colmap_seconds_all": list, "ours_cpu_seconds_best": float,
+          "colmap_cpu_seconds_best": float, "speedup": float, "speedup_cpu": float, "ours_points": int,
+          "colmap_points": int, "point_count_difference_percent": float, "median_nn_ours_to_colmap_footprints": float,
+          "median_nn_colmap_to_ours_footprints": float, "p90_nn_ours_to_colmap_footprints": float,
+          "median_footprint": float, "ours_num_views_median": float, "colmap_num_views_median": float,
+          "load_average": float, "cpu_count": int, "compared_in_median_mode?": bool,
+          "ours_median_mode_seconds_best?": float, "ours_per_pixel_points?": int,
+          "per_pixel_points_equal_cluster_pixels?": bool}
+
+
 
 def summary(result: dict) -> list[dict]:
     """Wall and CPU seconds (best of runs) and points of ours and COLMAP's fusion, and the speed-up."""

@@ -35,6 +35,11 @@ from support.viewer_clients import CAMERA, SUBPROTOCOL, decode_frame, markdown_t
 from workbench.viewer.app import ViewerApp
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"run": str, "scene": str, "size": str, "views": int, "summary": list, "clicks": list, "what": dict}
+
+
 
 def click_ray(app: ViewerApp, view: int, x: int, y: int) -> SimpleNamespace:
     """The click event a browser sends for a ray from view ``view``'s camera through pixel (x, y)."""

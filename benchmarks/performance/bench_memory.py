@@ -26,6 +26,11 @@ from pathlib import Path
 
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"iterations": int, "args": list, "rows": dict, "worst_relative_error": float}
+
+
 REPO = bench.REPO_ROOT
 
 _ESTIMATE = re.compile(r"memory: estimated peak ([\d,]+) MiB")

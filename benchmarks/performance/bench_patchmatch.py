@@ -38,6 +38,12 @@ from engine.patchmatch.view_pass import init_cost
 from support import bench
 from support.pm_synthetic import make_scene
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"cpu_count": int, "numba_threads": int, "threading_layer": str, "ncc": list, "iterations": list,
+          "thread_speedup_1_to_2": float, "compile_seconds": dict, "peak_rss_mb": float}
+
+
 TINY_RUN = (
     "from support.pm_synthetic import make_scene; from engine.patchmatch import PatchMatchOptions, run_patchmatch;"
     "from engine.consistency import compute_counter_maps;"

@@ -29,6 +29,9 @@ from pathlib import Path
 from support import bench
 
 ROOT = bench.REPO_ROOT
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"baseline": str, "scene": str, "rounds": int, "cases": list}
 
 CASES = {"random": (3, 0, False), "converged": (2, 3, False), "converged_geom": (2, 3, True)}
 
@@ -110,10 +113,9 @@ def run_tree(tree: Path, scene: str, size: int, threads: int, reps: int, case: s
 
 def summary(result: dict) -> list[dict]:
     """Per case: best process CPU seconds of the baseline tree and of this one, speed-up, bit-identical maps."""
-    steps = result["steps"] if "steps" in result else [result]
-    return [{"baseline": step["baseline"], "case": c["case"], "size": c["size"], "baseline CPU s": c["baseline_cpu_s"],
-             "this CPU s": c["this_cpu_s"], "speed-up": c["speedup"], "identical": c["identical"]}
-            for step in steps for c in step["cases"]]
+    return [{"baseline": result["baseline"], "case": c["case"], "size": c["size"],
+             "baseline CPU s": c["baseline_cpu_s"], "this CPU s": c["this_cpu_s"], "speed-up": c["speedup"],
+             "identical": c["identical"]} for c in result["cases"]]
 
 
 def main() -> None:

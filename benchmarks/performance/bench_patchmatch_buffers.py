@@ -29,6 +29,11 @@ from engine.run.pipeline import patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": list, "view": int, "rounds": int, "rows": dict, "how": str}
+
+
 
 def summary(result: dict) -> list[dict]:
     """Per stage: best milliseconds with fresh and with pooled arrays, and their ratio."""

@@ -36,6 +36,12 @@ import numpy as np
 
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": list, "views": int, "num_source_views": int, "repeats": int, "peer_build": str,
+          "peer_command": list, "ours_command": list, "tolerances": list, "runs": dict, "ratios": dict}
+
+
 TOLERANCES = (0.01, 0.02, 0.05)
 PEER_DEFAULT_ARGS = "--number-views-fuse 3 --iters 3 --geometric-iters 2 --max-threads 0 --process-priority 0"
 

@@ -30,6 +30,14 @@ from engine.run.probe import probe_run, rerun_region
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "views": int, "size": list, "schedule": str, "pixels": int, "box": list,
+          "patchmatch_seconds": dict, "patchmatch_seconds_all": dict, "patchmatch_cpu_seconds": dict,
+          "identical": bool, "history_mb": float, "stereo_mb": float, "history_ratio": float,
+          "pipeline_seconds": float, "probe_run_seconds": float, "region_seconds": dict}
+
+
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -26,6 +26,12 @@ from workbench.rerun.budget import logged_iterations, planned_bytes
 from workbench.rerun.options import StreamOptions
 from workbench.rerun.run_recording import open_run_recording, recording_plan
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "schedule": str, "rows": list}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt",)
+
 KINDS = ("depth", "normal", "cost", "error", "selected_count", "selected_views", "counter", "confidence", "label")
 
 
@@ -62,6 +68,13 @@ def record(scene, options: PipelineOptions, stream_options: StreamOptions, folde
     return {"budget_mb": stream_options.budget_mb, "map_size": plan.max_size, "every": plan.every,
             "estimate_mb": estimate / 1e6, "file_mb": (folder / "recording.rrd").stat().st_size / 1e6,
             "seconds": watch.wall, "kinds_mb": kind_sizes(folder / "recording.rrd")}
+
+
+def summary(result: dict) -> list[dict]:
+    """Per case: the plan (map size, every k-th iteration), the budget's estimate and the file's size (MB)."""
+    return [{"case": r["case"], "budget MB": r["budget_mb"], "map size": r["map_size"], "every": r["every"],
+             "estimate MB": r["estimate_mb"], "file MB": r["file_mb"], "seconds": r["seconds"]}
+            for r in result["rows"]]
 
 
 def main(argv: list[str] | None = None) -> int:

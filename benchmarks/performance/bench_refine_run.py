@@ -25,6 +25,12 @@ from engine.confidence.data import load_run
 from engine.run.refine import refine_run
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"run": str, "views": int, "size": list, "seconds": dict, "seconds_per_view": float,
+          "refinement_seconds_per_view": float, "cpu_count": int, "load_average": list, "per_view": list}
+
+
 
 def summary(result: dict) -> list[dict]:
     """Seconds per stage over the run's views and per view, labelled pixels and inliers before and after."""

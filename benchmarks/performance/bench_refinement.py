@@ -28,6 +28,11 @@ from engine.run.folder import read_map
 from support import bench
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "view": str, "size": list, "confidence": str, "full": dict, "crops": list}
+
+
 
 def view_inputs(run_dir: Path, view: int) -> dict:
     session = ViewerSession.open(run_dir)

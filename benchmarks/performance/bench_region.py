@@ -20,6 +20,11 @@ from engine.run.folder import read_run_metrics
 from engine.run.probe import rerun_region
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": list, "box": list, "run_schedule": str, "first_call_s": float, "rows": list}
+
+
 
 def summary(result: dict) -> list[dict]:
     """One row per schedule and starting pass: median and all latencies."""

@@ -23,6 +23,13 @@ from support import bench
 from workbench.rerun.recording import Recording
 from workbench.rerun.stream import RerunStream, StreamOptions
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "views": int, "size": list, "iterations_per_pass": int, "engine_s": list,
+          "with_stream_s": list, "overhead_pct": float, "rrd_bytes": int, "logged_view_iterations": int,
+          "rrd_bytes_full_default_schedule": float, "targets": dict}
+
+
 
 def timed_run(scene, options: PatchMatchOptions, record: Path | None) -> tuple[float, int, int]:
     views = patchmatch_views(scene)

@@ -31,6 +31,13 @@ from support import bench
 from workbench.rerun.options import DEFAULT_CONFIDENCE_EVERY, StreamOptions
 from workbench.rerun.run_recording import open_run_recording
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "views": int, "size": list, "schedule": str, "modes": dict, "targets": dict}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt",)
+
+
 
 def timed_run(scene, options: PipelineOptions, record: Path | None, every: int | None) -> dict:
     """One PatchMatch run: headless (``record`` None), or streaming to ``record`` with confidence every ``every``-th

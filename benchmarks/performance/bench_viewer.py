@@ -32,6 +32,13 @@ from workbench.viewer.app import DISPLAY_MAX_POINTS, ViewerApp
 from workbench.viewer.panel import preset_of
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": int, "views": int, "preview_ms_median": float, "preview_ms_max": float,
+          "exact_s_median": float, "exact_s_max": float, "targets": dict, "fusion_preset": str,
+          "display_max_points": int, "moves": list}
+
+
 
 async def measure(app: ViewerApp, moves: list[tuple[object, float]]) -> list[dict]:
     uri = f"ws://127.0.0.1:{app.port}"

@@ -32,6 +32,14 @@ from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "views": int, "size": list, "iterations_per_pass": int, "headless_s": list, "live_s": list,
+          "overhead_pct_median": float, "overhead_pct_best": float, "headless_engine_cpu_s": list,
+          "live_engine_cpu_s": list, "viewer_cpu_s": list, "viewer_cpu_pct": float, "server_start_s": list,
+          "pushes": int, "frames": int, "client_bytes": int, "all_drawn": bool}
+
+
 CONNECT_TIMEOUT_S = 60.0
 
 

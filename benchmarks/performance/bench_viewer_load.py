@@ -32,6 +32,17 @@ from support.viewer_load import load, summarise
 from workbench.viewer.app import ViewerApp
 from workbench.viewer.session import ViewerSession
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"events": int, "exact_measured": int, "preview_measured": int, "events_dropped_by_reconnect": int,
+          "preview_ms_p50": float, "preview_ms_p95": float, "preview_ms_max": float, "preview_by_control": dict,
+          "exact_s_p50": float, "exact_s_p95": float, "exact_s_max": float, "final_exact_s_max": float,
+          "rss_mb_every_5s": list, "rss_mb_first": float, "rss_mb_max": float,
+          "rss_growth_last_vs_first_third": float, "rss_growth_last_vs_middle_third": float, "reconnects": int,
+          "reconnects_current": int, "late_client_current": bool, "errors": list, "settled": bool, "scene": str,
+          "clients": int, "rate": float, "seconds": float, "load_average_1min": float, "cpus": int}
+
+
 
 def summary(result: dict) -> list[dict]:
     """Events sent, preview and exact-result latencies (p50 / p95 / max), memory, reconnects, errors."""

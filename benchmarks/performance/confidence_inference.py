@@ -21,6 +21,11 @@ from pathlib import Path
 from support import bench
 
 REPO = bench.REPO_ROOT
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"size": list, "threads": int, "rows": list, "loadavg": list, "target": dict}
+# The shipped networks this script runs by default: their sha256 is recorded with every result.
+WEIGHTS = ("deepc_middle.pt",)
 
 CHILD = r"""
 import json, resource, statistics, sys, time

@@ -10,8 +10,8 @@
 Rule (issue 4): every valid GT depth pixel of every view (at the run's resolution) is a GT point, and
 reconstructed points that no GT view observes are ignored (the unobserved-space rule with the GT depth
 maps). Also reports the score against the scene's points.ply as `deepc run` / `deepc eval` compute it.
-Peer: OpenMVS 2.3 CPU DensifyPointCloud at 768x512 - F1 55.9 / 90.8, accuracy 76.4 / 96.5,
-completeness 44.1 / 85.7 at 2 / 5 cm.
+The peer's own numbers are not this script's: they come from peer runs made by
+benchmarks/performance/bench_peer.py, which records the peer's build and command line.
 """
 
 from __future__ import annotations
@@ -28,17 +28,19 @@ from engine.run.pipeline import evaluate_cloud
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
-PEER = {"f1": (55.9, 90.8), "accuracy": (76.4, 96.5), "completeness": (44.1, 85.7)}
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "run": str, "fusion": dict, "points": int, "peer rule (GT depth pixels)": dict,
+          "points.ply + unobserved rule": dict, "depth?": dict}
+
+
 RULES = ("peer rule (GT depth pixels)", "points.ply + unobserved rule")
 
 
 def summary(result: dict) -> list[dict]:
-    """F1, accuracy and completeness at 2 / 5 cm of the run under both rules, beside the OpenMVS peer's."""
-    rows = [{"cloud": f"ours, {name}", "F1 2 / 5 cm": result[name]["f1"], "accuracy": result[name]["accuracy"],
+    """F1, accuracy and completeness at 2 / 5 cm of the run under both rules."""
+    return [{"cloud": f"ours, {name}", "F1 2 / 5 cm": result[name]["f1"], "accuracy": result[name]["accuracy"],
              "completeness": result[name]["completeness"]} for name in RULES]
-    peer = result["peer_openmvs"]
-    return rows + [{"cloud": "OpenMVS (peer)", "F1 2 / 5 cm": peer["f1"], "accuracy": peer["accuracy"],
-                    "completeness": peer["completeness"]}]
 
 
 def main() -> None:
@@ -70,14 +72,11 @@ def main() -> None:
     print(f"{scene.name} {scene.views[0].camera.width}x{scene.views[0].camera.height}, {len(cloud):,} points, "
           f"{len(gt_points):,} GT depth points")
     print(f"{'':<30} {'F1 2cm':>7} {'F1 5cm':>7} {'acc 2':>6} {'acc 5':>6} {'comp 2':>7} {'comp 5':>7}")
-    out = {"scene": scene.name, "run": str(args.run), "fusion": fusion, "points": len(cloud), "peer_openmvs": PEER}
+    out = {"scene": scene.name, "run": str(args.run), "fusion": fusion, "points": len(cloud)}
     for name, r in rows.items():
         print(f"{name:<30} {r.f1[0]:>7.1f} {r.f1[1]:>7.1f} {r.accuracy[0]:>6.1f} {r.accuracy[1]:>6.1f} "
               f"{r.completeness[0]:>7.1f} {r.completeness[1]:>7.1f}")
         out[name] = r.to_dict()
-    p = PEER
-    print(f"{'OpenMVS (peer)':<30} {p['f1'][0]:>7.1f} {p['f1'][1]:>7.1f} {p['accuracy'][0]:>6.1f} "
-          f"{p['accuracy'][1]:>6.1f} {p['completeness'][0]:>7.1f} {p['completeness'][1]:>7.1f}")
     bench.write_result(out, args.out)
 
 

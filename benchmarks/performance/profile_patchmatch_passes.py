@@ -26,6 +26,13 @@ from engine.scene import SceneOptions, load_scene
 from support import bench
 from workbench.flags.options import section_overrides
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "size": list, "views": int, "options": dict, "total_seconds": float,
+          "iteration_seconds": float, "outside_iterations": float, "by_pass": list, "by_iteration": list,
+          "depth": dict}
+
+
 
 class _Timer:
     def __init__(self) -> None:

@@ -25,6 +25,10 @@ from pathlib import Path
 from support import bench
 
 ROOT = bench.REPO_ROOT
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"baseline_revision": str, "scene": str, "rounds": int, "best": dict, "ratio": dict, "bit_identical": bool,
+          "per_round": dict}
 
 FUSE = """
 import sys, time

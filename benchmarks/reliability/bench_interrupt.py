@@ -23,6 +23,12 @@ from pathlib import Path
 from support import bench
 from support.interruption import check_no_partial, differences, kill_when, saved_states, start_run
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"runs": int, "interrupted": int, "resumed_identically": int, "partial_files": int, "data_lost": int,
+          "rows": list}
+
+
 TOTAL_STATES = 20  # FAST schedule: 2 levels x 2 passes x 5 views
 
 

@@ -26,6 +26,11 @@ from hypothesis import HealthCheck, given, seed, settings
 from support import bench
 from support.fuzzing import TARGETS, FuzzCounts, FuzzTarget, check_input, damaged_inputs, materialise
 
+# Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
+# may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"examples_per_reader": int, "seed": int, "readers": dict}
+
+
 REPO = bench.REPO_ROOT
 
 # command line per target: argv after "deepc" for a materialised input folder
