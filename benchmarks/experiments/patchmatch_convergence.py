@@ -36,7 +36,7 @@ from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.run.pipeline import PipelineOptions, patchmatch_views, run_pipeline
 from engine.scene import SceneOptions, load_scene
 from support import bench
-from workbench.flags.options import section_overrides
+from workbench.flags.assignments import section_overrides
 
 
 class _Convergence:
