@@ -38,12 +38,8 @@ def add_probe_arguments(parser: argparse.ArgumentParser) -> None:
 def region_overrides(items: list[str]) -> dict[str, object]:
     """``--set NAME=VALUE`` items of ``deepc probe --region`` (PatchMatch options; ``patchmatch.NAME=VALUE`` too),
     typed by the parser of ``deepc run --set``."""
-    for item in items:
-        if "=" not in item:
-            raise DeepCError(f"--set {item!r}: expected NAME=VALUE")
-    prefixed = [item if "." in item.partition("=")[0] else f"patchmatch.{item}" for item in items]
-    check_stages(prefixed, ("patchmatch",))
-    return section_overrides(prefixed, "patchmatch", PatchMatchOptions)
+    check_stages(items, ("patchmatch",), unprefixed="patchmatch")
+    return section_overrides(items, "patchmatch", PatchMatchOptions, unprefixed="patchmatch")
 
 
 def cmd_probe(args: argparse.Namespace) -> int:

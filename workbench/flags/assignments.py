@@ -29,19 +29,24 @@ def nested_options(cls: type[Options]) -> dict[str, type[Options]]:
             if isinstance(hints[f.name], type) and issubclass(hints[f.name], Options)}
 
 
-def split_item(item: str) -> tuple[str, str, str]:
-    """``STAGE.NAME=VALUE`` -> (STAGE, NAME, VALUE); NAME may hold dots (nested options)."""
+def split_item(item: str, unprefixed: str | None = None) -> tuple[str, str, str]:
+    """``STAGE.NAME=VALUE`` -> (STAGE, NAME, VALUE); NAME may hold dots (nested options). With ``unprefixed``,
+    ``NAME=VALUE`` means ``unprefixed.NAME=VALUE`` (``deepc probe --set window=7``)."""
     key, sep, text = item.partition("=")
     stage, dot, name = key.partition(".")
+    if unprefixed is not None and sep and not dot:
+        stage, dot, name = unprefixed, ".", key
     if not sep or not dot or not stage or not name:
-        raise OptionsError(f"--set {item!r}: expected STAGE.NAME=VALUE")
+        form = "NAME=VALUE" if unprefixed is not None else "STAGE.NAME=VALUE"
+        raise OptionsError(f"--set {item!r}: expected {form}")
     return stage, name, text
 
 
-def check_stages(assignments: list[str], stages: Mapping[str, type[Options]] | tuple[str, ...]) -> None:
-    """Refuse an item whose STAGE is none of ``stages``, naming them."""
+def check_stages(assignments: list[str], stages: Mapping[str, Any] | tuple[str, ...],
+                 unprefixed: str | None = None) -> None:
+    """Refuse an item whose STAGE is none of ``stages``, naming them (``unprefixed``: :func:`split_item`)."""
     for item in assignments:
-        stage = split_item(item)[0]
+        stage = split_item(item, unprefixed)[0]
         if stage not in stages:
             raise OptionsError(f"--set {item!r}: unknown stage {stage!r} (one of {', '.join(stages)})")
 
@@ -71,16 +76,19 @@ def parse_value(cls: type[Options], name: str, text: str, item: str) -> tuple[st
         if text.lower() == "none" and hint is not str:
             return field, None
         return field, hint(text)
-    except (ValueError, argparse.ArgumentTypeError):
+    except argparse.ArgumentTypeError as exc:  # a tuple: the parser says what is wrong
+        raise OptionsError(f"--set {item!r}: {exc}") from None
+    except ValueError:
         raise OptionsError(f"--set {item!r}: not a valid {getattr(hint, '__name__', hint)}") from None
 
 
-def section_overrides(assignments: list[str], section: str, cls: type[Options]) -> dict[str, Any]:
+def section_overrides(assignments: list[str], section: str, cls: type[Options],
+                      unprefixed: str | None = None) -> dict[str, Any]:
     """The ``--set`` items of ``section`` as typed values for ``cls`` (field name -> value; a dict of changes for
-    a nested options field; :func:`with_overrides` applies them)."""
+    a nested options field; :func:`with_overrides` applies them); ``unprefixed``: :func:`split_item`."""
     values: dict[str, Any] = {}
     for item in assignments:
-        stage, name, text = split_item(item)
+        stage, name, text = split_item(item, unprefixed)
         if stage == section:
             field, value = parse_value(cls, name, text, item)
             values[field] = merged(values.get(field), value)
