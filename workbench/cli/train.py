@@ -32,14 +32,16 @@ from engine.scene import SceneOptions
 from engine.training.recipe import SceneEntry, load_recipe
 from engine.training.runs import ensure_run
 from workbench.cli.model_card import inputs_line, write_recipe_model_card
-from workbench.flags.assignments import apply_assignments, check_stages
+from workbench.flags.assignments import apply_assignments, split_item
 from workbench.flags.options import given_flags, options_from_args
 from workbench.flags.train import REFINE_SECTIONS
 
 
 def refine_options(assignments: list[str]):
     """The :class:`PipelineOptions` of the full pipeline with ``--set`` overrides of :data:`REFINE_SECTIONS`."""
-    check_stages(assignments, REFINE_SECTIONS)
+    for item in assignments:
+        if split_item(item)[0] not in REFINE_SECTIONS:
+            raise DeepCError(f"--set {item!r}: deepc train takes only the stages {', '.join(REFINE_SECTIONS)}")
     return apply_assignments(PipelineOptions(pipeline="full"), assignments)
 
 
