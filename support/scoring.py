@@ -98,7 +98,7 @@ def shipped_pipeline_maps(scene, run_dir: Path, options: PipelineOptions | None 
         kept = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused]
         full_d, full_n = [k[0] for k in kept], [k[1] for k in kept]
         if options.refinement.sky_filter:
-            full_d, full_n, _ = sky_filter_views(scene, full_d, full_n, depth, conf)
+            full_d, full_n, _ = sky_filter_views(scene, full_d, full_n, depth, conf, options.refinement.sky)
         out["full"] = (full_d, full_n, [f[2] for f in fused])
     return out
 

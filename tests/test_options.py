@@ -21,7 +21,8 @@ from engine.refinement.options import RefinementOptions
 from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions
 from engine.synthetic.layout import RandomSceneKnobs
-from workbench.flags.options import add_options_flags, options_from_args, section_overrides
+from workbench.flags.assignments import section_overrides
+from workbench.flags.options import add_options_flags, options_from_args
 from workbench.rerun.options import StreamOptions
 
 BASELINES = Path(__file__).resolve().parent / "baselines"

@@ -36,7 +36,7 @@ from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.run.pipeline import PipelineOptions, patchmatch_views, run_pipeline
 from engine.scene import SceneOptions, load_scene
 from support import bench
-from workbench.flags.options import section_overrides
+from workbench.flags.assignments import section_overrides
 
 # Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).

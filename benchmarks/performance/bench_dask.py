@@ -110,7 +110,7 @@ def pipeline_options(config: dict):
     from engine.patchmatch import PatchMatchOptions
     from engine.run.pipeline import PipelineOptions
     from engine.scene import SceneOptions
-    from workbench.flags.options import section_overrides
+    from workbench.flags.assignments import section_overrides
 
     items = config.get("set", [])
     scene = SceneOptions(**{"max_image_size": config["max_image_size"],

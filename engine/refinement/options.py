@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from engine.core.options import Options, check, option
+from engine.refinement.sky import SkyOptions
 
 SOLVERS = ("adam", "fast")
 HOLE_INITS = ("nearest", "far")
@@ -61,6 +62,7 @@ class RefinementOptions(Options):
     sky_filter: bool = option(True, "drop sky and far-plane pixels of refined maps (paper Sec. 5.5)", source="paper")
     keep_confident: float | None = option(0.1, "fuse PatchMatch's estimate where network 1's confidence is at least "
                                           "this; unset = the paper", source="ours", low=0, high=1, metavar="C")
+    sky: SkyOptions = option(SkyOptions(), "the sky filter's mask and far-plane cut (with sky_filter)", cli=False)
 
     def validate(self) -> RefinementOptions:
         super().validate()

@@ -205,7 +205,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         filtered = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused_maps]
         depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
         if options.refinement.sky_filter:
-            depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence)
+            depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence,
+                                                  options.refinement.sky)
         seconds["confidence"] += time.perf_counter() - t
         if notify:
             notify("refinement")

@@ -18,6 +18,7 @@ from engine.core.interrupt import deferred_interrupts
 from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions
 from workbench.cli.probe import add_probe_arguments
+from workbench.flags.help_options import HelpOptionsAction
 from workbench.flags.options import add_options_flags
 from workbench.flags.run import add_executor_flags, add_probe_flags, add_run_option_flags
 from workbench.flags.train import add_train_arguments
@@ -95,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scene", help="COLMAP workspace folder")
     run.add_argument("--out", required=True, help="output folder (stereo maps, fused.ply, metrics.json)")
     add_run_option_flags(run)
+    run.add_argument("--help-options", action=HelpOptionsAction,
+                     help="list every --set STAGE.NAME=VALUE option (type, default, unit, where the default comes "
+                          "from, what it does) and exit")
     add_probe_flags(run)
     run.add_argument("--mesh", choices=MESH_METHODS, default="none",
                      help="also write OUT/mesh.ply: 'poisson' on the fused cloud, 'tsdf' of the maps fusion used "

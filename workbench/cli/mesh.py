@@ -18,6 +18,7 @@ from engine.fusion import FusedCloud, read_fused_ply
 from engine.meshing import evaluate_mesh, mesh_run, write_mesh_ply
 from engine.run.folder import read_metrics, read_run_metrics, run_scene, write_metrics
 from workbench.cli.run import print_mesh_summary
+from workbench.flags.assignments import check_stages
 from workbench.flags.run_options import mesh_options
 from workbench.maps.run_maps import read_view_data
 
@@ -28,6 +29,7 @@ def cmd_mesh(args: argparse.Namespace) -> int:
     if not run_dir.is_dir():
         raise DeepCError("run folder does not exist", run_dir)
     metrics = read_run_metrics(run_dir)
+    check_stages(args.set, ("mesh",))
     options = mesh_options(args.method, args.set)
     scene = run_scene(run_dir)
     cloud, depths = FusedCloud.empty(), []

@@ -14,6 +14,8 @@ import json
 import sys
 
 from engine.core.errors import DeepCError
+from engine.patchmatch import PatchMatchOptions
+from workbench.flags.assignments import check_stages, section_overrides
 from workbench.flags.run import parse_pixel
 
 
@@ -29,21 +31,15 @@ def add_probe_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pass", dest="pass_index", type=int, default=0,
                         help="--region: the pass of that level to start at (0 = photometric)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="--region: a PatchMatch option changed for the re-run, e.g. --set window=7")
+                        help="--region: a PatchMatch option changed for the re-run, e.g. --set window=7 (the "
+                             "patchmatch.* options of 'deepc run --help-options')")
 
 
-def _overrides(items: list[str]) -> dict[str, object]:
-    out: dict[str, object] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep:
-            raise DeepCError(f"--set {item!r}: expected NAME=VALUE")
-        name = name.removeprefix("patchmatch.")
-        try:
-            out[name] = json.loads(value)
-        except ValueError:
-            out[name] = value
-    return out
+def region_overrides(items: list[str]) -> dict[str, object]:
+    """``--set NAME=VALUE`` items of ``deepc probe --region`` (PatchMatch options; ``patchmatch.NAME=VALUE`` too),
+    typed by the parser of ``deepc run --set``."""
+    check_stages(items, ("patchmatch",), unprefixed="patchmatch")
+    return section_overrides(items, "patchmatch", PatchMatchOptions, unprefixed="patchmatch")
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
@@ -68,7 +64,7 @@ def cmd_probe(args: argparse.Namespace) -> int:
         box = ()
     if len(box) != 4:
         raise DeepCError(f"--region {args.region!r}: expected X0,Y0,W,H (four integers)")
-    r = rerun_region(args.run_dir, args.view, box, args.level, args.pass_index, _overrides(args.set), pixels)
+    r = rerun_region(args.run_dir, args.view, box, args.level, args.pass_index, region_overrides(args.set), pixels)
     print(f"region {r.box} re-run in {r.seconds:.2f} s")
     if r.within_1pct_before is not None:
         print(f"within 1%: {r.within_1pct_before:.1f}% before, {r.within_1pct_after:.1f}% after")

@@ -22,31 +22,27 @@ from pathlib import Path
 import numpy as np
 
 from engine.confidence.data import load_run
-from engine.confidence.options import ConfidenceOptions, TrainOptions
-from engine.consistency import CounterOptions
+from engine.confidence.options import TrainOptions
 from engine.core.errors import DeepCError
 from engine.io.atomic import atomic_write_text, write_json
 from engine.patchmatch import PatchMatchOptions
-from engine.refinement.options import RefinementOptions
 from engine.run.folder import INFERENCE, POST_REFINEMENT, file_sha256
 from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions
 from engine.training.recipe import SceneEntry, load_recipe
 from engine.training.runs import ensure_run
 from workbench.cli.model_card import inputs_line, write_recipe_model_card
-from workbench.flags.options import given_flags, options_from_args, section_overrides
+from workbench.flags.assignments import apply_assignments, split_item
+from workbench.flags.options import given_flags, options_from_args
 from workbench.flags.train import REFINE_SECTIONS
 
 
 def refine_options(assignments: list[str]):
     """The :class:`PipelineOptions` of the full pipeline with ``--set`` overrides of :data:`REFINE_SECTIONS`."""
     for item in assignments:
-        section = item.partition("=")[0].partition(".")[0]
-        if section not in REFINE_SECTIONS:
+        if split_item(item)[0] not in REFINE_SECTIONS:
             raise DeepCError(f"--set {item!r}: deepc train takes only the stages {', '.join(REFINE_SECTIONS)}")
-    sections = {"refinement": RefinementOptions, "counter": CounterOptions, "confidence": ConfidenceOptions}
-    return PipelineOptions(pipeline="full", **{name: cls(**section_overrides(assignments, name, cls))
-                                               for name, cls in sections.items()}).validate()
+    return apply_assignments(PipelineOptions(pipeline="full"), assignments)
 
 
 def _log(text: str) -> None:

@@ -3,7 +3,8 @@
 Every field of an :class:`engine.core.options.Options` subclass with ``cli=True`` becomes a flag:
 ``max_image_size`` -> ``--max-image-size``; booleans get ``--x/--no-x``; ``tuple[float, float]``
 fields take ``A,B``. Defaults are *not* given to argparse: a flag that is not passed leaves the
-dataclass default in force, so the defaults live in one place only.
+dataclass default in force, so the defaults live in one place only. ``--set STAGE.NAME=VALUE`` is parsed by
+``workbench/flags/assignments.py`` with the same types.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import typing
+from collections.abc import Callable
 from typing import Any
 
 from engine.core.errors import OptionsError
@@ -21,18 +23,20 @@ def flag_name(field_name: str) -> str:
     return "--" + field_name.replace("_", "-")
 
 
-def _base_type(hint: Any) -> Any:
+def base_type(hint: Any) -> Any:
+    """The type of a field without ``| None``."""
     args = [a for a in typing.get_args(hint) if a is not type(None)]
     if typing.get_origin(hint) in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
         return args[0]
     return hint
 
 
-def _tuple_parser(name: str, kinds: tuple):
+def tuple_parser(name: str, kinds: tuple) -> Callable[[str], tuple]:
+    """An argparse type for a tuple field: ``A,B`` -> a tuple of ``kinds`` (``tuple[int, ...]``: any number)."""
     def parse(text: str):
         parts = text.split(",")
         if len(kinds) == 2 and kinds[1] is Ellipsis:  # tuple[int, ...]: any number of values
-            return tuple(_tuple_parser(name, (kinds[0],) * len(parts))(text))
+            return tuple(tuple_parser(name, (kinds[0],) * len(parts))(text))
         if len(parts) != len(kinds):
             raise argparse.ArgumentTypeError(f"{name} takes {len(kinds)} comma-separated values, got {text!r}")
         try:
@@ -50,7 +54,7 @@ def add_options_flags(parser: argparse.ArgumentParser | argparse._ArgumentGroup,
     for f in dataclasses.fields(cls):
         if not f.metadata.get("cli", True) or f.name in skip or (only is not None and f.name not in only):
             continue
-        hint = _base_type(hints[f.name])
+        hint = base_type(hints[f.name])
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
         if hint is bool:
             shown = "on" if default else "off"
@@ -64,7 +68,7 @@ def add_options_flags(parser: argparse.ArgumentParser | argparse._ArgumentGroup,
             kwargs["action"] = argparse.BooleanOptionalAction
         elif typing.get_origin(hint) is tuple:
             kinds = typing.get_args(hint)
-            kwargs["type"] = _tuple_parser(flag_name(f.name), kinds)
+            kwargs["type"] = tuple_parser(flag_name(f.name), kinds)
             kwargs["metavar"] = f.metadata.get("metavar") or ",".join(["X"] * len(kinds))
         else:
             kwargs["type"] = hint
@@ -93,35 +97,3 @@ def options_from_args(cls: type[Options], args: argparse.Namespace, base: Option
         return base.replace(**values) if base is not None else cls(**values).validate()
     except TypeError as exc:
         raise OptionsError(str(exc)) from None
-
-
-def section_overrides(assignments: list[str], section: str, cls: type[Options]) -> dict[str, Any]:
-    """Parse ``--set SECTION.NAME=VALUE`` items that belong to ``section`` into typed values for ``cls``."""
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    values: dict[str, Any] = {}
-    for item in assignments:
-        key, sep, text = item.partition("=")
-        stage, dot, name = key.partition(".")
-        if not sep or not dot:
-            raise OptionsError(f"--set {item!r}: expected STAGE.NAME=VALUE")
-        if stage != section:
-            continue
-        name = cls.field_name(name) or name  # a former name (alias) still works
-        if name not in names:
-            raise OptionsError(f"--set {item!r}: {cls.__name__} has no option {name!r}")
-        hint = _base_type(hints[name])
-        try:
-            if hint is bool:
-                if text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
-                    raise ValueError
-                values[name] = text.lower() in ("true", "1", "yes", "on")
-            elif typing.get_origin(hint) is tuple:
-                values[name] = _tuple_parser(name, typing.get_args(hint))(text)
-            elif text.lower() == "none" and hint is not str:
-                values[name] = None
-            else:
-                values[name] = hint(text)
-        except (ValueError, argparse.ArgumentTypeError):
-            raise OptionsError(f"--set {item!r}: not a valid {getattr(hint, '__name__', hint)}") from None
-    return values

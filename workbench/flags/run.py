@@ -16,12 +16,10 @@ from engine.scene import SceneOptions
 from workbench.flags.options import add_options_flags
 from workbench.rerun.options import DEFAULT_CONFIDENCE_EVERY
 
-# PatchMatch options offered as flags; the rest are reachable with --set patchmatch.NAME=VALUE.
+# PatchMatch options offered as flags; the rest are reachable with --set patchmatch.NAME=VALUE (the stages --set
+# reaches are ``workbench.flags.run_options.run_sections``: every options dataclass of the pipeline).
 RUN_PATCHMATCH_FLAGS = ["schedule", "iterations", "seed", "pattern", "plane_propagation", "ncc_weighting",
                         "view_sampling", "levels", "geom_passes", "num_threads"]
-
-#: the stages ``--set STAGE.NAME=VALUE`` reaches
-SET_SECTIONS = ("patchmatch", "confidence", "refinement", "fusion", "mesh", "stream")
 
 
 def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
@@ -49,9 +47,10 @@ def add_run_option_flags(parser: argparse.ArgumentParser) -> None:
                              "confidence network's map (any pipeline) in the rerun stream (default: "
                              f"{DEFAULT_CONFIDENCE_EVERY} when streaming live, off with --headless; 0 = off)")
     parser.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                        help="any other stage option, e.g. --set patchmatch.tau0=0.7, --set confidence.tau=0.3, "
-                             "--set fusion.check_num_images=20, "
-                             "or thin the rerun stream: --set stream.every=2, stream.view=0, stream.max_size=160")
+                        help="any option of any stage (every one is listed by --help-options), e.g. --set "
+                             "patchmatch.tau0=0.7, --set confidence.tau=0.3, --set fusion.check_num_images=20, "
+                             "--set refinement.sky.far_factor=2, or thin the rerun stream: --set stream.every=2, "
+                             "stream.view=0, stream.max_size=160")
 
 
 def add_probe_flags(parser: argparse.ArgumentParser) -> None:

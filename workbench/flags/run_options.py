@@ -8,42 +8,49 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from engine.confidence.options import ConfidenceOptions
-from engine.core.errors import DeepCError
+from engine.core.options import Options
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
 from engine.meshing.options import MeshOptions
 from engine.patchmatch import PatchMatchOptions
-from engine.refinement.options import RefinementOptions
 from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions
-from workbench.flags.options import options_from_args, section_overrides
-from workbench.flags.run import SET_SECTIONS
+from workbench.flags.assignments import (
+    check_stages,
+    nested_options,
+    section_overrides,
+    stage_overrides,
+    with_overrides,
+)
+from workbench.flags.options import given_flags, options_from_args
 from workbench.rerun.options import StreamOptions
+
+
+def run_sections() -> dict[str, Options]:
+    """The stages ``deepc run --set STAGE.NAME=VALUE`` reaches, with their defaults: the scene, every nested
+    options dataclass of :class:`PipelineOptions` (so a stage added to the pipeline is reachable as it is), the
+    mesh and the rerun stream."""
+    pipeline = PipelineOptions()
+    return {"scene": SceneOptions(), **{name: getattr(pipeline, name) for name in nested_options(PipelineOptions)},
+            "mesh": MeshOptions(), "stream": StreamOptions()}
 
 
 def run_options_from_args(args: argparse.Namespace) -> tuple[SceneOptions, PipelineOptions, StreamOptions]:
     """(SceneOptions, PipelineOptions, StreamOptions) from the flags of :func:`add_run_option_flags`;
-    shared by ``deepc run`` and the entries of a regression suite. Bad weights fail here, before PatchMatch."""
-    for item in args.set:
-        section = item.partition("=")[0].partition(".")[0]
-        if section not in SET_SECTIONS:
-            raise DeepCError(f"--set {item!r}: unknown stage {section!r} (one of {', '.join(SET_SECTIONS)})")
-    scene_options = options_from_args(SceneOptions, args)
-    patchmatch = options_from_args(PatchMatchOptions, args,
-                                   **section_overrides(args.set, "patchmatch", PatchMatchOptions))
-    preset = args.fusion_preset or DEFAULT_PRESET
-    fusion = options_from_args(FusionOptions, args, base=FUSION_PRESETS[preset],
-                               **section_overrides(args.set, "fusion", FusionOptions))
-    confidence = ConfidenceOptions(**section_overrides(args.set, "confidence", ConfidenceOptions))
+    shared by ``deepc run`` and the entries of a regression suite. ``--set`` wins over a flag of the same option;
+    bad weights fail here, before PatchMatch."""
+    check_stages(args.set, run_sections())
+    scene_options = options_from_args(SceneOptions, args, **section_overrides(args.set, "scene", SceneOptions))
+    changes = stage_overrides(args.set, PipelineOptions)
+    changes["patchmatch"] = {**given_flags(PatchMatchOptions, args), **changes["patchmatch"]}
+    changes["fusion"] = {**given_flags(FusionOptions, args), **changes["fusion"]}
     if getattr(args, "weights", None):
-        confidence = confidence.replace(weights=str(Path(args.weights).resolve()))
-    refinement = RefinementOptions(**section_overrides(args.set, "refinement", RefinementOptions))
-    options = PipelineOptions(pipeline=args.pipeline, patchmatch=patchmatch, confidence=confidence,
-                              refinement=refinement, fusion=fusion).validate()
+        changes["confidence"]["weights"] = str(Path(args.weights).resolve())
+    preset = FUSION_PRESETS[args.fusion_preset or DEFAULT_PRESET]
+    options = with_overrides(PipelineOptions(pipeline=args.pipeline, fusion=preset), changes)
     stream = section_overrides(args.set, "stream", StreamOptions)
     if getattr(args, "stream_confidence_every", None) is not None:
         stream["confidence_every"] = args.stream_confidence_every
-    stream_options = StreamOptions(**stream).validate()
+    stream_options = with_overrides(StreamOptions(), stream)
     if options.pipeline in ("fast", "full"):
         check_pipeline_weights(options)
     return scene_options, options, stream_options
@@ -52,7 +59,7 @@ def run_options_from_args(args: argparse.Namespace) -> tuple[SceneOptions, Pipel
 def mesh_options(method: str | None, set_items: list[str]) -> MeshOptions:
     """MeshOptions from a method (``deepc run --mesh``, ``deepc mesh --method``; None = none) and
     ``--set mesh.NAME=VALUE`` items."""
-    return MeshOptions(**{"method": method or "none", **section_overrides(set_items, "mesh", MeshOptions)}).validate()
+    return with_overrides(MeshOptions(method=method or "none"), section_overrides(set_items, "mesh", MeshOptions))
 
 
 def check_pipeline_weights(options: PipelineOptions) -> None:

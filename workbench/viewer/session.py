@@ -25,6 +25,7 @@ from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.ply import read_points
 from engine.refinement.options import RefinementOptions
+from engine.refinement.sky import SkyOptions
 from engine.refinement.views import sky_filter_views
 from engine.run.folder import RunMetrics, read_run_metrics
 from engine.scene import Scene, SceneOptions, load_scene
@@ -116,6 +117,7 @@ class ViewerSession:
         # the viewer has no control for it, so it follows the run
         refinement = (run.options.get("refinement") or {}) if run is not None else {}
         self.sky_filter = bool(refinement.get("sky_filter", RefinementOptions().sky_filter))
+        self.sky = SkyOptions.from_dict(refinement.get("sky", {}), saved=True)  # as the run's pipeline filtered
         self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
@@ -239,7 +241,8 @@ class ViewerSession:
             out.append((depth, normal))
         if params.pipeline == "full" and self.sky_filter:
             depths, normals, _ = sky_filter_views(self.scene, [d for d, _ in out], [n for _, n in out],
-                                                  [d.depth for d in self.data], [d.confidence for d in self.data])
+                                                  [d.depth for d in self.data], [d.confidence for d in self.data],
+                                                  self.sky)
             out = list(zip(depths, normals, strict=True))
         return out
 
