@@ -15,18 +15,18 @@ DEFAULT_CONFIDENCE_EVERY = 3
 class StreamOptions(Options):
     """What the rerun stream logs (thinning keeps recordings small)."""
 
-    every: int | None = option(None, "log every k-th red-black iteration (the last one of each pass always); unset = "
-                               "every one that fits budget_mb", source="ours", low=1)
+    every: int | None = option(None, "log every k-th red-black iteration (and each pass's last); unset = as budget_mb "
+                               "allows", source="ours", low=1)
     view: int | None = option(None, "log the per-iteration maps of this view index only; unset = all views",
                               source="ours", low=0)
-    max_size: int | None = option(None, "downscale logged maps to this longer side; unset = the largest that keeps "
-                                  "the recording within budget_mb; 0 = full size", unit="px", source="ours", low=0)
-    budget_mb: float = option(15.0, "size of a run's recording to aim at, where max_size or every is unset "
-                              "(0 = no bound)", unit="MB", source="ours", low=0)
+    max_size: int | None = option(None, "downscale logged maps to this longer side; unset = as budget_mb allows; "
+                                  "0 = full size", unit="px", source="ours", low=0)
+    budget_mb: float = option(15.0, "size of a run's recording, where max_size or every is unset (0 = no bound)",
+                              unit="MB", source="ours", low=0)
     selected_views_mask: bool = option(True, "log the raw selected-views bitmask as well as the count",
                                        source="ours")
-    max_points: int = option(100_000, "log every k-th point of a fused cloud above this many (0 = all; the full "
-                             "cloud is fused.ply)", unit="points", source="ours", low=0)
+    max_points: int = option(100_000, "log every k-th point of a fused cloud above this many (0 = all)",
+                             unit="points", source="ours", low=0)
     confidence_every: int | None = option(
         None, f"score counter and confidence every k-th iteration of a view; unset = {DEFAULT_CONFIDENCE_EVERY} live, "
         "off headless; 0 = off", source="ours", low=0, metavar="K")
