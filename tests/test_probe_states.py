@@ -23,9 +23,10 @@ from support.pm_synthetic import make_scene
 
 REPO = Path(__file__).resolve().parent.parent
 # the default schedule's passes (ended by convergence, active set, fine window at level 0, detail restorer) with
-# two levels and one geometric pass, small enough that a pass's dependency box is smaller than the level
-OPTS = PatchMatchOptions(levels=2, geom_passes=1, iterations=None)
-PIXELS = [(0, 0), (95, 71), (47, 36), (3, 60), (90, 2)]
+# two levels and one geometric pass, ended sooner (converge_ratio) so that a pass's dependency box is smaller than
+# the level
+OPTS = PatchMatchOptions(levels=2, geom_passes=1, converge_ratio=0.3)
+PIXELS = [(0, 0), (127, 95), (63, 47), (3, 80), (120, 2)]
 
 
 def _dump(traces: list[dict]) -> str:
@@ -34,9 +35,9 @@ def _dump(traces: list[dict]) -> str:
 
 @pytest.fixture(scope="module")
 def replayed(tmp_path_factory):
-    """A 96x72 synthetic scene, its history, and view 1 replayed whole with the probe on, its pass-start states
+    """A 128x96 synthetic scene, its history, and view 1 replayed whole with the probe on, its pass-start states
     and iterations kept."""
-    views, _ = make_scene(96, 72, n_views=3)
+    views, _ = make_scene(128, 96, n_views=3)
     history = PassHistory(tmp_path_factory.mktemp("probe_states") / HISTORY_DIR)
     run_patchmatch(views, OPTS, history=history)
     states: dict = {}
@@ -59,20 +60,25 @@ def test_traces_from_states_equal_the_whole_replay(replayed):
     probe = PixelProbe(1, PIXELS)
     trace_from_states(views, 1, states, iterations, history.load_snapshot, OPTS, probe)
     assert _dump(probe.traces()) == _dump(full)
-    # one pixel alone (a smaller box than the five together) gives its entries of the same traces
-    probe = PixelProbe(1, [PIXELS[2]])
-    trace_from_states(views, 1, states, iterations, history.load_snapshot, OPTS, probe)
-    assert _dump(probe.traces()) == _dump([full[2]])
+    # each pixel alone (its own, smaller box; a corner's leaves most of level 0 out) gives the same trace
+    for i in (0, 1, 3):
+        probe = PixelProbe(1, [PIXELS[i]])
+        trace_from_states(views, 1, states, iterations, history.load_snapshot, OPTS, probe)
+        assert _dump(probe.traces()) == _dump([full[i]]), PIXELS[i]
 
 
 def test_the_box_is_smaller_than_the_level(replayed):
-    """The equality above is not the whole level replayed: the centre pixel's box leaves pixels out at level 0."""
+    """The equalities above are not the whole level replayed: a corner pixel's box leaves pixels out at level 0
+    in every pass (and those passes run into the active set's iterations)."""
     _, _, _, iterations, _ = replayed
     reach = pattern_reach(OPTS)
     assert reach == 13
-    boxes = [dependency_box([(47, 36)], 2 * iterations[(0, p)], reach, 96, 72) for p in range(2)]
-    assert min((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes) < 96 * 72
+    assert min(iterations[(0, p)] for p in range(2)) > 2
+    for p in range(2):
+        x0, y0, x1, y1 = dependency_box([(0, 0)], 2 * iterations[(0, p)], reach, 128, 96)
+        assert (x1 - x0) * (y1 - y0) < 128 * 96, iterations
     assert dependency_box([(0, 0)], 2, 13, 96, 72) == (0, 0, 27, 27)
+    assert dependency_box([(50, 40), (60, 30)], 1, 13, 96, 72) == (37, 17, 74, 54)
 
 
 def test_schedule_cone_of_the_default_schedule_covers_fountain_768():
