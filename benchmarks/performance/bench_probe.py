@@ -10,11 +10,24 @@ the steadier measure on a shared machine); the maps must be bit-identical. 2. A 
 ``run_pipeline`` with the history into a temporary folder; ``probe_run`` of the ``--pixels`` pixels (the first
 call replays the view), then ``rerun_region`` of a ``--box`` square at the view's centre from level 0 pass 0
 and pass 1 with the replay cached (median of 3, the interactive latency) and with ``window=7``.
+
+    nice -n 19 .venv/bin/python benchmarks/performance/bench_probe.py sample_scenes/fountain_p11 --latency
+        [--max-image-size 192] [--schedule paper] [--run OUT] [--box 96]
+
+``--latency``: the inspector's latencies only, on a vanilla run of SCENE (or the finished run ``--run``), "before"
+(every probe replays the view whole, ``probe_run(stored_states=False)``) and "after" (the first probe of a view
+keeps its pass-start states in ``OUT/history/states/``, later ones trace from them): the first pixel of a view,
+a second pixel of the same view, that pixel again from the disk store alone (as a new process), and a region
+re-run of a ``--box`` square from level 0 pass 1; the second pixel's trace must be the same JSON both ways. One
+probe of another view first compiles and loads everything (not timed). Writes
+``bench_probe_latency_<scene><size>.json``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import shutil
 import statistics
 import tempfile
 import time
@@ -24,9 +37,11 @@ import numpy as np
 
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.patchmatch.probe.pixel_probe import PixelProbe
+from engine.run.folder import run_scene
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, patchmatch_views, run_pipeline
-from engine.run.probe import probe_run, rerun_region
+from engine.run.probe import forget_replays, probe_run, rerun_region
+from engine.run.probe_states import STATES_DIR, StateStore
 from engine.scene import SceneOptions, load_scene
 from support import bench
 
@@ -34,7 +49,11 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def summary(result: dict) -> list[dict]:
-    """One row: the scene, PatchMatch seconds off / history / probe, history size, probe and region latency."""
+    """One row: the scene, PatchMatch seconds off / history / probe, history size, probe and region latency (with
+    ``--latency``: one row per variant, before / after)."""
+    if "latency" in result:
+        return [{"scene": f"{result['scene']} {result['size'][0]}x{result['size'][1]} {result['schedule']}", **row}
+                for row in result["latency"]]
     t = result["patchmatch_cpu_seconds"]
     return [{"scene": f"{result['scene']} {result['views']} x {result['size'][0]}x{result['size'][1]}",
              "PM off CPU s": t["off"], "history CPU s": t["history"], "probe CPU s": t["probe"],
@@ -49,6 +68,44 @@ def _pixels(width: int, height: int, n: int) -> list[tuple[int, int]]:
     return [(int(rng.integers(0, width)), int(rng.integers(0, height))) for _ in range(n)]
 
 
+def latency(run: Path, view: int, box_side: int) -> dict:
+    """The inspector's latencies on the finished run ``run``, before and after the kept states (module doc)."""
+    camera = patchmatch_views(run_scene(run))[view].camera
+    width, height = camera.width, camera.height
+    first, second = (width // 3, height // 2), (2 * width // 3, height // 3)
+    box = (max(0, width // 2 - box_side // 2), max(0, height // 2 - box_side // 2), min(box_side, width),
+           min(box_side, height))
+    other = 1 if view == 0 else 0
+    probe_run(run, other, [(1, 1)], stored_states=False)  # compile and load everything (not timed)
+    rows, traces = [], {}
+    for variant in ("before", "after"):
+        forget_replays()
+        shutil.rmtree(run / HISTORY_DIR / STATES_DIR, ignore_errors=True)
+        keep = variant == "after"
+        row: dict = {"variant": variant}
+        t0 = time.perf_counter()
+        probe_run(run, view, [first], stored_states=keep)
+        row["first pixel s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        traces[variant] = probe_run(run, view, [second], stored_states=keep)
+        row["second pixel s"] = time.perf_counter() - t0
+        if keep:
+            forget_replays()  # as a new process: the states from disk
+            t0 = time.perf_counter()
+            again = probe_run(run, view, [second])
+            row["second, from disk s"] = time.perf_counter() - t0
+            assert json.dumps(again, sort_keys=True) == json.dumps(traces[variant], sort_keys=True)
+            row["states MB"] = StateStore(run / HISTORY_DIR / STATES_DIR).size_bytes() / 2**20
+        t0 = time.perf_counter()
+        rerun_region(run, view, box, pass_index=1)
+        row["region P1 s"] = time.perf_counter() - t0
+        print(row, flush=True)
+        rows.append(row)
+    identical = json.dumps(traces["before"], sort_keys=True) == json.dumps(traces["after"], sort_keys=True)
+    return {"view": view, "first": list(first), "second": list(second), "box": list(box), "latency": rows,
+            "identical_traces": identical}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scene", nargs="?", type=Path, default=REPO / "sample_scenes" / "small")
@@ -58,7 +115,30 @@ def main() -> None:
     parser.add_argument("--pixels", type=int, default=8)
     parser.add_argument("--box", type=int, default=96)
     parser.add_argument("--json", type=Path, default=bench.results_path(__file__))
+    parser.add_argument("--latency", action="store_true", help="the inspector's latencies only (module doc)")
+    parser.add_argument("--run", type=Path, help="with --latency: a finished run (with history/) instead of a new one")
+    parser.add_argument("--view", type=int, default=0)
     args = parser.parse_args()
+
+    if args.latency:
+        with tempfile.TemporaryDirectory() as tmp:
+            run = args.run
+            pm = PatchMatchOptions(schedule=args.schedule)
+            if run is None:
+                run = Path(tmp) / "run"
+                scene = load_scene(args.scene, SceneOptions(max_image_size=args.max_image_size))
+                run_pipeline(scene, run, PipelineOptions(patchmatch=pm), history=PassHistory(run / HISTORY_DIR))
+            scene = run_scene(run)
+            camera = patchmatch_views(scene)[args.view].camera
+            schedule = PipelineOptions.from_dict(
+                {k: v for k, v in json.loads((run / "metrics.json").read_text())["options"].items() if k != "scene"},
+                saved=True).patchmatch.schedule
+            result = {"scene": scene.name, "size": [camera.width, camera.height], "schedule": schedule,
+                      **latency(run, args.view, args.box)}
+        bench.print_table(summary(result))
+        size = f"{max(camera.width, camera.height)}"
+        print(f"wrote {bench.write_result(result, bench.results_path(__file__, f'latency_{scene.name}{size}'))}")
+        return
 
     scene = load_scene(args.scene, SceneOptions(max_image_size=args.max_image_size))
     views = patchmatch_views(scene)
