@@ -78,27 +78,27 @@ def latency(run: Path, view: int, box_side: int) -> dict:
     other = 1 if view == 0 else 0
     probe_run(run, other, [(1, 1)], stored_states=False)  # compile and load everything (not timed)
     rows, traces = [], {}
+
+    def timed(row: dict, name: str, fn, *args, **kwargs):
+        """Call ``fn``; its wall and CPU seconds (all threads: steadier on a shared machine) into ``row``."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = fn(*args, **kwargs)
+        row[f"{name} s"], row[f"{name} CPU s"] = time.perf_counter() - t0, time.process_time() - c0
+        return out
+
     for variant in ("before", "after"):
         forget_replays()
         shutil.rmtree(run / HISTORY_DIR / STATES_DIR, ignore_errors=True)
         keep = variant == "after"
         row: dict = {"variant": variant}
-        t0 = time.perf_counter()
-        probe_run(run, view, [first], stored_states=keep)
-        row["first pixel s"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        traces[variant] = probe_run(run, view, [second], stored_states=keep)
-        row["second pixel s"] = time.perf_counter() - t0
+        timed(row, "first pixel", probe_run, run, view, [first], stored_states=keep)
+        traces[variant] = timed(row, "second pixel", probe_run, run, view, [second], stored_states=keep)
         if keep:
             forget_replays()  # as a new process: the states from disk
-            t0 = time.perf_counter()
-            again = probe_run(run, view, [second])
-            row["second, from disk s"] = time.perf_counter() - t0
+            again = timed(row, "second from disk", probe_run, run, view, [second])
             assert json.dumps(again, sort_keys=True) == json.dumps(traces[variant], sort_keys=True)
             row["states MB"] = StateStore(run / HISTORY_DIR / STATES_DIR).size_bytes() / 2**20
-        t0 = time.perf_counter()
-        rerun_region(run, view, box, pass_index=1)
-        row["region P1 s"] = time.perf_counter() - t0
+        timed(row, "region P1", rerun_region, run, view, box, pass_index=1)
         print(row, flush=True)
         rows.append(row)
     identical = json.dumps(traces["before"], sort_keys=True) == json.dumps(traces["after"], sort_keys=True)

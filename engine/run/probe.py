@@ -223,7 +223,10 @@ def _replay(run: _Run, i: int, probe: PixelProbe | None = None, progress: Progre
     if keep:
         store_key = _store_key(run, i)
         if store_key is not None:
-            _store(run).save(i, store_key, ViewStates(states, iterations))
+            try:
+                _store(run).save(i, store_key, ViewStates(states, iterations))
+            except OSError:  # a read-only or full run folder: later probes replay whole, as without the store
+                pass
     return _remember(_memory_key(run, i), rep)
 
 
