@@ -15,7 +15,9 @@ So after k half-steps of a pass, pixel p depends on the pass's start state withi
 and nothing else of the pass. Updating only a box of radius 2T · reach around the traced pixels (T: the pass's
 iterations) gives the traced pixels bit for bit what the whole-level pass gives them: the wrong values at the
 box's edge (pixels whose neighbours outside the box are never updated) move inward by at most ``reach`` per
-half-step and never reach them. The box is applied inside the kernels (``KernelParams.box_*``), with every map
+half-step and never reach them (a bound: in practice a change travels only as far as it keeps winning, and the
+tests' traces stay the same with half that radius, so the tests cannot show that the bound is tight). The box is
+applied inside the kernels (``KernelParams.box_*``), with every map
 kept at full level size, so coordinates, random streams and ray directions are the full level's.
 
 What is whole-view, and so needs the stored states rather than a band from scratch: a pass's length (the
