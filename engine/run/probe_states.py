@@ -12,8 +12,9 @@ version), the view, the history's snapshot files and the view's depth map as the
 it stale (read as missing, then overwritten). The folder is bounded: after every write the least recently used
 files (by modification time, which a read refreshes) are removed until it holds at most ``cap_bytes``.
 
-Size: 16 bytes per pixel per pass start and level end, times about 0.75 after packing: 1 + geom_passes + 1
-states per level, so at 768x512 with 3 levels and 2 geometric passes about 30 MB per view.
+Size: 16 bytes per pixel per pass start and level end, times about 0.7 after packing, 1 + geom_passes + 1
+states per level: 5.7 MB per view of fountain_p11 at 384x256 (3 levels, 2 geometric passes; measured by
+``benchmarks/performance/bench_probe.py --latency``), about 23 MB at 768x512.
 """
 
 from __future__ import annotations
