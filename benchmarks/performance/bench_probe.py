@@ -10,6 +10,9 @@ the steadier measure on a shared machine); the maps must be bit-identical. 2. A 
 ``run_pipeline`` with the history into a temporary folder; ``probe_run`` of the ``--pixels`` pixels (the first
 call replays the view), then ``rerun_region`` of a ``--box`` square at the view's centre from level 0 pass 0
 and pass 1 with the replay cached (median of 3, the interactive latency) and with ``window=7``.
+
+The inspector's latencies (first and second pixel of a view, kept states) are measured by
+``benchmarks/performance/inspector_latency.py``.
 """
 
 from __future__ import annotations

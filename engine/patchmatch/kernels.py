@@ -318,6 +318,15 @@ def refinement_hypotheses(pk, rp, zb, nbx, nby, nbz, zmin, zmax, eps, retries, a
     return n_h
 
 
+@njit(cache=True, _nrt=False, inline="always")
+def box_bounds(params, h, w):
+    """(x0, y0, x1, y1): the pixels [x0, x1) x [y0, y1) of an (h, w) map a kernel updates (``KernelParams.box_*``;
+    the whole map by default)."""
+    x1 = w if params.box_x1 < 0 else min(params.box_x1, w)
+    y1 = h if params.box_y1 < 0 else min(params.box_y1, h)
+    return max(params.box_x0, 0), max(params.box_y0, 0), x1, y1
+
+
 @njit(cache=True, parallel=True)
 def random_init_kernel(depth, normal, kinv, zmin, zmax, key, only_invalid):
     """Random hypotheses (the random initialisation of ACMM and COLMAP): depth (H, W) f32 ~ U[zmin, zmax],
@@ -344,8 +353,9 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
 
     k = min(#{m_j < 2}, top_k); cost = mean of the k smallest m_j (+ λ · mean g_j over the selected
     views in geometric passes); selected_views = {j : m_j <= k-th smallest}; k = 0 gives cost 2 (+ λ·δ) and
-    no view. Writes ``maps`` (:class:`records.HypothesisMaps`) cost and selected_views. With ``store`` the m_j
-    go to ``view_costs`` (H, W, N) f32, the half-steps' cache (NaN where the hypothesis has no plane).
+    no view. Writes ``maps`` (:class:`records.HypothesisMaps`) cost and selected_views inside ``params``' box
+    (:func:`box_bounds`). With ``store`` the m_j go to ``view_costs`` (H, W, N) f32, the half-steps' cache (NaN
+    where the hypothesis has no plane).
     ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier pass over the same images (NaN =
     not evaluated), valid where that pass matched pixel (x, y) with the same window set, ``known_wset``
     (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again. ``ref``: :class:`records.ReferenceWindows`,
@@ -364,11 +374,12 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
     gmax = params.geom_max
     min_var = params.min_var
     have_known = known.shape[0] == h and known.shape[1] == w and known.shape[2] == n_views
-    for y in prange(h):
+    x_lo, y_lo, x_hi, y_hi = box_bounds(params, h, w)
+    for y in prange(y_lo, y_hi):
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
         win, sidx = ncc_work(ox.shape[1])
-        for x in range(w):
+        for x in range(x_lo, x_hi):
             reuse = have_known and known_wset[y, x] == wset[y, x]
             z = Z[y, x]
             rp = ray(kinv, x, y)
@@ -423,8 +434,9 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
 @njit(cache=True, parallel=True)
 def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, params, counts):
     """Update every pixel of one colour ((x + y) % 2 == colour) of ``maps`` (:class:`records.HypothesisMaps`)
-    in place: candidates from the sampling pattern, multi-hypothesis view selection, refinement (Xu & Tao
-    2019 ACMM, with the DeepC pattern and perturbation of Kuhn et al. 2020); add what it evaluated to
+    inside ``params``' box (:func:`box_bounds`) in place: candidates from the sampling pattern, multi-hypothesis
+    view selection, refinement (Xu & Tao 2019 ACMM, with the DeepC pattern and perturbation of Kuhn et al. 2020);
+    add what it evaluated to
     ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
 
     ``caches`` (:class:`records.CostCaches`): ``view_costs`` caches m_j of each pixel's stored hypothesis
@@ -480,7 +492,8 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
     share = params.active_share
     active = share >= 0.0
     track = params.track_changes
-    for y in prange(h):
+    x_lo, y_lo, x_hi, y_hi = box_bounds(params, h, w)
+    for y in prange(y_lo, y_hi):
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
         reg_ord = np.empty(n_regions, np.int64)
@@ -500,7 +513,7 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
         hn = np.empty((8, 3), np.float64)
         win, sidx = ncc_work(ox.shape[1])
         n_rows = n_cur = n_rem = n_ref = n_px = n_skip = 0
-        for x in range((y + colour) % 2, w, 2):
+        for x in range(x_lo + (x_lo + y + colour) % 2, x_hi, 2):  # (x + y) % 2 == colour
             pk = combine(key, y * w + x)
             if track:
                 # active set: a pixel whose own last update and whose neighbours' last updates changed nothing

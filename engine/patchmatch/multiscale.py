@@ -35,7 +35,7 @@ from engine.patchmatch.view_pass import run_view_level
 
 # engine.run.memory sizes the cost caches with these (they live in state.py)
 __all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "replay_view",
-           "row_cache_bytes", "run_patchmatch"]
+           "row_cache_bytes", "run_patchmatch", "view_pyramids"]
 
 MAX_SOURCES = 32  # selected-view masks are uint32
 RANDOM_INIT_ITERATION = 1 << 20  # stream id of the random initialisation (never a real iteration)
@@ -188,7 +188,7 @@ def run_patchmatch(views: list[PatchMatchView], options: PatchMatchOptions | Non
         release_free_memory()  # the pooled per-pass arrays and the coarser levels' states (engine/core/heap_trim.py)
 
 
-def _pyramids(views: list[PatchMatchView | None], n_levels: int) -> tuple[list, list]:
+def view_pyramids(views: list[PatchMatchView | None], n_levels: int) -> tuple[list, list]:
     """Every view's images and cameras at levels 0 .. n_levels - 1 (None for a view given as None)."""
     images: list[list[np.ndarray] | None] = []
     cameras: list[list[Camera] | None] = []
@@ -228,7 +228,7 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
          on_iter: Callable | None, on_stage: Callable | None, progress: ProgressFn | None,
          checkpoint: Any = None, probe: PixelProbe | None = None, history: Any = None) -> list[ViewMaps]:
     n_views = len(views)
-    images, cameras = _pyramids(views, n_levels)
+    images, cameras = view_pyramids(views, n_levels)
     states: list[ViewState | None] = [None] * n_views
     step = 0
     done = 0  # iterations of all earlier passes (perturbation schedule 'global')
@@ -350,7 +350,8 @@ def _face_camera(normal: np.ndarray, cam: Camera) -> None:
 def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, cameras: list, snapshot: list | None,
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
                    step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
-                   on_stage: Callable | None = None, probe: PassProbe | None = None) -> int:
+                   on_stage: Callable | None = None, probe: PassProbe | None = None, iterations: int | None = None,
+                   box: tuple[int, int, int, int] | None = None) -> int:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
     counter after it."""
@@ -376,7 +377,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
 
     run_view_level(st, ctx, options, float(v.depth_min), float(v.depth_max), view=i, level=level,
                    pass_index=pass_index, detail=detail, done_before=done_before, on_iteration=event, pool=pool,
-                   probe=probe)
+                   probe=probe, iterations=iterations, box=box)
     if pool is not None:
         ctx.release(pool)
     planned = options.pass_iterations(pass_index)
@@ -388,7 +389,8 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
     return step + planned
 
 def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, options: PatchMatchOptions | None = None,
-                probe: PixelProbe | None = None, on_pass: PassFn | None = None) -> ViewMaps:
+                probe: PixelProbe | None = None, on_pass: PassFn | None = None,
+                on_iter: Callable | None = None) -> ViewMaps:
     """Re-run the PatchMatch of view ``view`` alone: the same passes, random streams and kernels as
     :func:`run_patchmatch`, with every geometric pass reading the source depth maps ``snapshots`` gives
     (``engine.run.pass_history``). Given the snapshots the full run's geometric passes read, the result is that run's
@@ -397,7 +399,8 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
     ``probe``: traces of the view's pixels (``probe.view`` must be ``view``); ``on_pass(level, pass_index,
     phase, state, images, cameras)``: called with phase "start" before each pass (the state the pass starts
     from) and "end" after each level's last pass (``images``, ``cameras``: every view's pyramid, None for views
-    the replay does not need); the state must not be kept without a copy."""
+    the replay does not need); the state must not be kept without a copy. ``on_iter(event)``: after every
+    red-black iteration (an ``IterationEvent``; its ``iteration`` tells how many a converged pass ran)."""
     options = (options or PatchMatchOptions()).validate()
     active = check_views(views, options)
     if not 0 <= view < len(views):
@@ -412,7 +415,7 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
     n_levels = effective_levels(views, options)
     v = views[view]
     needed = {view, *v.source_views}
-    images, cameras = _pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    images, cameras = view_pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
     old_threads = numba.get_num_threads()
     if options.num_threads > 0:
         numba.set_num_threads(min(options.num_threads, numba.config.NUMBA_NUM_THREADS))
@@ -435,7 +438,7 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
                     got = snapshots(level, pass_index, list(v.source_views))
                     snapshot = [got.get(j) for j in range(len(views))]
                 run_view_pass(views, view, st, images, cameras, snapshot, level, pass_index, n_levels, options, done,
-                              probe, pool)
+                              probe, pool, on_iter=on_iter)
                 done += options.pass_iterations(pass_index)
             if on_pass is not None:
                 on_pass(level, options.geom_passes, "end", st, images, cameras)
@@ -450,12 +453,15 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
 def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: list, cameras: list,
                   snapshot: list | None, level: int, pass_index: int, n_levels: int, options: PatchMatchOptions,
                   done_before: int, probe: PixelProbe | None = None, pool: BufferPool | None = None,
-                  origin: tuple[int, int] = (0, 0), on_iter: Callable | None = None) -> None:
+                  origin: tuple[int, int] = (0, 0), on_iter: Callable | None = None, iterations: int | None = None,
+                  box: tuple[int, int, int, int] | None = None) -> None:
     """Pass ``pass_index`` of view ``i`` at ``level`` on ``st`` in place, as :func:`run_patchmatch` runs it (detail
     restorer in a finer level's photometric pass, random start at the coarsest's): ``images``, ``cameras``: every
     view's pyramid (``images[i][level]`` may be a crop of the level's image at ``origin`` (x, y), with its camera;
     ``probe`` then traces the probed pixels inside it); ``snapshot``: the views' depth maps a geometric pass reads;
-    ``done_before``: iterations of all earlier passes; ``on_iter(event)`` after each iteration."""
+    ``done_before``: iterations of all earlier passes; ``on_iter(event)`` after each iteration; ``iterations``: run
+    exactly this many (the count a converged pass of the run ran; None: the schedule's, ended by convergence);
+    ``box`` (x0, y0, x1, y1): update only those pixels (``view_pass.run_view_level``)."""
     coarsest = level == n_levels - 1
     detail = pass_index == 0 and not coarsest and options.detail_restorer
     pass_probe = None
@@ -463,4 +469,5 @@ def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: li
         w, h = level_size(views[i].camera.width, views[i].camera.height, level)
         pass_probe = probe.pass_probe(level, pass_index, w, h, detail, origin, st.depth.shape)
     _run_view_pass(i, views[i], st, images, cameras, snapshot, level, pass_index, detail, options, on_iter, 0,
-                   done_before, random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe)
+                   done_before, random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe,
+                   iterations=iterations, box=box)

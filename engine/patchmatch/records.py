@@ -54,6 +54,12 @@ class KernelParams(NamedTuple):
     active_share: float  # active set: share of quiet pixels still updated; < 0 = every pixel is updated
     track_changes: bool  # write CostCaches.changed (the active set is on in this pass)
     change_depth: float  # active set: a hypothesis has changed when its depth moves more than this (relative)
+    # the box of pixels a kernel updates, [box_x0, box_x1) x [box_y0, box_y1) in the maps' coordinates (an end < 0:
+    # the image's edge): the pixel probe replays only the pixels a traced pixel depends on (engine/run/probe_replay.py)
+    box_x0: int = 0
+    box_y0: int = 0
+    box_x1: int = -1
+    box_y1: int = -1
 
 
 def good_threshold(options: PatchMatchOptions, iteration: int) -> float:
@@ -77,12 +83,14 @@ def active_share(options: PatchMatchOptions, iteration: int, last: bool = False)
 
 def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int = 0, geometric: bool = False,
                   detail: bool = False, n_regions: int = 24, perturbation: float | None = None,
-                  last: bool = False) -> KernelParams:
+                  last: bool = False, box: tuple[int, int, int, int] | None = None) -> KernelParams:
     """The :class:`KernelParams` of iteration ``iteration`` of a pass over a view with depth range [zmin, zmax].
 
     ``perturbation`` defaults to 2^-iteration; ``last``: the pass's last iteration, where any lower cost
     replaces a hypothesis (``PatchMatchOptions.min_improvement`` does not apply); ``n_regions``: regions of the
-    sampling pattern (``propagation.sampling_pattern``)."""
+    sampling pattern (``propagation.sampling_pattern``); ``box``: (x0, y0, x1, y1), the pixels the kernels update
+    (None: all; see :class:`KernelParams`)."""
+    x0, y0, x1, y1 = (0, 0, -1, -1) if box is None else (int(c) for c in box)
     return KernelParams(
         zmin=float(zmin), zmax=float(zmax),
         perturbation=float(2.0 ** (-iteration) if perturbation is None else perturbation),
@@ -98,7 +106,7 @@ def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteratio
         plane_propagation=bool(options.plane_propagation), geometric=bool(geometric), detail_restorer=bool(detail),
         deterministic=options.view_sampling == "deterministic", all8=options.combos == "all8",
         active_share=active_share(options, iteration, last), track_changes=bool(options.active_share >= 0),
-        change_depth=float(options.converge_depth))
+        change_depth=float(options.converge_depth), box_x0=x0, box_y0=y0, box_x1=x1, box_y1=y1)
 
 
 class HypothesisMaps(NamedTuple):

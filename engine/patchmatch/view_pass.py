@@ -100,7 +100,8 @@ def restorer_reference(state: ViewState, ctx: ViewContext, options: PatchMatchOp
 def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOptions, zmin: float, zmax: float, *,
                    view: int = 0, level: int = 0, pass_index: int = 0, detail: bool = False,
                    iterations: int | None = None, done_before: int = 0, on_iteration: IterationFn | None = None,
-                   pool: BufferPool | None = None, probe: PassProbe | None = None) -> np.ndarray:
+                   pool: BufferPool | None = None, probe: PassProbe | None = None,
+                   box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """Run one pass of PatchMatch over one reference view at one pyramid level, in place on ``state``.
 
     The initial cost of the stored hypotheses (ACMM's top-k rule), then ``iterations`` (default
@@ -121,11 +122,14 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     (``kernels.half_step_kernel``).
     ``probe`` (``probe.PassProbe``): explains its pixels before each half-step and records what the kernel
     wrote (outside the kernels: the maps are the same with or without it).
+    ``box`` (x0, y0, x1, y1): only the pixels [x0, x1) x [y0, y1) are costed and updated, the others keep their
+    maps (the pixel probe's partial replay: a pixel depends only on pixels within the pattern's reach per
+    half-step; None = all).
     Returns the (N_COUNTS,) int64 counts of the whole pass."""
     pattern = pattern_of(options)
     geometric = pass_index > 0
     n_iter = options.pass_iterations(pass_index) if iterations is None else iterations
-    params = kernel_params(options, zmin, zmax, 0, geometric, detail, n_regions(pattern))
+    params = kernel_params(options, zmin, zmax, 0, geometric, detail, n_regions(pattern), box=box)
     if probe is not None:
         probe.start(state)
     if detail:
@@ -142,7 +146,7 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
         check_interrupt()  # a stop request is honoured between kernels (engine/core/interrupt.py)
         t0 = time.perf_counter()
         params = kernel_params(options, zmin, zmax, t, geometric, detail, n_regions(pattern),
-                               perturbation_scale(options, t, done_before), last=last)
+                               perturbation_scale(options, t, done_before), last=last, box=box)
         counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
             key = np.uint64(stream_key(options.seed, view, level, pass_index, t, colour))

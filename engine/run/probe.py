@@ -6,8 +6,10 @@ view alone through every level and pass (``patchmatch.engine.replay_view``: the 
 the probe on, so that the last trace entry's ``after.depth`` is the stored depth. :func:`rerun_region` starts
 from the exact state a given level and pass started from, re-runs a crop of the view (plus the margin the
 window and the sampling pattern read) with changed options through the remaining passes and levels, and
-compares the crop's depth before and after with GT. Replays are kept in memory (the last few views), so a
-second probe or region of the same view starts at once.
+compares the crop's depth before and after with GT. A replay's pass-start states are kept in memory (the last
+few views) and on disk (``engine.run.probe_states``, bounded): a second probe of the same view, in this process or
+a later one, starts every pass from them and updates only the pixels the probed ones depend on
+(``engine.patchmatch.probe.partial``: the same traces, entry for entry), and a region re-run starts at once.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 from engine.core.camera import Camera
 from engine.core.errors import DeepCError
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, effective_levels
-from engine.patchmatch.multiscale import level_start, replay_view, run_view_pass
+from engine.patchmatch.multiscale import level_start, replay_view, run_view_pass, view_pyramids
+from engine.patchmatch.probe.partial import trace_from_states
 from engine.patchmatch.probe.pixel_probe import PixelProbe, level_pixel
 from engine.patchmatch.propagation import sampling_pattern
 from engine.patchmatch.pyramid import level_size
@@ -34,6 +37,7 @@ from engine.run.folder import map_path, read_map, read_run_metrics, run_scene
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.run.probe_output import final_entries, write_traces
+from engine.run.probe_states import STATES_DIR, StateStore, ViewStates, replay_key
 
 ProgressFn = Callable[[str, int, int], Any]
 #: options a region re-run cannot change (they change the schedule the stored states belong to)
@@ -55,10 +59,11 @@ class _Run:
 
 @dataclasses.dataclass
 class _Replay:
-    """One view's replay: its state at every pass start (level, pass) and level end (level, 'end'), and the
-    pyramids of the view and its sources."""
+    """One view's replay: its state at every pass start (level, pass) and level end (level, 'end'), the
+    iterations each pass ran, and the pyramids of the view and its sources."""
 
     states: dict[tuple[int, Any], tuple[np.ndarray, np.ndarray]]
+    iterations: dict[tuple[int, int], int]
     images: list
     cameras: list
 
@@ -140,14 +145,62 @@ def resolve_view(names: list[str], view: str | int) -> int:
     raise DeepCError(f"probe: no view named {view!r} (views: {shown})")
 
 
-def _replay(run: _Run, i: int, probe: PixelProbe | None = None, progress: ProgressFn | None = None) -> _Replay:
-    """Replay view ``i`` of ``run`` (its traces into ``probe``), keeping its pass-start states in memory."""
-    key = (str(run.run_dir.resolve()), i, map_path(run.run_dir, "depth", run.views[i].name).stat().st_mtime_ns)
-    if probe is None and key in _replays:
+def forget_replays() -> None:
+    """Drop the replays kept in memory (the run folders' state stores stay): the next probe of a view reads its
+    states from disk, as a new process would."""
+    _replays.clear()
+
+
+def _memory_key(run: _Run, i: int) -> tuple:
+    return str(run.run_dir.resolve()), i, map_path(run.run_dir, "depth", run.views[i].name).stat().st_mtime_ns
+
+
+def _store(run: _Run) -> StateStore:
+    return StateStore(run.run_dir / HISTORY_DIR / STATES_DIR)
+
+
+def _store_key(run: _Run, i: int) -> str | None:
+    """The key of view ``i``'s stored states (``probe_states.replay_key``), None without a stored depth map."""
+    depth = read_map(run.run_dir, "depth", run.views[i].name)
+    if depth is None or run.history.key is None:
+        return None
+    return replay_key(run.history.key, i, depth, sorted(run.history.folder.glob("L*_P*.npz")))
+
+
+def _remember(key: tuple, rep: _Replay) -> _Replay:
+    _replays[key] = rep
+    while len(_replays) > _CACHE_VIEWS:
+        _replays.popitem(last=False)
+    return rep
+
+
+def _stored_replay(run: _Run, i: int) -> _Replay | None:
+    """View ``i``'s replay from memory or from the run's state store (None if neither holds it)."""
+    key = _memory_key(run, i)
+    if key in _replays:
         _replays.move_to_end(key)
         return _replays[key]
+    store_key = _store_key(run, i)
+    got = None if store_key is None else _store(run).load(i, store_key)
+    if got is None:
+        return None
+    v = run.views[i]
+    needed = {i, *v.source_views}
+    images, cameras = view_pyramids([u if j in needed else None for j, u in enumerate(run.views)], run.n_levels)
+    return _remember(key, _Replay(got.states, got.iterations, images, cameras))
+
+
+def _replay(run: _Run, i: int, probe: PixelProbe | None = None, progress: ProgressFn | None = None,
+            keep: bool = True) -> _Replay:
+    """Replay view ``i`` of ``run`` whole (its traces into ``probe``), keeping its pass-start states in memory and,
+    with ``keep``, in the run's state store; without a probe a kept replay is reused."""
+    if probe is None:
+        rep = _stored_replay(run, i)
+        if rep is not None:
+            return rep
     pm = run.options.patchmatch
     states: dict[tuple[int, Any], tuple[np.ndarray, np.ndarray]] = {}
+    iterations: dict[tuple[int, int], int] = {}
     kept: dict[str, Any] = {"passes": 0}
     total = run.n_levels * (1 + pm.geom_passes)
 
@@ -158,16 +211,40 @@ def _replay(run: _Run, i: int, probe: PixelProbe | None = None, progress: Progre
             progress(f"replaying view {run.views[i].name}", kept["passes"], total)
             kept["passes"] += 1
 
-    maps = replay_view(run.views, i, run.history.load_snapshot, pm, probe=probe, on_pass=on_pass)
+    def on_iter(event: Any) -> None:  # a converged pass ends early: its length is part of the replay
+        iterations[(event.level, event.pass_index)] = event.iteration + 1
+
+    maps = replay_view(run.views, i, run.history.load_snapshot, pm, probe=probe, on_pass=on_pass, on_iter=on_iter)
     stored = read_map(run.run_dir, "depth", run.views[i].name)
     if stored is None or not np.array_equal(maps.depth, stored):
         raise DeepCError(f"replaying view {run.views[i].name} does not give the run's depth map (the run was made "
                          "with other code or numba builds); re-run it to probe it", run.run_dir)
-    rep = _Replay(states, kept["images"], kept["cameras"])
-    _replays[key] = rep
-    while len(_replays) > _CACHE_VIEWS:
-        _replays.popitem(last=False)
-    return rep
+    rep = _Replay(states, iterations, kept["images"], kept["cameras"])
+    if keep:
+        store_key = _store_key(run, i)
+        if store_key is not None:
+            try:
+                _store(run).save(i, store_key, ViewStates(states, iterations))
+            except OSError:  # a read-only or full run folder: later probes replay whole, as without the store
+                pass
+    return _remember(_memory_key(run, i), rep)
+
+
+def _traced_from_states(run: _Run, i: int, probe: PixelProbe) -> bool:
+    """Trace ``probe``'s pixels from view ``i``'s kept states (``probe.partial``); False (the probe's traces
+    left empty) when none are kept or the traces do not end on the run's depth (a stale store)."""
+    rep = _stored_replay(run, i)
+    if rep is None:
+        return False
+    trace_from_states(run.views, i, rep.states, rep.iterations, run.history.load_snapshot, run.options.patchmatch,
+                      probe)
+    stored = read_map(run.run_dir, "depth", run.views[i].name)
+    for t in probe.traces():
+        if not t["iterations"] or stored is None or t["iterations"][-1]["after"]["depth"] != float(
+                stored[t["y"], t["x"]]):
+            _replays.pop(_memory_key(run, i), None)
+            return False
+    return True
 
 
 def _stored_maps(run: _Run, i: int) -> tuple[list[np.ndarray], dict[str, np.ndarray | None]]:
@@ -180,17 +257,20 @@ def _stored_maps(run: _Run, i: int) -> tuple[list[np.ndarray], dict[str, np.ndar
 
 
 def probe_run(run_dir: str | Path, view: str | int, pixels: list[tuple[int, int]],
-              progress: ProgressFn | None = None) -> list[dict[str, Any]]:
+              progress: ProgressFn | None = None, stored_states: bool = True) -> list[dict[str, Any]]:
     """Traces of ``pixels`` ((x, y) at full resolution, at most 64) of ``view`` (name or index) in the finished
     run ``run_dir``, as ``deepc run --probe`` would have written them: written to
     ``OUT/probes/<view>/<x>_<y>.json`` (atomically) and returned. ``progress(description, done, total)`` per
-    pass. Bad views or pixels and runs without a usable history raise a one-line :class:`DeepCError`."""
+    pass of a whole replay. The first probe of a view replays it whole and keeps its pass-start states;
+    later ones trace from them (the same traces; ``stored_states`` False: always replay whole and keep nothing
+    on disk). Bad views or pixels and runs without a usable history raise a one-line :class:`DeepCError`."""
     run = _open_run(run_dir)
     i = resolve_view([u.name for u in run.views], view)
     probe = PixelProbe(i, pixels)
     probe.bind([v.name for v in run.views], [(v.camera.width, v.camera.height) for v in run.views],
                [list(v.source_views) for v in run.views])  # bad pixels fail before the replay
-    _replay(run, i, probe, progress)
+    if not (stored_states and _traced_from_states(run, i, probe)):
+        _replay(run, i, probe, progress, keep=stored_states)
     depths, maps = _stored_maps(run, i)
     finals = final_entries(run.scene, i, run.views, depths, maps["normal"], maps["cost"], maps["counter"],
                            maps["confidence"], probe.pixels, run.options.counter)
