@@ -5,7 +5,8 @@ compared with a tolerance. Instead the suite times this workload (parallel float
 kind of loop PatchMatch spends its time in) before and after its runs, stores that calibration with the
 baselines it writes, and reports each run's time as a ratio to its baseline's, normalised by the two
 calibrations: ``(t / c) / (t0 / c0)``. The ratio is information only; speed regressions are caught by the
-speed benchmarks (``benchmarks/performance/``), not by CI's wall clock.
+speed benchmarks (``benchmarks/performance/``; ``speed_ab.py`` runs this tree and another checkout alternately
+on one machine), not by CI's wall clock.
 """
 
 from __future__ import annotations
