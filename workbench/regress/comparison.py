@@ -127,12 +127,12 @@ class Delta:
         return self.spec.timing and None not in (self.ratio, self.tolerance) and self.ratio > 1 + self.tolerance
 
     def explain(self) -> str:
-        """e.g. 'tiny/vanilla f1@0.02 47.60 -> 52.60 (+5.00, tolerance ±0.5): changed, better by +5.00'."""
+        """e.g. 'tiny/vanilla f1@0.02 47.60 -> 52.60 (+5.00, tolerance ±0.5): better by +5.00'."""
         if self.status == MISSING:
             return f"{self.run} {self.label}: missing (baseline {format_value(self, self.baseline)})"
         text = (f"{self.run} {self.label} {format_value(self, self.baseline)} -> {format_value(self, self.current)} "
                 f"({format_change(self)}, tolerance {format_allowed(self)})")
-        return f"{text}: changed, {self.direction} by {format_change(self)}" if self.status == CHANGED else text
+        return f"{text}: {self.direction} by {format_change(self)}" if self.status == CHANGED else text
 
 
 def _number(value: Any) -> float | None:
