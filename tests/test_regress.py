@@ -341,7 +341,7 @@ def test_a_run_5_times_slower_passes_and_reports_its_calibrated_ratio(fake_runs,
     fake.seconds = 50.0  # five times the wall clock and the CPU seconds of the baseline's run
     code, out, err = regress()
     assert code == 0 and "nothing changed" in out, out + err
-    assert ("tiny/vanilla: time 5.00× the baseline after calibration, CPU time 5.00× the baseline after "
+    assert ("tiny/vanilla  time 5.00× the baseline after calibration, CPU time 5.00× the baseline after "
             "calibration") in out
     assert re.search(r"tiny/vanilla\s+time\s+10.0 s\s+50.0 s\s+5.00× calibrated\s+note > 1.5×\s+info: slower", out)
     assert "speed regressions are caught by benchmarks/performance/" in out

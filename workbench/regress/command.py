@@ -138,7 +138,7 @@ def print_times(results: list[RunResult], calibration: Calibration) -> None:
                                                                                ("cpu_time", "CPU time"))
                  if metric in times]
         base = result.baseline_calibration
-        print(f"  {result.spec.key}: {', '.join(words)}"
+        print(f"  {result.spec.key}  {', '.join(words)}"
               + (f" (baseline calibration {base.describe()})" if base else " (its baseline has no calibration)"))
 
 
