@@ -276,8 +276,8 @@ class FakeRuns:
     def process_time(self) -> float:
         return self.cpu
 
-    def measure(self) -> Calibration:
-        return Calibration.from_samples([(self.calibration, self.calibration)])
+    def measure(self, repeats: int = 3) -> Calibration:
+        return Calibration.from_samples([(self.calibration, self.calibration)] * repeats)
 
 
 @pytest.fixture

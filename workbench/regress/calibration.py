@@ -2,7 +2,7 @@
 
 A run's wall-clock and CPU seconds depend on the machine and on what else runs on it, so they are never
 compared with a tolerance. Instead the suite times this workload (parallel float32 window statistics, the
-kind of loop PatchMatch spends its time in) before and after its runs, stores that calibration with the
+kind of loop PatchMatch spends its time in) before, between and after its runs, stores that calibration with the
 baselines it writes, and reports each run's time as a ratio to its baseline's, normalised by the two
 calibrations: ``(t / c) / (t0 / c0)``. The ratio is information only; speed regressions are caught by the
 speed benchmarks (``benchmarks/performance/``; ``speed_ab.py`` runs this tree and another checkout alternately
@@ -24,7 +24,7 @@ WORKLOAD = "window-moments-v1"
 _SIZE = 384  # px: the workload's image is _SIZE x _SIZE
 _RADIUS = 5  # 11 x 11 windows, as PatchMatch's default window
 _PASSES = 16  # about 0.3 s a repeat on 2 cores (2 s for the 6 repeats of a suite)
-REPEATS = 3  # timed repeats before and after the suite
+REPEATS = 3  # timed repeats before and after the suite (and one after each run)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +57,7 @@ class Calibration:
                    tuple(samples))
 
     def merged(self, other: Calibration) -> Calibration:
-        """The calibration of both sets of repeats (e.g. before and after the suite)."""
+        """The calibration of both sets of repeats (e.g. before and after a run)."""
         return Calibration.from_samples(list(self.samples) + list(other.samples))
 
     def describe(self) -> str:

@@ -3,8 +3,8 @@
 Exit 0 when no quality metric changed beyond its tolerance, 1 when one did, better or worse (named, with
 its direction: an improvement nobody expected is checked like a loss); a run without a baseline fails too
 (a suite entry nobody has checked is not a passed check). ``--update-baseline --reason TEXT`` rewrites the
-baselines instead and exits 0. Times never fail: a calibration workload is timed before and after the runs
-and each run's time is reported as a ratio to its baseline's, normalised by the two calibrations
+baselines instead and exits 0. Times never fail: a calibration workload is timed before, between and after
+the runs and each run's time is reported as a ratio to its baseline's, normalised by the two calibrations
 (``workbench/regress/calibration.py``). The HTML report (``workbench/regress/report/``) and ``summary.json``
 go to ``--report``.
 """
@@ -59,14 +59,16 @@ def cmd_regress(args: argparse.Namespace) -> int:
     env = environment()
     print(f"suite {suite.name} ({suite.path}): {len(suite.runs)} runs, baselines in {baseline_dir}", file=sys.stderr)
     print(f"warm-up (numba compilation, not timed): {warm_up(suite.runs):.1f} s", file=sys.stderr)
-    before = measure()
-    print(f"calibration before the runs: {before.describe()}", file=sys.stderr)
+    calibration = measure()
+    print(f"calibration before the runs: {calibration.describe()}", file=sys.stderr)
     if args.record:
         print("--record: recording slows the runs down; their times say little", file=sys.stderr)
-    results = [run_and_compare(i, suite, spec, baseline_dir, report_dir, args.record)
-               for i, spec in enumerate(suite.runs, 1)]
-    calibration = before.merged(measure())
-    print(f"calibration (median of the repeats before and after the runs): {calibration.describe()}",
+    results = []
+    for i, spec in enumerate(suite.runs, 1):
+        results.append(run_and_compare(i, suite, spec, baseline_dir, report_dir, args.record))
+        calibration = calibration.merged(measure(repeats=1))  # samples the machine's load through the suite
+    calibration = calibration.merged(measure())
+    print(f"calibration (median of the repeats before, between and after the runs): {calibration.describe()}",
           file=sys.stderr)
     for result in results:  # the times, now that the calibration is complete
         result.deltas = compare(result.spec.key, result.metrics, result.baseline,

@@ -211,8 +211,8 @@ def render_report(suite: Suite, results: list[RunResult], env: dict[str, Any], b
         verdict, css = "CHANGED: " + "; ".join(what), "fail"
     else:
         verdict, css = "Nothing changed", "pass"
-    timing = (f"This invocation's calibration: {calibration.describe()} (median of the repeats before and after "
-              "the runs). " if calibration else "")
+    timing = (f"This invocation's calibration: {calibration.describe()} (median of the repeats before, between "
+              "and after the runs). " if calibration else "")
     body = [f"<h1>deepc regress: suite {_e(suite.name)}</h1>",
             f"<p class='verdict {css}'>{_e(verdict)}</p>",
             f"<p>Suite <code>{_e(suite.path)}</code>, baselines <code>{_e(baseline_dir)}</code>, git revision "
