@@ -9,7 +9,7 @@ not imported here, so that the report can import the comparison without importin
 """
 
 from workbench.regress.baselines import baseline_path, read_baseline, write_baseline
-from workbench.regress.calibration import Calibration, measure, time_scales
+from workbench.regress.calibration import Calibration, time_scales
 from workbench.regress.comparison import (
     BETTER,
     CHANGED,
@@ -34,4 +34,4 @@ from workbench.regress.suite import DEFAULT_SUITE, RunSpec, Suite, entry_flags, 
 __all__ = ["BETTER", "CHANGED", "DEFAULT_SUITE", "DEFAULT_TOLERANCES", "FAILED", "INFO", "METRICS", "MISSING", "NEW",
            "OK", "WORSE", "Calibration", "Delta", "MetricSpec", "RunResult", "RunSpec", "Suite", "baseline_path",
            "compare", "entry_flags", "environment", "execute", "format_table", "git_revision", "load_suite",
-           "measure", "option_changes", "read_baseline", "time_scales", "warm_up", "write_baseline"]
+           "option_changes", "read_baseline", "time_scales", "warm_up", "write_baseline"]
