@@ -23,13 +23,13 @@ import numpy as np
 WORKLOAD = "window-moments-v1"
 _SIZE = 384  # px: the workload's image is _SIZE x _SIZE
 _RADIUS = 5  # 11 x 11 windows, as PatchMatch's default window
-_PASSES = 16  # about 0.3 s a repeat on 2 cores (2 s for the 6 repeats of a suite)
+_CALLS = 16  # kernel calls a repeat: about 0.25 s of CPU (the default suite's 13 repeats: about 3 s)
 REPEATS = 3  # timed repeats before and after the suite (and one after each run)
 
 
 @dataclasses.dataclass(frozen=True)
 class Calibration:
-    """Seconds of one pass of the workload: the median over the timed repeats (wall clock and CPU, all threads)."""
+    """Seconds of one repeat of the workload: the median over the timed repeats (wall clock and CPU, all threads)."""
 
     workload: str
     seconds: float
@@ -46,7 +46,7 @@ class Calibration:
         try:
             calibration = cls(str(data["workload"]), float(data["seconds"]), float(data["cpu_seconds"]),
                               tuple((float(w), float(c)) for w, c in data.get("samples", [])))
-        except (KeyError, TypeError, ValueError):
+        except (AttributeError, KeyError, TypeError, ValueError):
             return None
         ok = calibration.workload == WORKLOAD and calibration.seconds > 0 and calibration.cpu_seconds > 0
         return calibration if ok else None
@@ -61,7 +61,7 @@ class Calibration:
         return Calibration.from_samples(list(self.samples) + list(other.samples))
 
     def describe(self) -> str:
-        return f"{self.seconds:.2f} s ({self.cpu_seconds:.2f} s CPU) a pass of {self.workload}"
+        return f"{self.seconds:.2f} s ({self.cpu_seconds:.2f} s CPU) a repeat of {self.workload}"
 
 
 @numba.njit(cache=True, parallel=True, fastmath=True)
@@ -86,19 +86,19 @@ def _image(size: int) -> np.ndarray:
     return np.random.default_rng(0).random((size, size), dtype=np.float32)
 
 
-def _one_pass(image: np.ndarray, out: np.ndarray) -> tuple[float, float]:
+def _one_repeat(image: np.ndarray, out: np.ndarray) -> tuple[float, float]:
     wall, cpu = time.perf_counter(), time.process_time()
-    for _ in range(_PASSES):
+    for _ in range(_CALLS):
         _window_moments(image, _RADIUS, out)
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def measure(repeats: int = REPEATS) -> Calibration:
-    """Time ``repeats`` passes of the workload (compiled, or loaded from numba's cache, untimed first)."""
+    """Time ``repeats`` repeats of the workload (compiled, or loaded from numba's cache, untimed first)."""
     _window_moments(_image(4 * _RADIUS), _RADIUS, np.zeros((4 * _RADIUS,) * 2, np.float32))
     image = _image(_SIZE)
     out = np.zeros_like(image)
-    return Calibration.from_samples([_one_pass(image, out) for _ in range(max(1, repeats))])
+    return Calibration.from_samples([_one_repeat(image, out) for _ in range(max(1, repeats))])
 
 
 def time_scales(current: Calibration | None, baseline: Calibration | None) -> dict[str, float] | None:
