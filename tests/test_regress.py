@@ -16,13 +16,15 @@ from PIL import Image
 from engine.evaluation.depth import roc_curve
 from workbench.cli.main import main
 from workbench.regress import (
+    BETTER,
+    CHANGED,
     DEFAULT_SUITE,
-    IMPROVED,
     INFO,
     MISSING,
     NEW,
     OK,
-    REGRESSED,
+    WORSE,
+    Calibration,
     RunResult,
     RunSpec,
     Suite,
@@ -98,25 +100,52 @@ def _status(deltas, label):
     return next(d.status for d in deltas if d.label == label)
 
 
-def test_compare_applies_direction_and_tolerance_per_metric():
+def _delta(deltas, label):
+    return next(d for d in deltas if d.label == label)
+
+
+def test_compare_fails_a_change_beyond_tolerance_either_way_and_names_its_direction():
     tol = {"f1": 0.5, "accuracy": 0.5, "completeness": 0.5, "within_1pct": 0.5, "abs_rel": 0.001, "auc": 0.5,
            "time": 0.5, "cpu_time": None, "within_5pct": None, "valid_fraction": None}
     base = _metrics(auc=95.0)
     deltas = compare("s/p", _metrics(f1=49.6, within=79.4, abs_rel=0.0215, seconds=16.0, auc=95.6), base, tol)
     assert _status(deltas, "f1@0.02") == OK  # -0.4 is within 0.5
-    assert _status(deltas, "within_1pct") == REGRESSED  # -0.6
-    assert _status(deltas, "abs_rel") == REGRESSED  # lower is better: +0.0015 > 0.001
-    assert _status(deltas, "time") == REGRESSED  # +60 % > +50 %
-    assert _status(deltas, "auc") == IMPROVED
+    assert _delta(deltas, "within_1pct").direction == WORSE  # -0.6
+    assert _delta(deltas, "abs_rel").direction == WORSE  # lower is better: +0.0015 > 0.001
+    assert _status(deltas, "auc") == CHANGED and _delta(deltas, "auc").direction == BETTER  # +0.6: fails too
+    assert all(d.status == CHANGED for d in deltas if d.direction)
     assert _status(deltas, "cpu_time") == INFO and _status(deltas, "within_5pct") == INFO
-    faster = compare("s/p", _metrics(f1=51.0, seconds=4.0), base, tol)
-    assert _status(faster, "time") == IMPROVED and _status(faster, "f1@0.05") == IMPROVED
-    assert _status(faster, "auc") == MISSING  # the baseline had a confidence AUC, this run has none
+    time = _delta(deltas, "time")  # 60 % slower: information, noted as slower, never a failure
+    assert time.status == INFO and time.ratio == pytest.approx(1.6) and not time.calibrated and time.slower
+    better = compare("s/p", _metrics(f1=55.0, abs_rel=0.015, seconds=4.0), base, tol)
+    assert {_delta(better, label).direction for label in ("f1@0.02", "f1@0.05", "abs_rel")} == {BETTER}
+    assert _status(better, "time") == INFO and not _delta(better, "time").slower
+    assert _status(better, "auc") == MISSING  # the baseline had a confidence AUC, this run has none
     no_eval = {k: v for k, v in _metrics().items() if k != "eval"}
     assert _status(compare("s/p", no_eval, base, tol), "f1@0.02") == MISSING
     assert _status(compare("s/p", base, None, tol), "f1@0.02") == NEW
-    regressed = [d for d in deltas if d.status == REGRESSED]
-    assert "s/p within_1pct 80.00 -> 79.40 (-0.60, allowed -0.5)" in [d.explain() for d in regressed]
+    explained = [d.explain() for d in deltas + better if d.status == CHANGED]
+    assert "s/p within_1pct 80.00 -> 79.40 (-0.60, tolerance ±0.5): worse by -0.60" in explained
+    assert "s/p f1@0.02 50.00 -> 55.00 (+5.00, tolerance ±0.5): better by +5.00" in explained
+
+
+def test_times_are_ratios_normalised_by_the_calibrations():
+    """A machine twice as slow (its calibration takes twice as long) running the same code twice as slowly: 1.00×."""
+    from workbench.regress import time_scales
+    from workbench.regress.comparison import describe_time
+
+    baseline_cal = Calibration.from_samples([(0.30, 0.60), (0.32, 0.62), (0.31, 0.61)])
+    current_cal = Calibration.from_samples([(0.62, 1.22)])
+    assert baseline_cal.seconds == 0.31 and Calibration.from_dict(baseline_cal.to_dict()) == baseline_cal
+    assert Calibration.from_dict({**baseline_cal.to_dict(), "workload": "another"}) is None
+    assert Calibration.from_dict(None) is None and time_scales(current_cal, None) is None
+    tol = {"time": 0.5, "cpu_time": 0.5}
+    deltas = compare("s/p", _metrics(seconds=20.0), _metrics(seconds=10.0), tol, time_scales(current_cal, baseline_cal))
+    time, cpu = _delta(deltas, "time"), _delta(deltas, "cpu_time")
+    assert time.ratio == pytest.approx(1.0) and cpu.ratio == pytest.approx(1.0) and time.calibrated
+    assert describe_time(time) == "1.00× the baseline after calibration"
+    assert describe_time(_delta(compare("s/p", _metrics(seconds=20.0), _metrics(seconds=10.0), tol), "time")) == (
+        "2.00× the baseline (uncalibrated)")
 
 
 # ---- suite files ---------------------------------------------------------------------------------------------
@@ -218,6 +247,121 @@ def test_the_default_suite_has_a_current_baseline_for_every_run():
         assert stored["metrics"]["eval"]["f1"] and stored["metrics"]["depth"]["within_1pct"] > 50
 
 
+# ---- the command on fake runs (no PatchMatch): two-sided quality, times as information -------------------
+
+FAKE_SUITE = """
+baseline = "baselines"
+thumbnail_views = 1
+[[scene]]
+path = "{tiny}"
+[[pipeline]]
+name = "vanilla"
+"""
+
+
+class FakeRuns:
+    """``deepc regress`` without PatchMatch: every run is support/fake_run.py's folder made from GT depth with the
+    metrics of :func:`_metrics` (F1 ``f1``, times ``seconds`` wall and CPU), no warm-up, and a calibration of
+    ``calibration`` seconds a pass (wall and CPU)."""
+
+    def __init__(self):
+        self.f1, self.seconds, self.calibration, self.cpu = 50.0, 10.0, 0.3, 0.0
+
+    def execute(self, spec, out_dir, record):
+        make_fake_run(spec.scene_path, out_dir, scene_options=spec.scene_options)
+        metrics = json.loads((out_dir / "metrics.json").read_text())
+        self.cpu += self.seconds  # the command measures CPU seconds around execute
+        return {**metrics, **_metrics(f1=self.f1, seconds=self.seconds)}, None
+
+    def process_time(self) -> float:
+        return self.cpu
+
+    def measure(self, repeats: int = 3) -> Calibration:
+        return Calibration.from_samples([(self.calibration, self.calibration)] * repeats)
+
+
+@pytest.fixture
+def fake_runs(monkeypatch, tmp_path):
+    """(FakeRuns, deepc regress with the fake suite and its baselines in tmp_path: ARGS -> (code, out, err))."""
+    import types
+
+    import workbench.regress.command as command
+
+    fake = FakeRuns()
+    monkeypatch.setattr(command, "execute", fake.execute)
+    monkeypatch.setattr(command, "warm_up", lambda runs: 0.0)
+    monkeypatch.setattr(command, "measure", fake.measure)
+    monkeypatch.setattr(command, "time", types.SimpleNamespace(process_time=fake.process_time))
+    suite = write_suite(tmp_path / "suite", text=FAKE_SUITE.format(tiny=SAMPLES / "tiny"))
+    reports = iter(range(100))
+
+    def regress(*args):
+        return deepc("regress", "--suite", suite, "--report", tmp_path / f"report{next(reports)}", *args)
+    return fake, regress
+
+
+def test_an_f1_gain_of_5_fails_as_changed_until_the_baselines_are_remade_with_a_reason(fake_runs, tmp_path):
+    fake, regress = fake_runs
+    code, out, err = regress("--update-baseline", "--reason", "first baseline")
+    assert code == 0 and "tiny/vanilla: new baseline" in out, out + err
+    stored = json.loads((tmp_path / "suite" / "baselines" / "tiny" / "vanilla.json").read_text())
+    assert stored["calibration"]["seconds"] == 0.3 and stored["reason"] == "first baseline"
+    code, out, err = regress()
+    assert code == 0 and "nothing changed (1 runs" in out, out + err
+    assert "baselines remade on purpose: first baseline" in out  # why the baseline is what it is
+
+    fake.f1 = 55.0  # a bug that inflates F1 by 5 points
+    code, out, err = regress()
+    assert code == 1, out + err
+    changed = [line for line in out.splitlines() if line.startswith("changed: tiny/vanilla ")]
+    assert "changed: tiny/vanilla f1@0.02 50.00 -> 55.00 (+5.00, tolerance ±0.5): better by +5.00" in changed
+    assert len(changed) == 2  # f1 at both evaluation tolerances; nothing else moved
+    assert re.search(r"tiny/vanilla\s+f1@0.02\s+50.00\s+55.00\s+\+5.00\s+±0.5\s+CHANGED \(better\)", out), out
+    assert out.splitlines()[-1].startswith("CHANGED: 2 metric(s) beyond tolerance (2 better, 0 worse)")
+    assert "--update-baseline --reason" in out.splitlines()[-1]
+    report = tmp_path / "report2"
+    html = (report / "report.html").read_text()
+    assert "CHANGED: tiny/vanilla f1@0.02 50.00 -&gt; 55.00" in html and "better by +5.00" in html
+    assert "CHANGED (better)" in html
+    summary = json.loads((report / "summary.json").read_text())
+    f1 = next(d for d in summary["runs"][0]["deltas"] if d["label"] == "f1@0.02")
+    assert (f1["status"], f1["direction"]) == (CHANGED, BETTER)
+
+    code, out, err = regress("--update-baseline", "--reason", "F1 +5 on purpose")
+    assert code == 0 and "reason: F1 +5 on purpose" in out and "f1@0.02 50.00 -> 55.00 (+5.00)" in out, out + err
+    code, out, err = regress()
+    assert code == 0 and "nothing changed" in out, out + err
+    assert "baselines remade on purpose: F1 +5 on purpose (" in out
+    assert "Baseline remade on purpose: F1 +5 on purpose" in (tmp_path / "report4" / "report.html").read_text()
+
+
+def test_a_run_5_times_slower_passes_and_reports_its_calibrated_ratio(fake_runs, tmp_path):
+    fake, regress = fake_runs
+    assert regress("--update-baseline")[0] == 0
+    fake.seconds = 50.0  # five times the wall clock and the CPU seconds of the baseline's run
+    code, out, err = regress()
+    assert code == 0 and "nothing changed" in out, out + err
+    assert ("tiny/vanilla  time 5.00× the baseline after calibration, CPU time 5.00× the baseline after "
+            "calibration") in out
+    assert re.search(r"tiny/vanilla\s+time\s+10.0 s\s+50.0 s\s+5.00× calibrated\s+note > 1.5×\s+info: slower", out)
+    assert "speed regressions are caught by benchmarks/performance/" in out
+    summary = json.loads((tmp_path / "report1" / "summary.json").read_text())
+    times = {d["metric"]: d for d in summary["runs"][0]["deltas"] if d["metric"] in ("time", "cpu_time")}
+    assert {d["status"] for d in times.values()} == {INFO} and all(d["calibrated"] for d in times.values())
+    assert "5.00× the baseline after calibration" in (tmp_path / "report1" / "report.html").read_text()
+
+    fake.calibration = 1.5  # the machine is five times as slow (busy): the same code reads 1.00×
+    code, out, err = regress()
+    assert code == 0 and "time 1.00× the baseline after calibration" in out, out + err
+
+    baseline = tmp_path / "suite" / "baselines" / "tiny" / "vanilla.json"  # made before calibrations existed
+    stored = json.loads(baseline.read_text())
+    del stored["calibration"]
+    baseline.write_text(json.dumps(stored))
+    code, out, err = regress()
+    assert code == 0 and "time 5.00× the baseline (uncalibrated)" in out and "has no calibration" in out, out + err
+
+
 # ---- real runs on the tiny scene --------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -273,7 +417,7 @@ def test_a_clean_run_exits_0_and_writes_the_report(regress_runs):
     assert "scene_path" not in stored["metrics"] and stored["measured"]["cpu_count"] >= 1
     code, out, err = regress_runs["clean"]
     assert code == 0, out + err
-    assert "nothing regressed (1 runs" in out and "REGRESSED" not in out
+    assert "nothing changed (1 runs" in out and "CHANGED" not in out
     assert "f1@0.02" in out and "within_1pct" in out  # the table of deltas
     root = regress_runs["root"] / "clean"
     summary = json.loads((root / "summary.json").read_text())
@@ -283,22 +427,23 @@ def test_a_clean_run_exits_0_and_writes_the_report(regress_runs):
     metrics = json.loads((root / "tiny" / "vanilla" / "metrics.json").read_text())
     assert metrics["seconds_cpu"] > 0 and metrics["eval"]["f1"] == stored["metrics"]["eval"]["f1"]  # deterministic
     html = (root / "report.html").read_text()
-    assert "Nothing regressed" in html and "<script" not in html
+    assert "Nothing changed" in html and "<script" not in html
     assert not re.search(r"""(src|href)=['"]?(https?:|//)""", html)  # self-contained: no external assets
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)  # incl. the module fixture's runs, on a busy machine
-def test_one_patchmatch_iteration_regresses_and_is_named(regress_runs):
+def test_one_patchmatch_iteration_is_a_change_for_the_worse_and_is_named(regress_runs):
     code, out, err = regress_runs["degraded"]
     assert code == 1, out + err
-    regressed = [line for line in out.splitlines() if line.startswith("regressed: tiny/vanilla ")]
-    assert regressed, out
-    assert any(" f1@" in line or " completeness@" in line or " within_1pct " in line for line in regressed)
-    assert "REGRESSION:" in out.splitlines()[-1]
+    changed = [line for line in out.splitlines() if line.startswith("changed: tiny/vanilla ")]
+    assert changed, out
+    assert any(" f1@" in line or " completeness@" in line or " within_1pct " in line for line in changed)
+    assert any(": worse by " in line for line in changed)
+    assert "CHANGED:" in out.splitlines()[-1]
     assert "patchmatch.iterations: None -> 1" in out  # the cause is visible next to the effect
     html = (regress_runs["root"] / "degraded_report" / "report.html").read_text()
-    assert "REGRESSED: tiny/vanilla" in html
+    assert "CHANGED: tiny/vanilla" in html
 
 
 @pytest.mark.slow
@@ -333,7 +478,7 @@ def test_the_report_shows_its_plots_in_chromium(regress_runs, browser_context, t
     page.route("file://**", lambda route: route.continue_())  # the shared context only lets 127.0.0.1 through
     try:
         page.goto(report.as_uri())
-        page.get_by_text("Nothing regressed").wait_for()
+        page.get_by_text("Nothing changed").wait_for()
         sizes = page.evaluate("Array.from(document.images).map(i => [i.className, i.complete, i.naturalWidth])")
         plots = [s for s in sizes if s[0] == "plot"]
         thumbs = [s for s in sizes if s[0] == "thumb"]

@@ -1,7 +1,7 @@
 """The ``deepc`` command line: one subcommand per module (run, mesh, probe, info, eval, view, replay, regress, train).
 
 Every user-facing problem ends in one line on stderr and exit status 2; success is 0 and, for
-``regress``, "something regressed" is 1.
+``regress``, "a quality metric changed beyond its tolerance" (either way) is 1.
 """
 
 from __future__ import annotations
@@ -175,7 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     regress = sub.add_parser("regress", help="headless regression runs against committed baselines",
                              description="Run every scene x pipeline of a suite headless, compare the metrics with "
                                          "the baselines, print the deltas and write an HTML report. Exit 0 when "
-                                         "nothing regressed, 1 when something did (named), 2 on bad input. A suite "
+                                         "no quality metric changed beyond its tolerance, 1 when one did, better "
+                                         "or worse (named), 2 on bad input. Times are information only: ratios "
+                                         "to the baseline's after a calibration workload. A suite "
                                          "file lists [[scene]] and [[pipeline]] tables whose keys are deepc run "
                                          "flags; see sample_scenes/suite.toml.")
     regress.add_argument("--suite", metavar="FILE.toml", help="suite file (default: sample_scenes/suite.toml)")

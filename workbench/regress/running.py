@@ -18,6 +18,7 @@ from engine.core.errors import DeepCError
 from engine.run.folder import RunMetrics
 from engine.run.pipeline import run_pipeline
 from engine.scene import load_scene
+from workbench.regress.calibration import Calibration
 from workbench.regress.comparison import FAILED, Delta
 from workbench.regress.suite import RunSpec
 
@@ -40,6 +41,7 @@ class RunResult:
     load_average: tuple[float, float]  # 1-minute load average before and after the run
     recording: Path | None
     baseline_reason: str | None = None  # why the baseline was last remade (deepc regress --reason)
+    baseline_calibration: Calibration | None = None  # measured when the baseline was made; None before calibrations
 
     @property
     def failures(self) -> list[Delta]:

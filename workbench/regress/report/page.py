@@ -1,9 +1,11 @@
 """The HTML report of ``deepc regress``: one self-contained file, every plot and thumbnail embedded.
 
-Per scene and pipeline: the metrics against baseline and tolerance; F1, accuracy and completeness against
-the evaluation tolerance (current and baseline); ROC curves of the confidence (and of the counter map, the
-confidence a vanilla run already has); histograms of the relative depth error; thumbnails of the image,
-depth, normal, counter, confidence and error maps; the options, the environment and the git revision.
+Per scene and pipeline: the metrics against baseline and tolerance (a change beyond it, either way, is
+CHANGED with its direction; times are ratios to the baseline's after calibration, information only); F1,
+accuracy and completeness against the evaluation tolerance (current and baseline); ROC curves of the
+confidence (and of the counter map, the confidence a vanilla run already has); histograms of the relative
+depth error; thumbnails of the image, depth, normal, counter, confidence and error maps; the options, the
+environment and the git revision.
 A run's metrics are read as :class:`engine.run.folder.RunMetrics`; its baseline's as stored.
 """
 
@@ -16,7 +18,15 @@ from pathlib import Path
 from typing import Any
 
 from engine.io.atomic import atomic_write_text
-from workbench.regress.comparison import format_allowed, format_change, format_value, option_changes
+from workbench.regress.calibration import Calibration
+from workbench.regress.comparison import (
+    describe_time,
+    format_allowed,
+    format_change,
+    format_status,
+    format_value,
+    option_changes,
+)
 from workbench.regress.report.analysis import (
     ERROR_MAP_MAX,
     LabelFunction,
@@ -37,8 +47,8 @@ th, td { border: 1px solid #ddd; padding: 2px 8px; text-align: right; }
 th { background: #f3f3f3; } td.l, th.l { text-align: left; }
 .verdict { font-size: 18px; padding: 8px 12px; border-radius: 4px; display: inline-block; }
 .pass { background: #dff3df; } .fail { background: #f9d6d5; }
-tr.REGRESSED td, tr.MISSING td { background: #f9d6d5; } tr.improved td { background: #e3f0fb; }
-tr.info td { color: #888; }
+tr.CHANGED td, tr.MISSING td { background: #f9d6d5; } tr.better td { background: #fbe7c8; }
+tr.info td { color: #888; } tr.slower td { color: #8a5a00; }
 .plots img { margin: 4px 8px 4px 0; border: 1px solid #eee; }
 .thumbs td { text-align: center; font-size: 11px; } .thumbs img { display: block; image-rendering: pixelated; }
 pre { background: #f7f7f7; padding: 8px; font-size: 12px; overflow-x: auto; }
@@ -79,16 +89,23 @@ def _num(value: Any, digits: int = 2, suffix: str = "") -> str:
     return "-" if not isinstance(value, (int, float)) else f"{value:.{digits}f}{suffix}"
 
 
+def _time_ratio(result: RunResult) -> str:
+    time = next((d for d in result.deltas if d.metric == "time"), None)
+    return "" if time is None or time.ratio is None else f" ({describe_time(time)})"
+
+
 def _summary_table(results: list[RunResult]) -> str:
     rows = ["<tr><th class=l>run</th><th class=l>status</th><th>F1 @ headline tolerance</th>"
-            "<th>depth within 1 %</th><th>confidence AUC</th><th>time (s)</th><th class=l>regressed</th></tr>"]
+            "<th>depth within 1 %</th><th>confidence AUC</th><th>time (s), information only</th>"
+            "<th class=l>changed beyond tolerance</th></tr>"]
     for r in results:
         m = r.run
         head = _headline(m.eval)
         f1 = "-" if head is None else (f"{_num(_value(r.baseline, 'eval', 'f1', head[1]))} → "
                                        f"{_num(m.eval['f1'][head[1]])} @ {head[0]:g}")
-        status = "no baseline" if r.baseline is None else ("REGRESSED" if r.failures else "ok")
-        css = "MISSING" if r.baseline is None else ("REGRESSED" if r.failures else "ok")
+        status = "no baseline" if r.baseline is None else ("CHANGED" if r.failures else "ok")
+        css = "MISSING" if r.baseline is None else ("CHANGED" if r.failures else "ok")
+        changed = ", ".join(f"{d.label} ({d.direction or 'missing'})" for d in r.failures)
         rows.append(
             f"<tr class={css}><td class=l><a href='#{_anchor('run', r.spec.scene, r.spec.pipeline)}'>"
             f"{_e(r.spec.key)}</a></td><td class=l>{status}</td><td>{f1}</td>"
@@ -96,18 +113,20 @@ def _summary_table(results: list[RunResult]) -> str:
             f"{_num(_value(m.depth, 'within_1pct'))}</td>"
             f"<td>{_num(_value(r.baseline, 'confidence_auc'))} → {_num(m.confidence_auc)}</td>"
             f"<td>{_num(_value(r.baseline, 'seconds', 'total'), 1)} → {_num(m.seconds.get('total'), 1)}"
-            f"</td><td class=l>{_e(', '.join(d.label for d in r.failures))}</td></tr>")
+            f"{_e(_time_ratio(r))}</td><td class=l>{_e(changed)}</td></tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
 def _delta_table(result: RunResult) -> str:
-    rows = ["<tr><th class=l>metric</th><th>baseline</th><th>current</th><th>delta</th><th>allowed</th>"
+    rows = ["<tr><th class=l>metric</th><th>baseline</th><th>current</th><th>delta</th><th>tolerance</th>"
             "<th class=l>status</th></tr>"]
     for d in result.deltas:
-        status = "not compared" if d.status == "info" else d.status
-        rows.append(f"<tr class={d.status}><td class=l title='{_e(d.spec.description)}'>{_e(d.label)}</td>"
+        status = "not compared" if d.status == "info" and not d.spec.timing else format_status(d)
+        css = f"{d.status} {d.direction or ''} {'slower' if d.slower else ''}".strip()
+        rows.append(f"<tr class='{css}'><td class=l title='{_e(d.spec.description)}'>{_e(d.label)}</td>"
                     f"<td>{format_value(d, d.baseline)}</td><td>{format_value(d, d.current)}</td>"
-                    f"<td>{format_change(d)}</td><td>{format_allowed(d)}</td><td class=l>{status}</td></tr>")
+                    f"<td>{_e(format_change(d))}</td><td>{_e(format_allowed(d))}</td><td class=l>{_e(status)}</td>"
+                    "</tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
@@ -154,6 +173,9 @@ def run_section(result: RunResult, analysis: RunAnalysis, report_dir: Path) -> s
     if result.baseline is None:
         parts.append("<p class=note>No baseline for this run: make one with <code>deepc regress "
                      "--update-baseline</code>.</p>")
+    if result.baseline is not None and result.baseline_calibration is None:
+        parts.append("<p class=muted>The baseline has no calibration (made before calibrations were stored): "
+                     "its time ratios are uncalibrated.</p>")
     if result.baseline_reason:
         parts.append("<p class=note>Baseline remade on purpose: " + _e(result.baseline_reason) + "</p>")
     changes = option_changes(result.metrics, result.baseline)
@@ -177,7 +199,8 @@ def _environment_table(env: dict[str, Any]) -> str:
 
 
 def render_report(suite: Suite, results: list[RunResult], env: dict[str, Any], baseline_dir: Path,
-                  updated: bool, report_dir: Path, analyses: list[RunAnalysis]) -> str:
+                  updated: bool, report_dir: Path, analyses: list[RunAnalysis],
+                  calibration: Calibration | None = None) -> str:
     """The report as one HTML string."""
     failures = [d for r in results for d in r.failures]
     missing = [r.spec.key for r in results if r.baseline is None]
@@ -185,15 +208,22 @@ def render_report(suite: Suite, results: list[RunResult], env: dict[str, Any], b
         verdict, css = "Baselines rewritten from this run (compared below with the previous baselines)", "pass"
     elif failures or missing:
         what = [d.explain() for d in failures] + [f"{k}: no baseline" for k in missing]
-        verdict, css = "REGRESSED: " + "; ".join(what), "fail"
+        verdict, css = "CHANGED: " + "; ".join(what), "fail"
     else:
-        verdict, css = "Nothing regressed", "pass"
+        verdict, css = "Nothing changed", "pass"
+    timing = (f"This invocation's calibration: {calibration.describe()} (median of the repeats before, between "
+              "and after the runs). " if calibration else "")
     body = [f"<h1>deepc regress: suite {_e(suite.name)}</h1>",
             f"<p class='verdict {css}'>{_e(verdict)}</p>",
             f"<p>Suite <code>{_e(suite.path)}</code>, baselines <code>{_e(baseline_dir)}</code>, git revision "
             f"<code>{_e(env.get('git'))}</code>, {_e(env.get('date'))}. Runs are deterministic for a seed, so "
-            "quality metrics repeat exactly on one machine; times depend on the machine's load (load averages "
-            "are given per run). Tolerances are the allowed worsening; only a slower time regresses.</p>",
+            "quality metrics repeat exactly on one machine. A quality metric that moves beyond its tolerance in "
+            "either direction is CHANGED and fails the check (better or worse is shown) until the baselines are "
+            "remade with <code>deepc regress --update-baseline --reason TEXT</code>. Times depend on the machine "
+            "and its load (load averages are given per run): they are information only, each the ratio to the "
+            "baseline's after normalising both by a calibration workload timed in the same invocation "
+            "(uncalibrated where the baseline has no calibration). Speed regressions are caught by "
+            f"<code>benchmarks/performance/</code>, not here. {_e(timing)}</p>",
             "<h2>Summary</h2>", _summary_table(results)]
     by_scene: dict[str, list[tuple[RunResult, RunAnalysis]]] = {}
     for result, analysis in zip(results, analyses, strict=True):
@@ -215,10 +245,12 @@ def render_report(suite: Suite, results: list[RunResult], env: dict[str, Any], b
 
 
 def write_report(path: str | Path, suite: Suite, results: list[RunResult], env: dict[str, Any],
-                 baseline_dir: Path, updated: bool = False, labels: tuple[str, LabelFunction] | None = None) -> Path:
+                 baseline_dir: Path, updated: bool = False, labels: tuple[str, LabelFunction] | None = None,
+                 calibration: Calibration | None = None) -> Path:
     """Analyse every run folder and write the report atomically; returns its path."""
     path = Path(path)
     labels = labels or default_label_function()
     analyses = [analyse_run(r.out_dir, suite.thumbnail_views, labels) for r in results]
-    atomic_write_text(path, render_report(suite, results, env, baseline_dir, updated, path.parent, analyses))
+    atomic_write_text(path, render_report(suite, results, env, baseline_dir, updated, path.parent, analyses,
+                                          calibration))
     return path
