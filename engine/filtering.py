@@ -10,23 +10,9 @@ and never modify their inputs.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-from engine.confidence.options import ConfidenceOptions
-from engine.core.options import Options, option
-
-
-@dataclasses.dataclass
-class FilterOptions(Options):
-    """Which pixels survive into fusion."""
-
-    tau: float = option(ConfidenceOptions().tau, "keep pixels whose confidence is at least this (0 keeps all; "
-                        "default: confidence.tau)", source="ours", low=0, high=1, aliases=("conf_tau",),
-                        metavar="TAU")
-    mask_k: int | None = option(None, "keep pixels with at least this many consistent source views; unset = no "
-                                "counter filter", source="paper", low=0, metavar="K")
+from engine.core.options import check
 
 
 def _apply(depth: np.ndarray, normal: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -53,7 +39,7 @@ def filter_by_confidence(depth: np.ndarray, normal: np.ndarray, confidence: np.n
     Returns:
         New (depth, normal) arrays.
     """
-    FilterOptions(tau=tau).validate()  # the declared range
+    check(0 <= tau <= 1, "tau", tau, "must be in [0, 1]")
     confidence = np.asarray(confidence)
     with np.errstate(invalid="ignore"):
         keep = confidence >= tau
@@ -72,19 +58,7 @@ def filter_by_counter(depth: np.ndarray, normal: np.ndarray, counter: np.ndarray
     Returns:
         New (depth, normal) arrays.
     """
-    FilterOptions(mask_k=k).validate()
+    check(k >= 0, "mask_k", k, "must be at least 0")
     # Counter maps read back from .bin files are float32 holding integers; compare with a margin.
     keep = np.asarray(counter, np.float64) >= k - 1e-3
     return _apply(depth, normal, keep)
-
-
-def apply_filters(depth: np.ndarray, normal: np.ndarray, options: FilterOptions,
-                  confidence: np.ndarray | None = None,
-                  counter: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Apply the filters ``options`` asks for that have their input map; returns new (depth, normal)."""
-    options.validate()
-    if confidence is not None and options.tau > 0:
-        depth, normal = filter_by_confidence(depth, normal, confidence, options.tau)
-    if counter is not None and options.mask_k is not None:
-        depth, normal = filter_by_counter(depth, normal, counter, options.mask_k)
-    return np.asarray(depth, np.float32).copy(), np.asarray(normal, np.float32).copy()

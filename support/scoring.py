@@ -16,13 +16,11 @@ import numpy as np
 from engine.confidence.options import ConfidenceOptions
 from engine.confidence.weights import DEFAULT_REFINED_WEIGHTS, DEFAULT_WEIGHTS
 from engine.evaluation import EvaluationOptions
-from engine.filtering import filter_by_confidence
 from engine.fusion import fuse, views_from_scene
 from engine.patchmatch import ViewMaps
-from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
-from engine.refinement.views import sky_filter_views
 from engine.run.folder import read_map
+from engine.run.fused_maps import FusionRule, RunViewMaps, fused_maps
 from engine.run.pipeline import PipelineOptions, confidence_stage, evaluate_cloud
 
 TOLERANCES = (0.02, 0.05)
@@ -67,7 +65,7 @@ def pipeline_maps(scene, run_dir: Path, full_tau: float = TAU) -> dict[str, tupl
     refined-fusion results were made: fast at τ 0.05; full (only when the run has refined maps) network 2 at
     ``full_tau`` on every refined pixel (no ``keep_confident``) and the sky filter; shipped weights."""
     options = PipelineOptions(confidence=ConfidenceOptions(tau=TAU),
-                              refinement=RefinementOptions(refined_conf_tau=full_tau, keep_confident=None))
+                              refinement=RefinementOptions(refined_confidence_tau=full_tau, keep_confident=None))
     maps = shipped_pipeline_maps(scene, run_dir, options)
     return {name: (depth, normal) for name, (depth, normal, _) in maps.items()}
 
@@ -78,28 +76,26 @@ def shipped_pipeline_maps(scene, run_dir: Path, options: PipelineOptions | None 
     with the shipped weights and ``options`` (default: the defaults) - vanilla: PatchMatch maps; fast: network 1
     at ``confidence.tau``; full (only when the run has refined maps): network 2 on the refined maps (the run's own
     refined confidence when it stored one), PatchMatch's estimate where network 1 gives it at least
-    ``refinement.keep_confident``, ``refinement.refined_conf_tau``, the sky filter."""
+    ``refinement.keep_confident``, ``refinement.refined_confidence_tau``, the sky filter."""
     options = options or PipelineOptions()
     names = [v.name for v in scene.views]
     depth, normal, counter = ([read_map(run_dir, kind, n) for n in names] for kind in ("depth", "normal", "counter"))
     if any(m is None for m in depth + normal + counter):
         raise SystemExit(f"{run_dir}: depth, normal or counter maps missing")
     conf = network_confidence(scene, depth, normal, counter, DEFAULT_WEIGHTS)
-    fast = [filter_by_confidence(d, n, c, options.confidence.tau) for d, n, c in zip(depth, normal, conf, strict=True)]
-    out = {"vanilla": (depth, normal, None), "fast": ([f[0] for f in fast], [f[1] for f in fast], conf)}
+    views = [RunViewMaps(d, n, confidence=c) for d, n, c in zip(depth, normal, conf, strict=True)]
+    fast = fused_maps(scene, FusionRule.of("fast", options.confidence, options.refinement), views)
+    out = {"vanilla": (depth, normal, None), "fast": ([f.depth for f in fast], [f.normal for f in fast], conf)}
     refined = [[read_map(run_dir, kind, n) for n in names]
                for kind in ("refined_depth", "refined_normal", "refined_counter")]
     if all(m is not None for maps in refined for m in maps):
         conf2 = [read_map(run_dir, "refined_confidence", n) for n in names]
         if any(c is None for c in conf2):
             conf2 = network_confidence(scene, *refined, DEFAULT_REFINED_WEIGHTS)
-        fused = [keep_confident(d, n, c1, rd, rn, c2, options.refinement.keep_confident)
-                 for d, n, c1, rd, rn, c2 in zip(depth, normal, conf, refined[0], refined[1], conf2, strict=True)]
-        kept = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused]
-        full_d, full_n = [k[0] for k in kept], [k[1] for k in kept]
-        if options.refinement.sky_filter:
-            full_d, full_n, _ = sky_filter_views(scene, full_d, full_n, depth, conf, options.refinement.sky)
-        out["full"] = (full_d, full_n, [f[2] for f in fused])
+        for v, rd, rn, c2 in zip(views, refined[0], refined[1], conf2, strict=True):
+            v.refined_depth, v.refined_normal, v.refined_confidence = rd, rn, c2
+        full = fused_maps(scene, FusionRule.of("full", options.confidence, options.refinement), views)
+        out["full"] = ([f.depth for f in full], [f.normal for f in full], [f.confidence for f in full])
     return out
 
 

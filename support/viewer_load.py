@@ -24,7 +24,7 @@ def _controls(app: ViewerApp) -> list[tuple[str, list, str]]:
     colours. answer: "preview" where the viewer can answer at once (masking the cached cloud, recolouring),
     "exact" where it must fuse again (the fusion's reprojection and depth thresholds)."""
     return [
-        (app.conf_tau._impl.uuid, [round(0.01 * i, 2) for i in range(81)], "preview"),
+        (app.fused_confidence_tau._impl.uuid, [round(0.01 * i, 2) for i in range(81)], "preview"),
         (app.mask_k._impl.uuid, [0, 1, 2, 3, 4], "preview"),
         (app.min_views._impl.uuid, [1, 2, 3, 4, 5], "preview"),
         (app.reproj._impl.uuid, [0.5, 1.0, 1.5, 2.0], "exact"),
@@ -74,8 +74,8 @@ def load(app: ViewerApp, clients: int, rate: float, seconds: float, reconnect_ev
             proc.kill()
     start = result["start"]
     result.update(settled=settled, rss=[(t - start, m) for t, m in rss if t >= start],
-                  control_names={h._impl.uuid: h.label for h in (app.conf_tau, app.mask_k, app.min_views, app.reproj,
-                                                                 app.depth_err, app.color_mode)})
+                  control_names={h._impl.uuid: h.label for h in (app.fused_confidence_tau, app.mask_k, app.min_views,
+                                                                 app.reproj, app.depth_err, app.color_mode)})
     return result
 
 

@@ -18,6 +18,7 @@ from engine.fusion import FUSION_PRESETS, FusedCloud, fuse, views_from_scene
 from engine.fusion.cached import CacheStats
 from engine.run.distributed.streamed import fuse_run_folder, streamed_metrics
 from engine.run.folder import read_map, write_map
+from engine.run.fused_maps import FusionRule
 from engine.run.per_view import view_auc
 from engine.run.scores import confidence_auc, depth_block
 from engine.scene import load_scene
@@ -87,7 +88,7 @@ def test_streamed_metrics_are_the_in_process_ones(runs, which):
     assert json.dumps(confidence_auc(scene, lambda i: depth[i], lambda i: confidence[i])) == json.dumps(auc)
     tau = 0.4
     kept = sum(int((np.where(c >= tau, d, 0) > 0).sum()) for d, c in zip(depth, confidence, strict=True))
-    got = streamed_metrics(scene, run, tau)
+    got = streamed_metrics(scene, run, FusionRule("fast", tau))
     assert list(got) == ["depth", "depth_per_view", "confidence_auc", "confidence_auc_per_view",
                          "confidence_kept_pct"]
     want = {"depth": want_depth, "depth_per_view": want_per_view}
@@ -96,7 +97,7 @@ def test_streamed_metrics_are_the_in_process_ones(runs, which):
                                           "confidence_auc_per_view": auc["per_view"],
                                           "confidence_kept_pct": 100.0 * kept / sum(int((d > 0).sum()) for d in depth)})
     assert np.isnan(got["confidence_auc"]) == (which == 1)
-    assert json.dumps(streamed_metrics(scene, run, None)) == json.dumps(want)
+    assert json.dumps(streamed_metrics(scene, run, FusionRule("vanilla"))) == json.dumps(want)
 
 
 @pytest.mark.parametrize("tau", [None, 0.3])
@@ -113,7 +114,8 @@ def test_streamed_fusion_is_the_in_process_cloud(runs, tau):
                 options)
     stats = CacheStats()
     cache = None if tau is None else 4  # None: 1 + the longest overlap list, every view of tiny
-    got = fuse_run_folder(scene, out, options, tau, cache_views=cache, stats=stats)
+    rule = FusionRule("vanilla") if tau is None else FusionRule("fast", tau)
+    got = fuse_run_folder(scene, out, options, rule, cache_views=cache, stats=stats)
     assert (stats.evictions > 0) == (cache is not None) and stats.peak_resident == (cache or 5) and len(want) > 1000
     for f in dataclasses.fields(FusedCloud):
         assert getattr(got, f.name).tobytes() == getattr(want, f.name).tobytes(), f.name

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.confidence.options import ConfidenceOptions
 from engine.core.errors import OptionsError
-from engine.filtering import FilterOptions, apply_filters, filter_by_confidence, filter_by_counter
+from engine.filtering import filter_by_confidence, filter_by_counter
 
 
 def _maps(seed=0, h=6, w=7):
@@ -58,18 +57,4 @@ def test_bad_inputs():
     with pytest.raises(ValueError):
         filter_by_counter(depth, normal[..., :2], np.ones_like(depth), 1)
     with pytest.raises(OptionsError):
-        FilterOptions(tau=-0.1).validate()
-    with pytest.raises(OptionsError):
-        FilterOptions(mask_k=-2).validate()
-
-
-def test_apply_filters_combines():
-    depth, normal = _maps(2)
-    conf = np.linspace(0, 1, depth.size, dtype=np.float32).reshape(depth.shape)
-    counter = np.ones_like(depth) * 2
-    counter[0, :] = 0
-    d, _ = apply_filters(depth, normal, FilterOptions(tau=0.3, mask_k=1), conf, counter)
-    np.testing.assert_array_equal(d > 0, (conf >= 0.3) & (counter >= 1) & (depth > 0))
-    d, _ = apply_filters(depth, normal, FilterOptions(tau=0.3), None, None)  # no maps: nothing to filter
-    np.testing.assert_array_equal(d, depth)
-    assert FilterOptions().tau == ConfidenceOptions().tau and FilterOptions().mask_k is None
+        filter_by_confidence(depth, normal, np.ones_like(depth), float("nan"))

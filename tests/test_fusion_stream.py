@@ -20,6 +20,7 @@ from engine.fusion.kernel import output_arrays
 from engine.io.ply import read_points
 from engine.run.distributed.streamed import fuse_run_folder
 from engine.run.folder import read_map, write_map
+from engine.run.fused_maps import FusionRule
 from engine.scene import load_scene
 from tests.conftest import SAMPLES, make_noisy_run
 
@@ -36,6 +37,13 @@ def run(tmp_path_factory):
     return scene, out
 
 
+VANILLA = FusionRule("vanilla")
+
+
+def _rule(tau: float | None) -> FusionRule:
+    """vanilla (None) or fast at ``tau``."""
+    return VANILLA if tau is None else FusionRule("fast", tau)
+
 def _same_cloud(got: FusedCloud, want: FusedCloud) -> None:
     for f in dataclasses.fields(FusedCloud):
         a, b = getattr(got, f.name), getattr(want, f.name)
@@ -46,10 +54,10 @@ def _same_cloud(got: FusedCloud, want: FusedCloud) -> None:
 def test_streamed_fused_ply_is_write_fused_ply(run, tau, tmp_path, monkeypatch):
     scene, out = run
     options = FUSION_PRESETS["pixels"].replace(max_num_pixels=500)
-    want = fuse_run_folder(scene, out, options, tau)
+    want = fuse_run_folder(scene, out, options, _rule(tau))
     write_fused_ply(tmp_path / "want.ply", want)
     monkeypatch.setattr(cached, "CHUNK_POINTS", 1000)  # many chunks (a cluster of max_num_pixels fits one)
-    got = fuse_run_folder(scene, out, options, tau, ply=tmp_path / "fused.ply")
+    got = fuse_run_folder(scene, out, options, _rule(tau), ply=tmp_path / "fused.ply")
     assert len(want) > 10 * 1000
     assert (tmp_path / "fused.ply").read_bytes() == (tmp_path / "want.ply").read_bytes()
     assert isinstance(got, DiskCloud)
@@ -141,12 +149,12 @@ def test_streamed_fusion_never_holds_the_cloud(run, tmp_path, monkeypatch):
     scene, out = run
     options = FUSION_PRESETS["pixels"].replace(max_num_pixels=500)
     monkeypatch.setattr(cached, "CHUNK_POINTS", 1000)
-    fuse_run_folder(scene, out, options, None, cache_views=None, ply=tmp_path / "warm.ply")  # compiled, files cached
+    fuse_run_folder(scene, out, options, VANILLA, cache_views=None, ply=tmp_path / "warm.ply")  # compiled, files cached
 
     def peak(**kwargs):
         tracemalloc.start()
         try:
-            cloud = fuse_run_folder(scene, out, options, None, cache_views=None, **kwargs)
+            cloud = fuse_run_folder(scene, out, options, VANILLA, cache_views=None, **kwargs)
             return tracemalloc.get_traced_memory()[1], cloud
         finally:
             tracemalloc.stop()
@@ -160,7 +168,8 @@ def test_streamed_fusion_never_holds_the_cloud(run, tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def cloud(run, tmp_path_factory):
     scene, out = run
-    return fuse_run_folder(scene, out, FUSION_PRESETS["pixels"], None, ply=tmp_path_factory.mktemp("c") / "fused.ply")
+    return fuse_run_folder(scene, out, FUSION_PRESETS["pixels"], VANILLA,
+                           ply=tmp_path_factory.mktemp("c") / "fused.ply")
 
 
 @pytest.mark.parametrize("views", [False, True])

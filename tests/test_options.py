@@ -14,10 +14,10 @@ from engine.consistency import CounterOptions
 from engine.core.errors import OptionsError
 from engine.core.options import SOURCES, Options, describe, option
 from engine.evaluation import EvaluationOptions
-from engine.filtering import FilterOptions
 from engine.fusion import FusionOptions
 from engine.patchmatch import PatchMatchOptions
 from engine.refinement.options import RefinementOptions
+from engine.refinement.sky import SkyOptions
 from engine.run.pipeline import PipelineOptions
 from engine.scene import SceneOptions
 from engine.synthetic.layout import RandomSceneKnobs
@@ -89,7 +89,7 @@ ALL_CLASSES = _all_options_classes()
 def test_every_stage_is_found():
     names = {c.__name__ for c in ALL_CLASSES}
     assert {"PatchMatchOptions", "CounterOptions", "ConfidenceOptions", "TrainOptions", "RefinementOptions",
-            "FilterOptions", "SkyOptions", "SceneOptions", "PipelineOptions", "FusionOptions", "EvaluationOptions",
+            "SkyOptions", "SceneOptions", "PipelineOptions", "FusionOptions", "EvaluationOptions",
             "RandomSceneKnobs", "RenderSettings", "SparseSettings", "StreamOptions"} <= names
 
 
@@ -188,11 +188,39 @@ def test_help_is_generated_with_unit_and_source():
 
 
 def test_renamed_options_still_load_under_their_former_names():
-    assert FilterOptions.from_dict({"conf_tau": 0.3}).tau == 0.3
-    assert FilterOptions.field_name("conf_tau") == "tau" and FilterOptions.field_name("nonsense") is None
-    assert section_overrides(["filter.conf_tau=0.2"], "filter", FilterOptions) == {"tau": 0.2}
+    assert RefinementOptions.from_dict({"refined_conf_tau": 0.3}).refined_confidence_tau == 0.3
+    assert RefinementOptions.field_name("refined_conf_tau") == "refined_confidence_tau"
+    assert RefinementOptions.field_name("nonsense") is None
+    assert SkyOptions.from_dict({"conf_tau": 0.2}).unreliable_below == 0.2
+    assert section_overrides(["refinement.refined_conf_tau=0.2"], "refinement", RefinementOptions) == {
+        "refined_confidence_tau": 0.2}
     with pytest.raises(OptionsError, match="given twice"):
-        FilterOptions.from_dict({"conf_tau": 0.3, "tau": 0.2})
+        RefinementOptions.from_dict({"refined_conf_tau": 0.3, "refined_confidence_tau": 0.2})
+
+
+def test_a_saved_run_with_a_former_option_name_opens_with_its_value(fake_run, tmp_path):
+    """metrics.json of a full run made before refined_conf_tau was renamed: the pipeline's options, the fusion rule,
+    the viewer and the summary read its value."""
+    import json
+    import shutil
+
+    from engine.run.fused_maps import FusionRule
+    from workbench.viewer.session import ViewerSession
+
+    run = tmp_path / "run"
+    shutil.copytree(fake_run, run)
+    metrics = json.loads((run / "metrics.json").read_text())
+    saved = PipelineOptions(pipeline="full").to_dict()
+    refinement = saved["refinement"]
+    refinement["refined_conf_tau"] = 0.3
+    del refinement["refined_confidence_tau"]
+    metrics["options"] = {"scene": metrics.get("options", {}).get("scene", {}), **saved}
+    metrics["pipeline"] = "full"
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    assert PipelineOptions.from_dict(saved, saved=True).refinement.refined_confidence_tau == 0.3
+    rule = FusionRule.from_saved(metrics["options"], "full")
+    assert (rule.fused_confidence_tau, rule.threshold_option) == (0.3, "refinement.refined_confidence_tau")
+    assert ViewerSession.open(run).run_rule("full").fused_confidence_tau == 0.3
 
 
 def test_the_documented_confidence_flag_still_works():
@@ -203,8 +231,11 @@ def test_the_documented_confidence_flag_still_works():
 def test_saved_regression_baselines_load_without_loss(path):
     saved = json.loads(path.read_text())["metrics"]["options"]
     scene = SceneOptions.from_dict(saved["scene"])
-    options = PipelineOptions.from_dict({k: v for k, v in saved.items() if k != "scene"})
-    assert {"scene": scene.to_dict(), **options.to_dict()} == saved
+    rest = {k: v for k, v in saved.items() if k != "scene"}
+    options = PipelineOptions.from_dict(rest)
+    # under today's names: a renamed option (refinement.refined_conf_tau, ...) keeps its value
+    assert {"scene": scene.to_dict(), **options.to_dict()} == {"scene": saved["scene"],
+                                                               **PipelineOptions.current_names(rest)}
 
 
 def test_a_run_saved_before_an_option_existed_is_re_run_as_it_was_made():

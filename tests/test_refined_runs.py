@@ -92,7 +92,7 @@ def test_refined_maps_are_reused_only_while_the_stamp_matches(refined_run, netwo
     before = _files(run)
     first = read_map(run, "refined_depth", "view_000.png")
     # same weights, inputs and options (a filter threshold after refinement does not count): reused
-    again = refine_run(run, DEFAULT_WEIGHTS, OPTIONS.replace(refinement=CHEAP.replace(refined_conf_tau=0.5)),
+    again = refine_run(run, DEFAULT_WEIGHTS, OPTIONS.replace(refinement=CHEAP.replace(refined_confidence_tau=0.5)),
                        model=network1)
     assert again.reused and _files(run) == before
 

@@ -24,10 +24,10 @@ def test_binds_loopback_by_default(app):
 def test_gui_changes_recompute_and_update_the_metrics(app):
     app.pipeline.value = "fast"  # runs the callbacks on this thread, as viser does for Python-side changes
     assert app.wait_idle(60)
-    app.conf_tau.value = 0.6
+    app.fused_confidence_tau.value = 0.6
     assert app.wait_idle(60)
     strict = len(app.cloud)
-    app.conf_tau.value = 0.1
+    app.fused_confidence_tau.value = 0.1
     assert app.wait_idle(60)
     assert len(app.cloud) > strict
     assert f"{len(app.cloud):,} points" in app.metrics.content and "F1" in app.metrics.content

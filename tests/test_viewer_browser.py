@@ -46,7 +46,7 @@ def test_cloud_renders_and_the_confidence_slider_updates_points_and_metrics(brow
         _screenshot_is_not_blank(page)
         # The fake run is a fast run with τ 0.1: it opens so. Switch to vanilla and back in the browser, then
         # raise the threshold by keyboard.
-        assert app.pipeline.value == "fast" and app.conf_tau.value == 0.1
+        assert app.pipeline.value == "fast" and app.fused_confidence_tau.value == 0.1
         page.locator(f'[id="{app.pipeline._impl.uuid}"]').click()
         page.get_by_role("option", name="vanilla").click()
         wait_for(lambda: app.cloud_params is not None and app.cloud_params.pipeline == "vanilla" and app.wait_idle(1))
@@ -54,12 +54,13 @@ def test_cloud_renders_and_the_confidence_slider_updates_points_and_metrics(brow
         page.get_by_role("option", name="fast").click()
         wait_for(lambda: app.cloud_params is not None and app.cloud_params.pipeline == "fast" and app.wait_idle(1))
         before_points, before_text = len(app.cloud), app.metrics.content
-        thumb = _slider_thumb(page, app.conf_tau)
+        thumb = _slider_thumb(page, app.fused_confidence_tau)
         thumb.focus()
         for _ in range(10):
             page.keyboard.press("ArrowRight")
-        wait_for(lambda: app.conf_tau.value >= 0.15 and app.wait_idle(1) and app.cloud_params.conf_tau >= 0.15)
-        page.locator(f'[id="{app.conf_tau._impl.uuid}"]').wait_for()
+        wait_for(lambda: app.fused_confidence_tau.value >= 0.15 and app.wait_idle(1)
+                 and app.cloud_params.fused_confidence_tau >= 0.15)
+        page.locator(f'[id="{app.fused_confidence_tau._impl.uuid}"]').wait_for()
         assert len(app.cloud) < before_points
         assert app.metrics.content != before_text
         # The browser shows the new count.

@@ -53,7 +53,7 @@ def _choose(page, handle, option: str) -> None:
 def test_opens_on_the_runs_pipeline_and_threshold_and_says_so(page, app):
     page.get_by_text("run: fast · deepc · τ 0.3").wait_for()
     assert _element(page, app.pipeline).input_value() == "fast"
-    thumb = _element(page, app.conf_tau).locator('[role="slider"]')
+    thumb = _element(page, app.fused_confidence_tau).locator('[role="slider"]')
     assert thumb.get_attribute("aria-valuenow") == "0.3"
     page.get_by_text("Δ run").first.wait_for()  # the metrics compare with the run
 
@@ -62,17 +62,18 @@ def test_tau_is_disabled_under_vanilla_with_its_reason(page, app):
     page.get_by_text("run: fast").first.wait_for()
     _choose(page, app.pipeline, "vanilla")
     page.get_by_text("the vanilla pipeline has no confidence filter").wait_for()
-    wait_for(lambda: app.conf_tau.disabled and app.wait_idle(1))
-    slider = _element(page, app.conf_tau)
+    wait_for(lambda: app.fused_confidence_tau.disabled and app.wait_idle(1))
+    slider = _element(page, app.fused_confidence_tau)
     page.wait_for_function("id => document.getElementById(id).querySelector('[role=slider]')"
-                           ".getAttribute('aria-disabled') === 'true'", arg=app.conf_tau._impl.uuid, timeout=20_000)
+                           ".getAttribute('aria-disabled') === 'true'", arg=app.fused_confidence_tau._impl.uuid,
+                           timeout=20_000)
     # viser 1.1 leaves the number box of a disabled slider editable: a value typed there is put back
     box = slider.locator("xpath=..").locator("input.mantine-NumberInput-input")
     box.fill("0.8")
     box.press("Enter")
     page.wait_for_timeout(500)
-    wait_for(lambda: app.conf_tau.value == 0.3 and box.input_value() == "0.3")
-    assert app.params().conf_tau == 0.0 and app.params().pipeline == "vanilla"
+    wait_for(lambda: app.fused_confidence_tau.value == 0.3 and box.input_value() == "0.3")
+    assert app.params().fused_confidence_tau == 0.0 and app.params().pipeline == "vanilla"
 
 
 def test_a_colour_mode_shows_its_legend_with_unit(page, app):

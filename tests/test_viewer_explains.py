@@ -43,8 +43,8 @@ def app(deepc_fast_run):
 
 
 def test_opens_on_the_runs_pipeline_threshold_and_fusion_and_names_them(app):
-    assert (app.pipeline.value, app.conf_tau.value, app.preset.value) == ("fast", 0.3, "deepc")
-    assert app.cloud_params == ViewParams(pipeline="fast", conf_tau=0.3, fusion=FUSION_PRESETS["deepc"])
+    assert (app.pipeline.value, app.fused_confidence_tau.value, app.preset.value) == ("fast", 0.3, "deepc")
+    assert app.cloud_params == ViewParams(pipeline="fast", fused_confidence_tau=0.3, fusion=FUSION_PRESETS["deepc"])
     assert "run: fast · deepc · τ 0.3" in app.run_text.content
     assert not app.reset_button.disabled
 
@@ -67,12 +67,13 @@ def test_metrics_compare_with_the_run_and_the_previous_setting_at_every_toleranc
 def test_tau_is_disabled_with_a_reason_under_vanilla_and_a_typed_value_does_not_stick(app):
     app.pipeline.value = "vanilla"
     assert app.wait_idle(60)
-    assert app.conf_tau.disabled and "vanilla pipeline has no confidence filter" in app.control_notes.content
-    app.conf_tau.value = 0.8  # typed into the disabled box
-    assert app.conf_tau.value == 0.3 and app.params().conf_tau == 0.0
+    assert app.fused_confidence_tau.disabled
+    assert "vanilla pipeline has no confidence filter" in app.control_notes.content
+    app.fused_confidence_tau.value = 0.8  # typed into the disabled box
+    assert app.fused_confidence_tau.value == 0.3 and app.params().fused_confidence_tau == 0.0
     app.reset_to_run()
     assert app.wait_idle(60)
-    assert not app.conf_tau.disabled and app.control_notes.content == ""
+    assert not app.fused_confidence_tau.disabled and app.control_notes.content == ""
 
 
 def test_previews_say_they_are_approximate(app):
@@ -95,7 +96,7 @@ def test_every_colour_mode_has_a_legend_with_its_unit_and_the_no_data_colour(app
 
 
 def test_histograms_draw_the_current_thresholds(app):
-    app.conf_tau.value = 0.5
+    app.fused_confidence_tau.value = 0.5
     assert app.wait_idle(60)
     assert "τ 0.5:" in app.histograms.content and "<svg" in app.histograms.content
     app.reset_to_run()
@@ -131,7 +132,7 @@ def test_a_vanilla_run_without_gt_or_confidence_offers_only_what_it_has(fake_run
     session.scene.gt_points_path = None  # a scene without GT points: no error colouring, and it says why
     assert "no GT points" in session.color_modes()["error"] and "no GT points" in session.cloud_legend("error")
     with running_viewer(run) as viewer:
-        assert viewer.pipeline.value == "vanilla" and viewer.pipeline.disabled and viewer.conf_tau.disabled
+        assert viewer.pipeline.value == "vanilla" and viewer.pipeline.disabled and viewer.fused_confidence_tau.disabled
         assert "confidence" not in viewer.color_mode.options
         assert "no confidence maps" in viewer.color_notes.content
         assert "fast needs confidence maps" in viewer.control_notes.content
@@ -149,16 +150,17 @@ def test_a_full_run_opens_with_its_refined_threshold_and_sky_filter(fake_run, tm
         write_map(run, "refined_confidence", v.name, read_map(run, "confidence", v.name))
     session = ViewerSession.open(run)
     params = session.run_params()
-    assert (params.pipeline, params.conf_tau, session.sky_filter) == ("full", 0.2, True)
+    assert (params.pipeline, params.fused_confidence_tau, session.sky_filter) == ("full", 0.2, True)
     maps = session.filtered_maps(params)
-    unfiltered = [d.maps("full") for d in session.data]
-    by_tau = [(np.where(c >= 0.2, dd, 0), np.where((c >= 0.2)[..., None], n, 0)) for dd, n, c, _ in unfiltered]
+    unfiltered = [session.candidates(i, "full") for i in range(len(session.data))]
+    by_tau = [(np.where(m.confidence >= 0.2, m.depth, 0), np.where((m.confidence >= 0.2)[..., None], m.normal, 0))
+              for m in unfiltered]
     expected, _, _ = sky_filter_views(session.scene, [d for d, _ in by_tau], [n for _, n in by_tau],
                                       [d.depth for d in session.data], [d.confidence for d in session.data])
     for (depth, _), want in zip(maps, expected, strict=True):
         np.testing.assert_array_equal(depth, want)
     with running_viewer(run) as viewer:
-        assert "run: full · pixels · τ 0.2 · sky filter" in viewer.run_text.content
+        assert "run: full · pixels · refinement.refined_confidence_tau 0.2 · sky filter" in viewer.run_text.content
         assert viewer.view_images["refined depth"].visible
 
 

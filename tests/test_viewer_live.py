@@ -245,7 +245,7 @@ def test_in_chromium_points_show_during_the_run_and_the_tuning_panel_after_it(br
         live.release(app)
         page.get_by_text("Reset to the run's settings").wait_for()
         page.get_by_text("run: fast").first.wait_for()  # on the run's own settings
-        assert app.pipeline.value == "fast" and app.conf_tau.value == options.confidence.tau
+        assert app.pipeline.value == "fast" and app.fused_confidence_tau.value == options.confidence.tau
         assert app.wait_idle(120)
         page.get_by_text(f"{len(app.cloud):,} points").first.wait_for()
         assert page.get_by_text("views done in this pass").count() == 0  # the progress panel is gone

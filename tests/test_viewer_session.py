@@ -25,12 +25,12 @@ def test_opens_a_run_and_knows_what_exists(session):
 
 def test_confidence_threshold_and_mask_k_remove_points(session):
     vanilla = session.cloud(ViewParams(pipeline="vanilla"))
-    fast = session.cloud(ViewParams(pipeline="fast", conf_tau=0.5))
+    fast = session.cloud(ViewParams(pipeline="fast", fused_confidence_tau=0.5))
     masked = session.cloud(ViewParams(pipeline="vanilla", mask_k=2))
     assert 0 < len(fast) < len(vanilla) and 0 < len(masked) < len(vanilla)
-    assert session.cloud(ViewParams(pipeline="fast", conf_tau=0.5)) is fast  # cached, not recomputed
+    assert session.cloud(ViewParams(pipeline="fast", fused_confidence_tau=0.5)) is fast  # cached, not recomputed
     scores_vanilla = session.evaluate(ViewParams(pipeline="vanilla"))
-    scores_fast = session.evaluate(ViewParams(pipeline="fast", conf_tau=0.5))
+    scores_fast = session.evaluate(ViewParams(pipeline="fast", fused_confidence_tau=0.5))
     assert scores_vanilla["accuracy"] > 90  # GT depth fused: nearly every point is accurate
     assert scores_fast["completeness"] < scores_vanilla["completeness"]
 
@@ -48,7 +48,7 @@ def test_full_pipeline_keeps_trusted_estimates_and_filters_refined_ones_by_their
         write_map(run, "refined_confidence", v.name, 1.0 - read_map(run, "confidence", v.name))
     session = ViewerSession.open(run)
     assert "full" in session.pipelines
-    params = dict(conf_tau=0.5)
+    params = dict(fused_confidence_tau=0.5)
     for (d_fast, _), (d_full, _), d in zip(session.filtered_maps(ViewParams(pipeline="fast", **params)),
                                            session.filtered_maps(ViewParams(pipeline="full", **params)),
                                            session.data, strict=True):
@@ -62,7 +62,7 @@ def test_full_pipeline_keeps_trusted_estimates_and_filters_refined_ones_by_their
 
 
 def test_a_fusion_change_reuses_the_filtered_maps(session):
-    params = ViewParams(pipeline="fast", conf_tau=0.3)
+    params = ViewParams(pipeline="fast", fused_confidence_tau=0.3)
     maps = session.filtered_maps(params)
     stricter = dataclasses.replace(params, fusion=params.fusion.replace(max_normal_error=5.0))
     assert session.filtered_maps(stricter) is maps
@@ -98,7 +98,7 @@ def test_min_views_preview_is_exact(session):
 
 
 def test_preview_approximates_the_exact_cloud(session):
-    params = ViewParams(pipeline="fast", conf_tau=0.5)
+    params = ViewParams(pipeline="fast", fused_confidence_tau=0.5)
     base = session.base_cloud(params)
     preview = ViewerSession.preview_mask(base, params).sum()
     exact = len(session.cloud(params))

@@ -136,7 +136,7 @@ def score_scene(run: Path, models: dict, taus: list[float], rules: list[bool], p
 def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights: Path, preset: str) -> dict:
     """What ``--pipeline full`` computes from this run with these networks (default options): refinement guided
     by network 1 (cached in RUN/refined/), the refined maps' confidence from network 2, PatchMatch's confident
-    estimates kept (``refinement.keep_confident``), the filter at ``refinement.refined_conf_tau`` and the sky
+    estimates kept (``refinement.keep_confident``), the filter at ``refinement.refined_confidence_tau`` and the sky
     filter; plus the depth of vanilla, refined and fused-by-full maps against GT. Row ``refined + conf``: the
     refined maps alone, filtered (the paper's Table 3 row)."""
     from engine.confidence.data import load_run as load_samples
@@ -156,7 +156,7 @@ def score_full(run: Path, session: ViewerSession, weights: Path, refined_weights
     samples = load_samples(run, refined=True, require_gt=False)
     conf2 = predict_samples(load_weights(refined_weights), samples, options.confidence)
     conf1 = predict_samples(load_weights(weights), load_run(run), options.confidence)
-    tau2 = options.refinement.refined_conf_tau
+    tau2 = options.refinement.refined_confidence_tau
     guarded = [keep_confident(v.depth, v.normal, c1, d, n, c2, options.refinement.keep_confident)
                for v, c1, (d, n), c2 in zip(data, conf1, refined, conf2, strict=True)]
     unguarded = [filter_by_confidence(d, n, c, tau2) for (d, n), c in zip(refined, conf2, strict=True)]

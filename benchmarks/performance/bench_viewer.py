@@ -126,7 +126,7 @@ def main() -> None:
         rng = np.random.default_rng(0)
         moves = []
         for _ in range(args.repeats):
-            moves.append((app.conf_tau, round(float(rng.uniform(0.05, 0.6)), 2)))
+            moves.append((app.fused_confidence_tau, round(float(rng.uniform(0.05, 0.6)), 2)))
             moves.append((app.min_views, int(rng.integers(2, 6))))
             moves.append((app.mask_k, int(rng.integers(0, 4))))
         results = asyncio.run(measure(app, moves))

@@ -243,6 +243,20 @@ class Options:
                     kwargs[f.name] = f.metadata["absent"]
         return cls(**kwargs).validate()
 
+    @classmethod
+    def current_names(cls, data: dict[str, Any]) -> dict[str, Any]:
+        """``data`` (a :meth:`to_dict`, perhaps saved by an older run) with former option names (aliases) replaced by
+        today's, in nested options too; values untouched, keys this class does not know kept as they are."""
+        hints = _hints(cls)
+        out = {}
+        for key, value in data.items():
+            name = cls.field_name(key) or key
+            hint = hints.get(name)
+            if isinstance(hint, type) and issubclass(hint, Options) and isinstance(value, dict):
+                value = hint.current_names(value)
+            out[name] = value
+        return out
+
     def replace(self: T, **changes: Any) -> T:
         """A validated copy with some fields changed."""
         return dataclasses.replace(self, **changes).validate()

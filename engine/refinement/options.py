@@ -57,8 +57,9 @@ class RefinementOptions(Options):
     sigma_spa: float = option(3.0, "graph spatial sigma", unit="px", source="Rossi", above=0, metavar="PX")
     degree: int = option(20, "neighbours kept per pixel (< window²)", source="Rossi", low=1, metavar="K")
     # --- full pipeline: what is fused after the refinement
-    refined_conf_tau: float = option(0.05, "keep refined pixels whose confidence (second network) is at least this",
-                                     source="paper", low=0, high=1, metavar="TAU")
+    refined_confidence_tau: float = option(0.05, "keep fused pixels whose confidence (second network on the refined "
+                                           "maps) is at least this", source="paper", low=0, high=1,
+                                           aliases=("refined_conf_tau",), metavar="TAU")
     sky_filter: bool = option(True, "drop sky and far-plane pixels of refined maps (paper Sec. 5.5)", source="paper")
     keep_confident: float | None = option(0.1, "fuse PatchMatch's estimate where network 1's confidence is at least "
                                           "this; unset = the paper", source="ours", low=0, high=1, metavar="C")

@@ -8,7 +8,7 @@ geometric checks of fusion do not remove. Without a semantic-segmentation model 
 downloaded here) the sky is found by a heuristic:
 
     a pixel is sky iff it was unreliable in the *vanilla* PatchMatch output (no depth, or confidence
-    below ``conf_tau``), has low texture (grey std in a ``texture_window`` box below ``max_texture_std``),
+    below ``unreliable_below``), has low texture (grey std in a ``texture_window`` box below ``max_texture_std``),
     is bright (grey > ``min_brightness``) or blue-dominant (B > R and B > G), and its 4-connected
     component of such pixels touches the top image border;
 
@@ -29,11 +29,11 @@ from engine.core.options import Options, option
 
 @dataclasses.dataclass
 class SkyOptions(Options):
-    """Heuristic sky mask and far-plane cut (module doc)."""
+    """Heuristic sky mask and far-plane cut (module doc); whether ``full`` applies it is
+    ``RefinementOptions.sky_filter``."""
 
-    enabled: bool = option(True, "drop sky pixels from refined maps before fusion", source="paper")
-    conf_tau: float = option(0.05, "vanilla confidence below this counts as unreliable", source="ours", low=0,
-                             high=1, metavar="TAU")
+    unreliable_below: float = option(0.05, "a pixel whose vanilla confidence is below this counts as unreliable",
+                                     source="ours", low=0, high=1, aliases=("conf_tau",), metavar="C")
     texture_window: int = option(7, "box side of the grey-level standard deviation (odd)", unit="px", source="ours",
                                  odd=True, low=3, metavar="PX")
     max_texture_std: float = option(0.02, "largest grey std of a sky pixel", unit="grey on [0, 1]", source="ours",
@@ -72,7 +72,7 @@ def sky_mask(rgb: np.ndarray, vanilla_depth: np.ndarray, vanilla_confidence: np.
         conf = np.asarray(vanilla_confidence, np.float64)
         if conf.shape != depth.shape:
             raise ValueError(f"confidence {conf.shape} and depth {depth.shape} differ in shape")
-        unreliable |= ~(conf >= options.conf_tau)
+        unreliable |= ~(conf >= options.unreliable_below)
     gray = rgb @ np.array([0.299, 0.587, 0.114])
     r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
     looks_like_sky = (gray > options.min_brightness) | ((b > r) & (b > g))

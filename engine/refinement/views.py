@@ -66,23 +66,23 @@ def sky_filter_views(scene, depth_maps: list[np.ndarray], normal_maps: list[np.n
                      vanilla_depths: list[np.ndarray], vanilla_confidences: list[np.ndarray | None],
                      options: SkyOptions | None = None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """The sky filter (Kuhn et al. 2020, §5.5) on refined maps: returns (depths, normals, dropped masks)."""
+    out = [sky_filter_view(scene, i, depth_maps[i], normal_maps[i], vanilla_depths[i], vanilla_confidences[i],
+                           options) for i in range(len(scene.views))]
+    return [o[0] for o in out], [o[1] for o in out], [o[2] for o in out]
 
+
+def sky_filter_view(scene, i: int, depth: np.ndarray, normal: np.ndarray, vanilla_depth: np.ndarray,
+                    vanilla_confidence: np.ndarray | None, options: SkyOptions | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sky filter (Kuhn et al. 2020, §5.5) on view ``i``'s (H, W) refined depth and (H, W, 3) normal, given its
+    vanilla PatchMatch depth and confidence (None: only pixels without depth count as unreliable): (depth,
+    normal, dropped mask)."""
     options = (options or SkyOptions()).validate()
-    depths, normals, masks = [], [], []
-    for i in range(len(scene.views)):
-        depth = np.asarray(depth_maps[i])
-        if not options.enabled:
-            depths.append(depth)
-            normals.append(np.asarray(normal_maps[i]))
-            masks.append(np.zeros(depth.shape, bool))
-            continue
-        rgb = scene.image(i)
-        if rgb.shape[:2] != depth.shape:
-            rgb = resize_area(rgb, (depth.shape[1], depth.shape[0]))
-        sky = sky_mask(rgb, vanilla_depths[i], vanilla_confidences[i], options)
-        far = far_mask(depth, z99(scene, i), options.far_factor)
-        d, n = filter_sky(depth, normal_maps[i], sky, far)
-        depths.append(d)
-        normals.append(n)
-        masks.append(sky | far)
-    return depths, normals, masks
+    depth = np.asarray(depth)
+    rgb = scene.image(i)
+    if rgb.shape[:2] != depth.shape:
+        rgb = resize_area(rgb, (depth.shape[1], depth.shape[0]))
+    sky = sky_mask(rgb, vanilla_depth, vanilla_confidence, options)
+    far = far_mask(depth, z99(scene, i), options.far_factor)
+    d, n = filter_sky(depth, normal, sky, far)
+    return d, n, sky | far

@@ -155,7 +155,7 @@ def read_run_metrics(out_dir: str | Path) -> RunMetrics:
 
 STAMP = Path("refined") / "stamp.json"
 #: refinement options that act only after the refined maps exist (filtering before fusion, sky filter)
-POST_REFINEMENT = ("refined_conf_tau", "sky_filter", "keep_confident", "sky")
+POST_REFINEMENT = ("refined_confidence_tau", "sky_filter", "keep_confident", "sky")
 #: confidence options that change the predicted values (tau and refined_weights act elsewhere)
 INFERENCE = ("tile", "overlap", "bf16", "zero_backfacing")
 #: the maps of a refined run that every refined run has (confidence only where a second network ran)

@@ -25,7 +25,6 @@ from engine.core.interrupt import check_interrupt
 from engine.core.observer import ObserverList
 from engine.core.options import Options, option
 from engine.evaluation import EvaluationOptions, evaluate_point_chunks, evaluate_points
-from engine.filtering import filter_by_confidence
 from engine.fusion import (
     DEFAULT_PRESET,
     FUSION_PRESETS,
@@ -39,12 +38,11 @@ from engine.io.ply import read_points
 from engine.meshing import MeshOptions, evaluate_mesh, mesh_run, write_mesh_ply
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, ViewMaps, run_patchmatch
 from engine.patchmatch.convergence import EarlyStops
-from engine.refinement.guard import keep_confident
 from engine.refinement.options import RefinementOptions
-from engine.refinement.views import refine_views, sky_filter_views
+from engine.refinement.views import refine_views
 from engine.run.distributed import Executor
 from engine.run.distributed.driver import run_confidence_tasks, run_patchmatch_tasks, run_refinement_tasks
-from engine.run.distributed.streamed import filtered_maps, fuse_run_folder, streamed_metrics
+from engine.run.distributed.streamed import fuse_run_folder, streamed_metrics
 from engine.run.folder import (
     file_sha256,
     maps_digest,
@@ -54,12 +52,20 @@ from engine.run.folder import (
     write_refined_maps,
     write_stamp,
 )
+from engine.run.fused_maps import (
+    PIPELINES,
+    FusionRule,
+    RunViewMaps,
+    candidate_maps,
+    fused_maps,
+    fused_view,
+    read_run_view,
+)
 from engine.run.per_view import SceneView, patchmatch_view, view_confidence
 from engine.run.probe_output import finish_probe
 from engine.run.scores import confidence_auc, depth_block
 from engine.scene import Scene
 
-PIPELINES = ("vanilla", "fast", "full")
 STAGES = ("patchmatch", "confidence", "refinement", "fusion")
 
 
@@ -114,6 +120,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     counter and confidence stages run in this process).
     """
     options = (options or PipelineOptions()).validate()
+    rule = FusionRule.from_options(options)  # what fusion (and a TSDF mesh) gets: engine.run.fused_maps
     out_dir = Path(out_dir)
     seconds = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
@@ -160,6 +167,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         notify("patchmatch", **({} if streamed else {"maps": maps, "counter": counter}))
 
     confidence = refined = fusion_confidence = None
+    # what fusion gets (engine.run.fused_maps): vanilla's are these; fast and full filter them below
     depths, normals = [m.depth for m in maps], [m.normal for m in maps]
     if options.pipeline in ("fast", "full"):
         t = time.perf_counter()
@@ -176,9 +184,9 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
                 options.pipeline == "full" and not options.refinement.backfacing_rule, read_back=not streamed)
         fusion_confidence = confidence
         if options.pipeline == "fast" and not streamed:  # streamed: each view is filtered as fusion loads it
-            filtered = [filter_by_confidence(m.depth, m.normal, c, options.confidence.tau)
-                        for m, c in zip(maps, confidence, strict=True)]
-            depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
+            fused = fused_maps(scene, rule, [RunViewMaps(m.depth, m.normal, confidence=c)
+                                             for m, c in zip(maps, confidence, strict=True)])
+            depths, normals = [f.depth for f in fused], [f.normal for f in fused]
         seconds["confidence"] = time.perf_counter() - t
         if notify:
             notify("confidence", **({} if streamed else {"confidence": confidence, "depth": [m.depth for m in maps]}))
@@ -198,24 +206,20 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         key = refinement_key(scene, weights_sha256, options, inputs)
         write_stamp(out_dir, key, options.confidence.weights or DEFAULT_WEIGHTS,
                     {"refinement": seconds["refinement"], "counter_and_confidence": time.perf_counter() - t})
-        fused_maps = [keep_confident(m.depth, m.normal, c1, r.depth, r.normal, c2,
-                                     options.refinement.keep_confident)
-                      for m, c1, r, c2 in zip(maps, confidence, refined, refined_confidence, strict=True)]
-        fusion_confidence = [f[2] for f in fused_maps]
-        filtered = [filter_by_confidence(d, n, c, options.refinement.refined_conf_tau) for d, n, c in fused_maps]
-        depths, normals = [f[0] for f in filtered], [f[1] for f in filtered]
-        if options.refinement.sky_filter:
-            depths, normals, _ = sky_filter_views(scene, depths, normals, [m.depth for m in maps], confidence,
-                                                  options.refinement.sky)
+        run_views = [RunViewMaps(m.depth, m.normal, confidence=c1, refined_depth=r.depth, refined_normal=r.normal,
+                                 refined_confidence=c2)
+                     for m, c1, r, c2 in zip(maps, confidence, refined, refined_confidence, strict=True)]
+        fused = fused_maps(scene, rule, run_views)
+        fusion_confidence = [f.confidence for f in fused]
+        depths, normals = [f.depth for f in fused], [f.normal for f in fused]
         seconds["confidence"] += time.perf_counter() - t
         if notify:
             notify("refinement")
 
     check_interrupt()
     t = time.perf_counter()
-    tau = options.confidence.tau if options.pipeline == "fast" else None
     if streamed:  # fused.ply written as fusion goes; the cloud stays in it (engine/fusion/stream.py)
-        cloud = fuse_run_folder(scene, out_dir, options.fusion, tau, ply=out_dir / "fused.ply")
+        cloud = fuse_run_folder(scene, out_dir, options.fusion, rule, ply=out_dir / "fused.ply")
     else:
         fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
         cloud = fuse_views_to_ply(out_dir / "fused.ply", fusion_views, options.fusion)  # the cloud stays on disk
@@ -228,7 +232,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if mesh is not None and mesh.method != "none":
         check_interrupt()
         if streamed:  # the maps fusion used (TSDF reads them; Poisson does not)
-            depths = [filtered_maps(out_dir, v.name, tau)[0] for v in scene.views] if mesh.method == "tsdf" else []
+            depths = ([fused_view(scene, v.index, rule, read_run_view(out_dir, v.name, rule.kinds())).depth
+                       for v in scene.views] if mesh.method == "tsdf" else [])
         surface, mesh_info = mesh_run(scene, cloud, depths, mesh)
         write_mesh_ply(out_dir / "mesh.ply", surface)
         seconds["mesh"] = mesh_info["seconds"]
@@ -255,7 +260,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
     if mesh_info is not None:
         metrics["mesh"] = mesh_info
     if streamed:  # the same entries, view by view from the run folder
-        metrics.update(streamed_metrics(scene, out_dir, tau))
+        metrics.update(streamed_metrics(scene, out_dir, rule))
     elif scene.has_gt_depth:
         metrics["depth"], metrics["depth_per_view"] = depth_block(scene, lambda i: maps[i].depth)
         if confidence is not None:
@@ -264,7 +269,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             metrics["confidence_auc_per_view"] = auc["per_view"]
         if refined is not None:
             metrics["refined_depth"], metrics["refined_depth_per_view"] = depth_block(scene, lambda i: refined[i].depth)
-            metrics["full_depth"], _ = depth_block(scene, lambda i: fused_maps[i][0])
+            mixed = [candidate_maps(rule, v) for v in run_views]  # what full fuses, before its filters
+            metrics["full_depth"], _ = depth_block(scene, lambda i: mixed[i].depth)
             auc = confidence_auc(scene, lambda i: refined[i].depth, lambda i: refined_confidence[i])
             metrics["refined_confidence_auc"] = auc["pooled"]
             metrics["refined_confidence_auc_per_view"] = auc["per_view"]

@@ -21,6 +21,7 @@ from engine.io.atomic import remove_stale_temp_files
 from engine.patchmatch.probe.pixel_probe import PixelProbe
 from engine.run.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
 from engine.run.folder import RunMetrics
+from engine.run.fused_maps import FusionRule
 from engine.run.memory import estimate_run_memory, largest_fitting_size, load_kernels
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, run_pipeline
@@ -205,8 +206,9 @@ def print_run_summary(metrics: RunMetrics, out: str) -> None:
               f"valid {d['valid_fraction']:.1f}% ({seconds['refinement']:.1f} s)")
     if metrics.pipeline in ("fast", "full"):
         auc = f", ROC-AUC vs labels {metrics.confidence_auc:.2f}" if metrics.confidence_auc is not None else ""
+        rule = FusionRule.from_saved(metrics.options, metrics.pipeline)  # the threshold the filter applied
         print(f"confidence: {seconds['confidence']:.1f} s, {metrics.confidence_kept_pct:.1f}% of the estimates "
-              f"kept at tau {metrics.options['confidence']['tau']:g}{auc}")
+              f"kept at {rule.threshold_option} {rule.fused_confidence_tau:g}{auc}")
     print(f"fused cloud: {metrics.fused_points:,} points ({seconds['fusion']:.1f} s)")
     if metrics.eval is not None:
         e = metrics.eval

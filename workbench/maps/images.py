@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.run.fused_maps import RunViewMaps
 from engine.scene import Scene
-from workbench.maps.run_maps import ViewData
 
 
 def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis",
@@ -41,7 +41,7 @@ def subsample(array: np.ndarray, max_size: int) -> np.ndarray:
     return np.ascontiguousarray(array[::step, ::step]) if step > 1 else array
 
 
-def view_images(scene: Scene, i: int, data: ViewData | None) -> dict[str, np.ndarray]:
+def view_images(scene: Scene, i: int, data: RunViewMaps | None) -> dict[str, np.ndarray]:
     """uint8 RGB images of view ``i``: its image and, from ``data``, its depth, normal, counter and
     confidence maps (those the run wrote)."""
     images = {"image": (np.asarray(scene.image(i)) * 255 + 0.5).astype(np.uint8)}

@@ -24,6 +24,9 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from engine.run.pipeline import PipelineOptions
+from engine.scene import SceneOptions
+
 #: (row label, value) pairs a metric reads from a metrics.json dict; several for per-tolerance scores
 MetricValues = Callable[[dict[str, Any]], list[tuple[str, float | None]]]
 
@@ -244,10 +247,20 @@ def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: value}
 
 
+def current_option_names(options: dict[str, Any]) -> dict[str, Any]:
+    """metrics.json's ``options`` block with every former option name replaced by today's (``Options`` aliases), so
+    that a renamed option is not reported as changed."""
+    out = PipelineOptions.current_names({k: v for k, v in options.items() if k != "scene"})
+    if isinstance(options.get("scene"), dict):
+        out = {"scene": SceneOptions.current_names(options["scene"]), **out}
+    return out
+
+
 def option_changes(current: dict[str, Any], baseline: dict[str, Any] | None) -> list[str]:
-    """'patchmatch.iterations: None -> 1' for every option that differs from the baseline's."""
+    """'patchmatch.iterations: None -> 1' for every option that differs from the baseline's (under today's names)."""
     if not baseline:
         return []
-    now, before = _flatten(current.get("options", {})), _flatten(baseline.get("options", {}))
+    now = _flatten(current_option_names(current.get("options", {})))
+    before = _flatten(current_option_names(baseline.get("options", {})))
     return [f"{k}: {before.get(k, '(absent)')} -> {now.get(k, '(absent)')}"
             for k in sorted(set(now) | set(before)) if now.get(k) != before.get(k)]

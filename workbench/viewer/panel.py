@@ -1,7 +1,7 @@
 """The viewer's control panel: every control with its initial value, and the ViewParams the controls describe.
 
 :class:`ControlPanel` is the base of :class:`workbench.viewer.app.ViewerApp`: it declares the controls as
-attributes of the app (``app.pipeline``, ``app.conf_tau``, ``app.preset``, ...) and wires their events to
+attributes of the app (``app.pipeline``, ``app.fused_confidence_tau``, ``app.preset``, ...) and wires their events to
 what the app does with them (``request``, ``_recolor_latest``, ``_set_point_size``, ``export_ply``,
 ``save_rrd``, ``select_view``). The fusion preset dropdown and the fusion sliders follow each other.
 The panel opens on the run's own settings (``ViewerSession.run_params``) and can go back to them; a control
@@ -38,15 +38,20 @@ def preset_of(fusion: FusionOptions) -> str:
 
 
 def run_label(params: ViewParams, has_run: bool, sky_filter: bool = False) -> str:
-    """The settings a run used, in one line: "run: fast · pixels · τ 0.1"."""
+    """The settings a run used, in one line: "run: fast · pixels · confidence.tau 0.1"."""
     parts = [params.pipeline, preset_of(params.fusion)]
     if params.pipeline != "vanilla":
-        parts.append(f"τ {params.conf_tau:g}")
+        parts.append(f"{ViewerSession.threshold_label(params.pipeline)} {params.fused_confidence_tau:g}")
     if params.mask_k:
         parts.append(f"mask k {params.mask_k}")
     if params.pipeline == "full" and sky_filter:
         parts.append("sky filter")
     return ("run: " if has_run else "no run: defaults · ") + " · ".join(parts)
+
+
+def tau_label(pipeline: str) -> str:
+    """The confidence slider's label: the option it moves under ``pipeline`` (vanilla: none, the slider is off)."""
+    return ViewerSession.threshold_label(pipeline) or "confidence threshold (off)"
 
 
 def view_label(index: int, name: str) -> str:
@@ -67,21 +72,24 @@ class ControlPanel:
         self.run_params = s.run_params()
         start = self.run_params
         self._base_fusion = start.fusion  # the fields the panel does not control keep the run's values
-        self._last_tau = start.conf_tau
+        self._last_tau = start.fused_confidence_tau
         modes = s.color_modes()
         gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {len(s.scene.views)} views")
         self.run_text = gui.add_markdown(f"**{run_label(start, s.run is not None, s.sky_filter)}**" if s.has_maps
                                          else "**no run:** a COLMAP workspace, its sparse points only")
         self.reset_button = gui.add_button("Reset to the run's settings", disabled=s.run is None,
-                                           hint="pipeline, τ, mask k and fusion thresholds as the run used them")
+                                           hint="pipeline, confidence threshold, mask k and fusion thresholds as the "
+                                                "run used them")
         with gui.add_folder("Pipeline"):
             pipelines = tuple(s.pipelines or ["vanilla"])
             self.pipeline = gui.add_dropdown("Pipeline", options=pipelines, initial_value=start.pipeline,
                                              disabled=len(pipelines) <= 1, hint=self._pipeline_reason())
-            self.conf_tau = gui.add_slider("Confidence τ", min=0.0, max=1.0, step=0.01,
-                                           initial_value=start.conf_tau,
-                                           disabled=start.pipeline == "vanilla" or not s.has_confidence,
-                                           hint="keep pixels with confidence ≥ τ (fast and full pipelines)")
+            self.fused_confidence_tau = gui.add_slider(tau_label(start.pipeline), min=0.0, max=1.0, step=0.01,
+                                                       initial_value=start.fused_confidence_tau,
+                                                       disabled=start.pipeline == "vanilla" or not s.has_confidence,
+                                                       hint="keep pixels whose confidence is at least this: "
+                                                            "confidence.tau under fast, refinement."
+                                                            "refined_confidence_tau (network 2's) under full")
             self.mask_k = gui.add_slider("Mask k", min=0, max=10, step=1, initial_value=start.mask_k,
                                          disabled=not s.has_counter,
                                          hint="keep pixels with ≥ k consistent source views (0 = off)")
@@ -142,7 +150,7 @@ class ControlPanel:
 
         self._applying_preset = False
         self.pipeline.on_update(lambda _event: self._pipeline_changed())
-        self.conf_tau.on_update(lambda _event: self._tau_changed())
+        self.fused_confidence_tau.on_update(lambda _event: self._tau_changed())
         self.mask_k.on_update(lambda _event: None if self._applying_preset else self.request(self.params()))
         for handle in self._fusion_handles.values():
             handle.on_update(lambda _event: self._fusion_slider_moved())
@@ -170,14 +178,15 @@ class ControlPanel:
         """Why a control is disabled, one line each (shown under the controls)."""
         s = self.session
         if not s.has_maps:
-            return "*Pipeline, τ, mask k and fusion* act on the maps of a run: open the output folder of deepc run"
+            return ("*Pipeline, confidence threshold, mask k and fusion* act on the maps of a run: open the output "
+                    "folder of deepc run")
         notes = []
         if len(s.pipelines) <= 1:
             notes.append(f"*Pipeline* fixed: {self._pipeline_reason()}")
         if not s.has_confidence:
-            notes.append("*Confidence τ* disabled: the run wrote no confidence maps")
+            notes.append("*Confidence threshold* disabled: the run wrote no confidence maps")
         elif pipeline == "vanilla":
-            notes.append("*Confidence τ* disabled: the vanilla pipeline has no confidence filter")
+            notes.append("*Confidence threshold* disabled: the vanilla pipeline has no confidence filter")
         if not s.has_counter:
             notes.append("*Mask k* disabled: the run wrote no counter maps")
         return "  \n".join(notes)
@@ -187,7 +196,8 @@ class ControlPanel:
         if self._applying_preset:
             return
         pipeline = str(self.pipeline.value)
-        self.conf_tau.disabled = pipeline == "vanilla" or not self.session.has_confidence
+        self.fused_confidence_tau.disabled = pipeline == "vanilla" or not self.session.has_confidence
+        self.fused_confidence_tau.label = tau_label(pipeline)
         self.control_notes.content = self._control_notes(pipeline)
         self.request(self.params())
 
@@ -195,15 +205,15 @@ class ControlPanel:
         """A value typed into the disabled τ box is put back: it would act on nothing."""
         if self._applying_preset:
             return
-        if self.conf_tau.disabled:
-            if float(self.conf_tau.value) != self._last_tau:
+        if self.fused_confidence_tau.disabled:
+            if float(self.fused_confidence_tau.value) != self._last_tau:
                 self._applying_preset = True
                 try:
-                    self.conf_tau.value = self._last_tau
+                    self.fused_confidence_tau.value = self._last_tau
                 finally:
                     self._applying_preset = False
             return
-        self._last_tau = float(self.conf_tau.value)
+        self._last_tau = float(self.fused_confidence_tau.value)
         self.request(self.params())
 
     def _color_mode_changed(self) -> None:
@@ -216,9 +226,10 @@ class ControlPanel:
         self._applying_preset = True
         try:
             self.pipeline.value = run.pipeline
-            self.conf_tau.disabled = run.pipeline == "vanilla" or not self.session.has_confidence
-            self.conf_tau.value = run.conf_tau
-            self._last_tau = run.conf_tau
+            self.fused_confidence_tau.disabled = run.pipeline == "vanilla" or not self.session.has_confidence
+            self.fused_confidence_tau.label = tau_label(run.pipeline)
+            self.fused_confidence_tau.value = run.fused_confidence_tau
+            self._last_tau = run.fused_confidence_tau
             self.mask_k.value = run.mask_k
             for field, handle in self._fusion_handles.items():
                 handle.value = getattr(run.fusion, field)
@@ -268,5 +279,5 @@ class ControlPanel:
                                               for field, handle in self._fusion_handles.items()})
         pipeline = str(self.pipeline.value)
         # vanilla has no confidence filter: its state says so rather than carrying a τ that acts on nothing
-        tau = float(self.conf_tau.value) if pipeline != "vanilla" else 0.0
-        return ViewParams(pipeline=pipeline, conf_tau=tau, mask_k=int(self.mask_k.value), fusion=fusion)
+        tau = float(self.fused_confidence_tau.value) if pipeline != "vanilla" else 0.0
+        return ViewParams(pipeline=pipeline, fused_confidence_tau=tau, mask_k=int(self.mask_k.value), fusion=fusion)

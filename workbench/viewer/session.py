@@ -1,7 +1,7 @@
 """A viewer session: one scene, its cached PatchMatch maps, and a cache per downstream stage.
 
-The data flow is one way — maps -> filter (pipeline, τ, k) -> fusion (thresholds) -> evaluation — and
-each stage is cached under the options it depends on, so a change recomputes only what lies
+The data flow is one way — maps -> filter (pipeline, its confidence threshold, k) -> fusion (thresholds) ->
+evaluation — and each stage is cached under the options it depends on, so a change recomputes only what lies
 downstream of it. Cheap previews mask the *unfiltered* fused cloud by its per-point attributes
 (mean confidence, supporting views) and answer at once; the exact recomputation follows.
 
@@ -18,19 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from engine.confidence.options import ConfidenceOptions
 from engine.core.errors import DeepCError
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
-from engine.filtering import filter_by_confidence, filter_by_counter
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.ply import read_points
-from engine.refinement.options import RefinementOptions
-from engine.refinement.sky import SkyOptions
-from engine.refinement.views import sky_filter_views
 from engine.run.folder import RunMetrics, read_run_metrics
+from engine.run.fused_maps import FusedMaps, FusionRule, RunViewMaps, candidate_maps, fused_maps, read_run_views
 from engine.scene import Scene, SceneOptions, load_scene
 from workbench.maps.images import colorize, normal_to_rgb, view_images
-from workbench.maps.run_maps import ViewData, read_view_data
 from workbench.viewer.legends import NO_DATA, Scale, categories_html, histogram_html, note_html, scale_html
 
 COLOR_MODES = ("rgb", "confidence", "views", "error")
@@ -59,12 +54,14 @@ class ViewParams:
     """Everything downstream of PatchMatch that the viewer lets a user tune."""
 
     pipeline: str = "vanilla"
-    conf_tau: float = ConfidenceOptions().tau  # the pipeline's threshold
+    # the pipeline's confidence filter (FusionRule.fused_confidence_tau): confidence.tau under fast,
+    # refinement.refined_confidence_tau under full, nothing under vanilla
+    fused_confidence_tau: float = FusionRule().fused_confidence_tau
     mask_k: int = 0  # 0 = no counter filter
     fusion: FusionOptions = dataclasses.field(default_factory=lambda: FUSION_PRESETS[VIEWER_DEFAULT_PRESET])
 
     def filter_key(self) -> tuple:
-        tau = self.conf_tau if self.pipeline != "vanilla" else 0.0
+        tau = self.fused_confidence_tau if self.pipeline != "vanilla" else 0.0
         return (self.pipeline, round(tau, 6), self.mask_k)
 
     def fusion_key(self) -> tuple:
@@ -107,17 +104,12 @@ class _LRU(OrderedDict):
 class ViewerSession:
     """Scene + maps + stage caches. Thread-safe: stage computations are serialised by a lock."""
 
-    def __init__(self, scene: Scene, data: list[ViewData] | None, out_dir: Path | None = None,
+    def __init__(self, scene: Scene, data: list[RunViewMaps] | None, out_dir: Path | None = None,
                  run: RunMetrics | None = None):
         self.scene = scene
         self.data = data
         self.out_dir = out_dir
         self.run = run  # metrics.json of the run, when a run folder was opened
-        # `full` drops sky and far-plane pixels of the refined maps when the run did (refinement.sky_filter);
-        # the viewer has no control for it, so it follows the run
-        refinement = (run.options.get("refinement") or {}) if run is not None else {}
-        self.sky_filter = bool(refinement.get("sky_filter", RefinementOptions().sky_filter))
-        self.sky = SkyOptions.from_dict(refinement.get("sky", {}), saved=True)  # as the run's pipeline filtered
         self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
@@ -143,7 +135,7 @@ class ViewerSession:
                 raise DeepCError(f"the scene this run was made from is gone ({scene_path})", path / "metrics.json")
             options = scene_options or SceneOptions.from_dict(metrics.scene_options())
             scene = load_scene(scene_path, options)
-            return cls(scene, read_view_data(path, scene), path, metrics)
+            return cls(scene, read_run_views(path, scene), path, metrics)
         if (path / "sparse").is_dir() or (path / "sparse" / "0").is_dir():
             return cls(load_scene(path, scene_options or SceneOptions()), None, None)
         raise DeepCError("neither an output folder of deepc run (no metrics.json) nor a COLMAP workspace", path)
@@ -176,6 +168,22 @@ class ViewerSession:
     def has_gt(self) -> bool:
         return self.scene.has_gt_points
 
+    def run_rule(self, pipeline: str) -> FusionRule:
+        """What ``pipeline`` fuses under the run's own options (``engine.run.fused_maps``; keys an older run did not
+        write take ``deepc run``'s defaults, and so does everything without a run)."""
+        return FusionRule.from_saved(self.run.options if self.run is not None else None, pipeline)
+
+    def rule(self, params: ViewParams) -> FusionRule:
+        """The run's rule for ``params.pipeline`` with the viewer's threshold and counter filter."""
+        return dataclasses.replace(self.run_rule(params.pipeline), fused_confidence_tau=params.fused_confidence_tau,
+                                   mask_k=params.mask_k)
+
+    @property
+    def sky_filter(self) -> bool:
+        """Whether ``full`` drops sky and far-plane pixels here (the run's ``refinement.sky_filter``; the viewer
+        has no control for it, so it follows the run)."""
+        return self.run_rule("full").sky_filter
+
     def run_params(self) -> ViewParams:
         """The settings the run itself used (its metrics.json options): pipeline, its confidence threshold and
         fusion thresholds. Keys an older run did not write take ``deepc run``'s defaults; without a run, or for
@@ -187,11 +195,14 @@ class ViewerSession:
         if isinstance(options.get("fusion"), dict):
             fusion = FusionOptions.from_dict(options["fusion"])
         pipeline = self.run.pipeline if self.run.pipeline in self.pipelines else (self.pipelines or ["vanilla"])[0]
-        if pipeline == "full":
-            tau = float((options.get("refinement") or {}).get("refined_conf_tau", RefinementOptions().refined_conf_tau))
-        else:
-            tau = float((options.get("confidence") or {}).get("tau", ConfidenceOptions().tau))
-        return ViewParams(pipeline=pipeline, conf_tau=tau, mask_k=0, fusion=fusion)
+        return ViewParams(pipeline=pipeline, fused_confidence_tau=self.run_rule(pipeline).fused_confidence_tau,
+                          mask_k=0, fusion=fusion)
+
+    @staticmethod
+    def threshold_label(pipeline: str) -> str | None:
+        """The option the confidence threshold of ``pipeline`` stands for ("confidence.tau", ...); None under
+        vanilla."""
+        return FusionRule(pipeline).threshold_option
 
     def run_scores(self) -> dict[float, dict[str, float]] | None:
         """The run's own scores per tolerance (its metrics.json ``eval``), None without them."""
@@ -231,26 +242,18 @@ class ViewerSession:
         return self._cached(self._filtered, params.filter_key(), lambda: self._filter(params))
 
     def _filter(self, params: ViewParams) -> list[tuple[np.ndarray, np.ndarray]]:
-        out = []
-        for d in self.data:
-            depth, normal, confidence, counter = d.maps(params.pipeline)
-            if params.pipeline != "vanilla" and params.conf_tau > 0:
-                depth, normal = filter_by_confidence(depth, normal, confidence, params.conf_tau)
-            if params.mask_k > 0 and counter is not None:
-                depth, normal = filter_by_counter(depth, normal, counter, params.mask_k)
-            out.append((depth, normal))
-        if params.pipeline == "full" and self.sky_filter:
-            depths, normals, _ = sky_filter_views(self.scene, [d for d, _ in out], [n for _, n in out],
-                                                  [d.depth for d in self.data], [d.confidence for d in self.data],
-                                                  self.sky)
-            out = list(zip(depths, normals, strict=True))
-        return out
+        return [(f.depth, f.normal) for f in fused_maps(self.scene, self.rule(params), self.data)]
+
+    def candidates(self, i: int, pipeline: str) -> FusedMaps:
+        """View ``i``'s maps that ``pipeline`` filters, under the run's own options (nothing dropped yet)."""
+        return candidate_maps(self.run_rule(pipeline), self.data[i])
 
     def cloud(self, params: ViewParams, _cache: _LRU | None = None) -> FusedCloud:
         """The exactly fused cloud for ``params`` (cached by filter and fusion options)."""
         def compute() -> FusedCloud:
             maps = self.filtered_maps(params)
-            confidence = [d.maps(params.pipeline)[2] for d in self.data] if self.has_confidence else None
+            confidence = ([self.candidates(i, params.pipeline).confidence for i in range(len(self.data))]
+                          if self.has_confidence else None)
             views = views_from_scene(self.scene, [m[0] for m in maps], [m[1] for m in maps], confidence,
                                      params.fusion.check_num_images)
             return fuse(views, params.fusion)
@@ -290,7 +293,8 @@ class ViewerSession:
     @staticmethod
     def base_params(params: ViewParams) -> ViewParams:
         """``params`` without the filters that previews emulate."""
-        return dataclasses.replace(params, conf_tau=0.0, mask_k=0, fusion=params.fusion.replace(min_num_pixels=1))
+        return dataclasses.replace(params, fused_confidence_tau=0.0, mask_k=0,
+                                   fusion=params.fusion.replace(min_num_pixels=1))
 
     @staticmethod
     def preview_mask(base: FusedCloud, params: ViewParams) -> np.ndarray:
@@ -299,9 +303,10 @@ class ViewerSession:
         Exact for the fusion's minimum pixel count (the traversal does not depend on it); approximate
         for the confidence threshold and mask-k, which act on pixels before fusion."""
         keep = base.num_pixels >= max(1, params.fusion.min_num_pixels)
-        if params.pipeline != "vanilla" and params.conf_tau > 0 and np.isfinite(base.mean_confidence).any():
+        tau = params.fused_confidence_tau
+        if params.pipeline != "vanilla" and tau > 0 and np.isfinite(base.mean_confidence).any():
             with np.errstate(invalid="ignore"):
-                keep &= base.mean_confidence >= params.conf_tau
+                keep &= base.mean_confidence >= tau
         if params.mask_k > 0:
             keep &= base.num_views >= params.mask_k + 1
         return keep
@@ -394,7 +399,8 @@ class ViewerSession:
             return out
         d = self.data[i]
         lo, hi = view.depth_range
-        depth, normal, confidence, counter = d.maps(params.pipeline)
+        maps = self.candidates(i, params.pipeline)
+        depth, normal, confidence, counter = maps.depth, maps.normal, maps.confidence, maps.counter
         missing = ~(depth > 0)
 
         def scalar(key: str, values: np.ndarray, scale: Scale, invalid: np.ndarray) -> None:
@@ -419,16 +425,17 @@ class ViewerSession:
             scalar("confidence", confidence, Scale("confidence", 0.0, 1.0, "viridis", no_data="no estimate"), missing)
         kept = self.filtered_maps(params)[i][0] > 0
         by_tau = np.zeros_like(missing)
-        if params.pipeline != "vanilla" and params.conf_tau > 0 and confidence is not None:
-            by_tau = ~missing & (confidence < params.conf_tau)
+        tau, tau_name = params.fused_confidence_tau, self.threshold_label(params.pipeline)
+        if params.pipeline != "vanilla" and tau > 0 and confidence is not None:
+            by_tau = ~missing & (confidence < tau)
         mask = np.empty(depth.shape + (3,), np.uint8)
         mask[:] = REMOVED_K
         mask[kept] = KEPT
         mask[by_tau] = REMOVED_TAU
         mask[missing] = NO_DATA
         entries = [(KEPT, "kept (fused)")]
-        if by_tau.any() or (params.pipeline != "vanilla" and params.conf_tau > 0):
-            entries.append((REMOVED_TAU, f"removed by τ {params.conf_tau:g}"))
+        if by_tau.any() or (params.pipeline != "vanilla" and tau > 0):
+            entries.append((REMOVED_TAU, f"removed by {tau_name} {tau:g}"))
         if params.mask_k > 0:
             entries.append((REMOVED_K, f"removed by mask k {params.mask_k}"))
         entries.append((NO_DATA, "no estimate"))
@@ -444,7 +451,7 @@ class ViewerSession:
 
     def view_metrics(self, i: int, params: ViewParams) -> str:
         """One view's numbers under ``params``: estimates, kept pixels, and their error against GT depth."""
-        depth = self.data[i].maps(params.pipeline)[0] if self.data else None
+        depth = self.candidates(i, params.pipeline).depth if self.data else None
         if depth is None:
             return "no maps"
         kept = self.filtered_maps(params)[i][0] > 0
@@ -471,22 +478,23 @@ class ViewerSession:
         with self._cache_lock:
             counts = self._evals.get(key)
         if counts is None:
-            maps = [d.maps(params.pipeline) for d in self.data]
+            maps = [self.candidates(i, params.pipeline) for i in range(len(self.data))]
             counts = {}
-            if all(m[2] is not None for m in maps):
-                values = np.concatenate([m[2][m[0] > 0] for m in maps])
+            if all(m.confidence is not None for m in maps):
+                values = np.concatenate([m.confidence[m.depth > 0] for m in maps])
                 counts["confidence"] = np.histogram(values, bins=40, range=(0.0, 1.0))
-            if all(m[3] is not None for m in maps):
-                values = np.concatenate([m[3][m[0] > 0] for m in maps])
+            if all(m.counter is not None for m in maps):
+                values = np.concatenate([m.counter[m.depth > 0] for m in maps])
                 top = max(1, int(values.max()) if len(values) else 1)
                 counts["counter"] = np.histogram(values, bins=np.arange(top + 2) - 0.5)
             with self._cache_lock:
                 self._evals.put(key, counts)
         out = []
         if "confidence" in counts:
-            tau = params.conf_tau if params.pipeline != "vanilla" else None
+            tau = params.fused_confidence_tau if params.pipeline != "vanilla" else None
+            name = self.threshold_label(params.pipeline) or "τ"
             out.append(histogram_html(f"confidence of the {params.pipeline} estimates", *counts["confidence"], tau,
-                                      threshold_name="τ", below="below τ (removed)" if tau else ""))
+                                      threshold_name=name, below=f"below {name} (removed)" if tau else ""))
         if "counter" in counts:
             out.append(histogram_html("counter: consistent source views per estimate", *counts["counter"],
                                       params.mask_k - 0.5 if params.mask_k > 0 else None,

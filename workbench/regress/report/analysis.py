@@ -3,7 +3,7 @@
 ROC curves need inlier labels. Which pixels count as inliers is a :data:`LabelFunction`: by default the
 GT label maps of Kuhn et al. 2020, §3.2 (``engine/confidence/labels.py``); :func:`relative_depth_labels` (depth
 within 1 % of GT) is the simpler alternative. Runs are read from their folders (``engine/run/folder.py``,
-``workbench/maps/run_maps.py``).
+``engine/run/fused_maps.py``).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import numpy as np
 from engine.confidence.labels import label_map
 from engine.evaluation.depth import roc_curve
 from engine.run.folder import run_scene
+from engine.run.fused_maps import read_run_views
 from engine.scene import Scene
 from workbench.maps.images import colorize, view_images
-from workbench.maps.run_maps import read_view_data
 from workbench.regress.report.figures import png_data_uri
 
 # (scene, view index, depth (H, W)) -> (H, W) int8 labels: 1 inlier, 0 outlier, -1 unlabelled
@@ -84,7 +84,7 @@ def analyse_run(run_dir: str | Path, max_views: int = 4, labels: tuple[str, Labe
                 ) -> RunAnalysis:
     """ROC curves, depth-error samples and map thumbnails of a ``deepc run`` output folder."""
     scene = run_scene(run_dir)
-    data = read_view_data(run_dir, scene)
+    data = read_run_views(run_dir, scene)
     label_name, label_fn = labels or default_label_function()
     scores: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     errors: dict[str, list[np.ndarray]] = {}
