@@ -140,7 +140,9 @@ def test_deepc_mesh_and_deepc_eval_on_a_run(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "mesh (tsdf" in out and "mesh at 5 cm: F1" in out
     block = json.loads((run / "metrics.json").read_text())["mesh"]
-    assert block["method"] == "tsdf" and block["triangles"] > 1000 and block["eval"]["f1"][2] > 90
+    # the fake run is a fast run that saved no confidence options: it fused what confidence.tau's default keeps of
+    # its confidence ramp (engine.run.fused_maps, as the viewer shows it), a little less than every pixel
+    assert block["method"] == "tsdf" and block["triangles"] > 1000 and block["eval"]["f1"][2] > 85
 
     scene = load_scene(SAMPLES / "tiny")
     depth = [read_map(run, "depth", v.name) for v in scene.views]

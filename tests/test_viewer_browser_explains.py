@@ -51,7 +51,7 @@ def _choose(page, handle, option: str) -> None:
 
 
 def test_opens_on_the_runs_pipeline_and_threshold_and_says_so(page, app):
-    page.get_by_text("run: fast · deepc · τ 0.3").wait_for()
+    page.get_by_text("run: fast · deepc · confidence.tau 0.3").wait_for()
     assert _element(page, app.pipeline).input_value() == "fast"
     thumb = _element(page, app.fused_confidence_tau).locator('[role="slider"]')
     assert thumb.get_attribute("aria-valuenow") == "0.3"
@@ -82,7 +82,7 @@ def test_a_colour_mode_shows_its_legend_with_unit(page, app):
     page.get_by_text("distance to the nearest GT point").wait_for()
     page.get_by_text("≥ 4 cm").wait_for()
     page.get_by_text("confidence of the fast estimates").wait_for()  # the histogram with τ
-    page.get_by_text("τ 0.3:").wait_for()
+    page.get_by_text("confidence.tau 0.3:").wait_for()
 
 
 def test_the_view_dropdown_switches_the_maps_shown(page, app):

@@ -45,7 +45,8 @@ def app(deepc_fast_run):
 def test_opens_on_the_runs_pipeline_threshold_and_fusion_and_names_them(app):
     assert (app.pipeline.value, app.fused_confidence_tau.value, app.preset.value) == ("fast", 0.3, "deepc")
     assert app.cloud_params == ViewParams(pipeline="fast", fused_confidence_tau=0.3, fusion=FUSION_PRESETS["deepc"])
-    assert "run: fast · deepc · τ 0.3" in app.run_text.content
+    assert "run: fast · deepc · confidence.tau 0.3" in app.run_text.content
+    assert app.fused_confidence_tau.label == "confidence.tau"  # the option the slider moves
     assert not app.reset_button.disabled
 
 
@@ -98,7 +99,7 @@ def test_every_colour_mode_has_a_legend_with_its_unit_and_the_no_data_colour(app
 def test_histograms_draw_the_current_thresholds(app):
     app.fused_confidence_tau.value = 0.5
     assert app.wait_idle(60)
-    assert "τ 0.5:" in app.histograms.content and "<svg" in app.histograms.content
+    assert "confidence.tau 0.5:" in app.histograms.content and "<svg" in app.histograms.content
     app.reset_to_run()
     assert app.wait_idle(60)
 
@@ -161,6 +162,9 @@ def test_a_full_run_opens_with_its_refined_threshold_and_sky_filter(fake_run, tm
         np.testing.assert_array_equal(depth, want)
     with running_viewer(run) as viewer:
         assert "run: full · pixels · refinement.refined_confidence_tau 0.2 · sky filter" in viewer.run_text.content
+        assert viewer.fused_confidence_tau.label == "refinement.refined_confidence_tau"
+        viewer.pipeline.value = "fast"  # the same slider now moves confidence.tau
+        assert viewer.fused_confidence_tau.label == "confidence.tau"
         assert viewer.view_images["refined depth"].visible
 
 
