@@ -110,6 +110,7 @@ class ViewerSession:
         self.data = data
         self.out_dir = out_dir
         self.run = run  # metrics.json of the run, when a run folder was opened
+        self._rules: dict[str, FusionRule] = {}  # per pipeline, under the run's options (run_rule)
         self._cache_lock = threading.Lock()  # held only for dict access: lookups never wait on a computation
         self._compute_lock = threading.RLock()  # serialises the computations themselves
         self._filtered = _LRU(4)
@@ -171,7 +172,9 @@ class ViewerSession:
     def run_rule(self, pipeline: str) -> FusionRule:
         """What ``pipeline`` fuses under the run's own options (``engine.run.fused_maps``; keys an older run did not
         write take ``deepc run``'s defaults, and so does everything without a run)."""
-        return FusionRule.from_saved(self.run.options if self.run is not None else None, pipeline)
+        if pipeline not in self._rules:  # parsed once: every map drawn asks
+            self._rules[pipeline] = FusionRule.from_saved(self.run.options if self.run is not None else None, pipeline)
+        return self._rules[pipeline]
 
     def rule(self, params: ViewParams) -> FusionRule:
         """The run's rule for ``params.pipeline`` with the viewer's threshold and counter filter."""
