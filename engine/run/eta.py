@@ -2,10 +2,12 @@
 
 A pass's progress alone misleads ("level 2 photometric 1/7 [08:17<49:46]" is one of nine passes at a sixteenth
 of the pixels). :func:`pass_plan` lists every pass with each view's pixels at its level and the pass's planned
-iterations; :func:`eta_seconds` extrapolates the wall time per pixel-iteration measured so far over what is left
-(a pass that ends by convergence is counted at its planned maximum, so with ``converge_ratio`` > 0 the estimate
-is an upper bound), plus a rough allowance for the stages after PatchMatch (``LATER_SHARE``). :class:`RunEta`
-follows a run's observer events and gives the estimate at any moment.
+iterations; :func:`eta_seconds` extrapolates the wall time per pixel-iteration measured so far over what is left,
+plus a rough allowance for the stages after PatchMatch (``LATER_SHARE``). :class:`RunEta` follows a run's observer
+events and gives the estimate at any moment. It is rough both ways: a pass that ends by convergence is counted at
+its planned maximum (an overestimate), while a pixel-iteration of the finest level cost 1.5-2x one of the coarser
+levels on sample_scenes/small (so the estimate after the coarse levels was about 25 % short; it converges as the
+finest level runs).
 """
 
 from __future__ import annotations
@@ -87,13 +89,12 @@ class RunEta:
     """An engine observer (``engine.core.observer``) that times PatchMatch's pixel-iterations and answers
     :meth:`seconds_left` at any moment (thread-safe enough for a reader thread: it reads a few numbers).
 
-    ``upper_bound``: whether passes may end before their planned iterations (``converge_ratio`` > 0), so the
-    estimate is an upper bound. ``on_first_view(seconds)`` is called once the first view pass has been timed
+    ``on_first_view(seconds)`` is called once the first view pass has been timed
     (the calibration: ``deepc run`` prints "estimated N min on this machine")."""
 
-    def __init__(self, plan: list[PlannedPass], later_share: float, upper_bound: bool = False,
+    def __init__(self, plan: list[PlannedPass], later_share: float,
                  on_first_view: Callable[[float], Any] | None = None, clock: Callable[[], float] = time.monotonic):
-        self.plan, self.later_share, self.upper_bound = plan, later_share, upper_bound
+        self.plan, self.later_share = plan, later_share
         self.on_first_view, self.clock = on_first_view, clock
         self._index = {(p.level, p.pass_index): k for k, p in enumerate(plan)}
         self.current = 0
@@ -140,8 +141,6 @@ class RunEta:
                            now - self.started, self.later_share)
 
     def text(self) -> str:
-        """'ETA 12 min' ('ETA ≤ 12 min' for an upper bound), '' before anything was timed."""
+        """'ETA 12 min', '' before anything was timed."""
         seconds = self.seconds_left()
-        if seconds is None:
-            return ""
-        return f"ETA {'≤ ' if self.upper_bound and self.patchmatch_done is None else ''}{format_minutes(seconds)}"
+        return "" if seconds is None else f"ETA {format_minutes(seconds)}"

@@ -145,16 +145,12 @@ def _probe_and_history(args: argparse.Namespace, scene: Scene,
 def _run_eta(scene: Scene, options: PipelineOptions, progress: PassProgress) -> RunEta:
     """The whole run's ETA (``engine/run/eta.py``): timed from PatchMatch's first view on, which is the
     calibration a line announces ("estimated N min on this machine")."""
-    pm = options.patchmatch
-    bound = pm.converge_ratio > 0 and pm.iterations is None  # passes may end before their planned iterations
-
     def announce(seconds: float) -> None:
-        limit = " at most (passes may end sooner, once they converge)" if bound else ""
-        progress.note(f"estimated {format_minutes(seconds)}{limit} on this machine for the rest of the run "
-                      "(timed on the first view; the bars show the run's ETA)")
+        progress.note(f"estimated {format_minutes(seconds)} on this machine for the rest of the run (a rough "
+                      "estimate from the first view; the bars show the run's ETA as it runs)")
 
-    plan = pass_plan([SceneView(scene, i) for i in range(len(scene.views))], pm)
-    return RunEta(plan, LATER_SHARE.get(options.pipeline, 0.1), upper_bound=bound, on_first_view=announce)
+    plan = pass_plan([SceneView(scene, i) for i in range(len(scene.views))], options.patchmatch)
+    return RunEta(plan, LATER_SHARE.get(options.pipeline, 0.1), on_first_view=announce)
 
 
 def _observer(*observers: object | None) -> object | None:
