@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 from engine.core.interrupt import check_interrupt
 
-BLOCK_SECONDS = 0.3  # a block's target time: a stop request waits at most about this (plus the estimate's error)
+BLOCK_SECONDS = 0.5  # a block's target time: a stop request waits at most about this (plus the estimate's error)
 MIN_ROWS = 2  # the smallest block (a row of a large view took 0.25 s on the loaded 2-core machine)
 FIRST_SHARE = 0.25  # a call's first block aims at this share of BLOCK_SECONDS (the rate may come from cheaper calls)
 GROWTH = 4  # a block has at most this many times the rows of the block before it in the same call
