@@ -360,13 +360,15 @@ class RefProblem:
         return total / v.sum()
 
 
-def init_cost_ref(prob: RefProblem, Z: np.ndarray, N: np.ndarray, geometric: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Top-k initial cost and selected-view masks of all pixels (ACMM's top-k rule)."""
+def init_cost_ref(prob: RefProblem, Z: np.ndarray, N: np.ndarray, geometric: bool,
+                  rows: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Top-k initial cost and selected-view masks of all pixels (ACMM's top-k rule); with ``rows`` (start, stop)
+    of the rows in that range only (zeros elsewhere)."""
     h, w = Z.shape
     o = prob.o
     C = np.zeros((h, w))
     S = np.zeros((h, w), np.uint32)
-    for y in range(h):
+    for y in range(*(rows or (0, h))):
         for x in range(w):
             costs = np.array([prob.photometric(x, y, float(Z[y, x]), N[y, x].astype(np.float64), j)
                               for j in range(len(prob.src_imgs))])
@@ -385,8 +387,10 @@ def init_cost_ref(prob: RefProblem, Z: np.ndarray, N: np.ndarray, geometric: boo
 
 def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, iteration: int, zmin: float,
                   zmax: float, geometric: bool, detail: bool, pattern: tuple[np.ndarray, np.ndarray],
-                  eps: float | None = None, changed: np.ndarray | None = None, active_share: float = -1.0) -> None:
-    """Plain-Python red-black half-step, in place (same semantics and random draws as the kernel).
+                  eps: float | None = None, changed: np.ndarray | None = None, active_share: float = -1.0,
+                  rows: tuple[int, int] | None = None) -> None:
+    """Plain-Python red-black half-step, in place (same semantics and random draws as the kernel); with ``rows``
+    (start, stop) only the pixels of those rows are updated (one block of the kernel).
 
     ``eps`` is the perturbation scale (default 2^-iteration, the 'pass' schedule). Active set: with ``changed``
     (H, W) u8 (1 = the pixel's last update moved its depth by more than converge_depth or its normal by more than
@@ -401,7 +405,7 @@ def half_step_ref(prob: RefProblem, Z, N, C, S, Cpre, colour: int, key: int, ite
         eps = 2.0**-iteration
     tau_g = o.tau0 if o.alpha == 0 else o.tau0 * math.exp(-(iteration**2) / o.alpha)
     Z0, N0, C0, S0 = Z.copy(), N.copy(), C.copy(), S.copy()  # other colour's state, read-only
-    for y in range(h):
+    for y in range(*(rows or (0, h))):
         for x in range((y + colour) % 2, w, 2):
             pk = int(rng.combine(np.uint64(key), y * w + x))
             if changed is not None:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import random
 import signal
+import time
 
 import pytest
 from conftest import SAMPLES
@@ -60,3 +62,40 @@ def test_interrupted_run_leaves_no_partial_file_and_resumes_identically(referenc
     assert differences(reference, out) == []
     assert not (out / CHECKPOINT_DIR).exists()
 
+
+
+# one level of tiny at 160x120 with a dense 41x41 window: one initial cost or half-step call over a whole view took
+# 2.4 s (from random hypotheses) on the 2-core machine at a load average of 15, about 0.2 s at 5; the calls of a
+# real size are longer (benchmarks/reliability/bench_stop_latency.py: 8.9 s for a 768x512 half-step under load)
+SLOW_KERNELS = ["--max-image-size", "160", "--levels", "1", "--geom-passes", "0", "--iterations", "1",
+                "--set", "patchmatch.window=41", "--set", "patchmatch.window_step=1"]
+
+
+def test_sigint_during_a_long_kernel_stops_within_two_seconds_and_resumes_identically(tmp_path):
+    """The kernels run as row blocks of ~0.5 s (engine/core/blocks.py): a SIGINT that lands in a view's
+    kernels ends the run within 2 s (the process's exit included), and --resume then finishes with the maps of an
+    uninterrupted run."""
+    reference, out = tmp_path / "reference", tmp_path / "out"
+    proc = start_run(SAMPLES / "tiny", reference, *SLOW_KERNELS)
+    _, err = proc.communicate(timeout=900)
+    assert proc.returncode == 0, err
+    seconds = json.loads((reference / "metrics.json").read_text())["seconds"]["patchmatch"]
+    per_call = seconds / (5 * 3)  # 5 views x (initial cost + 2 half-steps), counter maps included
+    proc = start_run(SAMPLES / "tiny", out, *SLOW_KERNELS)
+    deadline = time.monotonic() + 900
+    while saved_states(out) < 1 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    time.sleep(0.6 * per_call)  # inside the next view's kernels
+    assert proc.poll() is None
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    latency = time.monotonic() - sent
+    assert proc.returncode == 130 and "deepc: interrupted" in err and "Traceback" not in err, err
+    assert latency < 2.0, f"stopped {latency:.2f} s after SIGINT (one kernel call: {per_call:.1f} s on average)"
+    check_no_partial(out)
+    proc = start_run(SAMPLES / "tiny", out, *SLOW_KERNELS, "--resume")
+    _, err = proc.communicate(timeout=900)
+    assert proc.returncode == 0, err
+    assert "saved PatchMatch view states reused, 0 rejected" in err
+    assert differences(reference, out) == []

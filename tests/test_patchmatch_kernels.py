@@ -531,6 +531,81 @@ def test_half_step_matches_reference(geometric: bool, pattern: str, view_samplin
     assert (st.depth != Z0).any()  # the step did change something
 
 
+class FixedBlocks:
+    """A row pacer (``engine.core.blocks.RowPacer``'s ``run``) with fixed block boundaries; ``only``: the index of
+    the one block it runs (the others are left alone), None for all."""
+
+    def __init__(self, *cuts: int, only: int | None = None):
+        self.cuts, self.only = cuts, only
+
+    def run(self, kind: str, height: int, width: int, call) -> None:  # noqa: ARG002
+        edges = [0, *[c for c in self.cuts if 0 < c < height], height]
+        for i, (a, b) in enumerate(zip(edges, edges[1:], strict=False)):
+            if self.only is None or i == self.only:
+                call(a, b)
+
+
+@pytest.mark.parametrize("geometric", [False, True])
+def test_a_block_of_rows_matches_the_reference_and_leaves_the_other_rows(geometric: bool) -> None:
+    """The initial cost and a half-step over one block of rows: the block as the reference computes those rows,
+    every other row untouched."""
+    opts = PatchMatchOptions(k_update=10, k_viewsel=6, fine_window=5, init_top_k=2)
+    ctx, prob, st = _tiny_problem(9, geometric, opts)
+    pat = pattern_of(opts)
+    params = kernel_params(opts, 2.0, 5.0, 1, geometric, False, n_regions(pat))
+    rows = (3, 9)
+    init_cost(st, ctx, params)
+    full_C = st.cost.copy()
+    st.cost[:] = -1.0
+    init_cost(st, ctx, params, pacer=FixedBlocks(*rows, only=1))
+    C_ref, _ = ref.init_cost_ref(prob, st.depth, st.normal, geometric, rows)
+    np.testing.assert_allclose(st.cost[3:9], C_ref[3:9], atol=5e-4)
+    assert np.array_equal(st.cost[3:9], full_C[3:9]) and np.all(st.cost[:3] == -1.0) and np.all(st.cost[9:] == -1.0)
+    st.cost[:] = full_C
+    Z, N, C, S = st.depth.copy(), st.normal.copy(), st.cost.copy(), st.selected_views.copy()
+    key = np.uint64(stream_key(3, 0, 0, 0, 1, 0))
+    counts = half_step(st, ctx, 0, st.cost.copy(), pat, key, params, pacer=FixedBlocks(*rows, only=1))
+    ref.half_step_ref(prob, Z, N, C, S, st.cost.copy(), 0, int(key), 1, 2.0, 5.0, geometric, False, tuple(pat),
+                      rows=rows)
+    outside = np.ones(st.depth.shape, bool)
+    outside[3:9] = False
+    assert np.array_equal(st.depth[outside], Z[outside]) and np.array_equal(st.cost[outside], C[outside])
+    same = np.isclose(st.depth, Z, rtol=1e-5) & np.all(np.isclose(st.normal, N, atol=1e-5), axis=-1)
+    assert same.mean() > 0.97, f"{(~same).sum()} of {same.size} pixels differ"
+    assert counts[K.CNT_PIXELS] == (9 - 3) * st.depth.shape[1] // 2
+
+
+@pytest.mark.parametrize("geometric,active", [(False, True), (True, False)])
+def test_row_blocks_do_not_change_a_pass(geometric: bool, active: bool) -> None:
+    """Initial cost and half-steps run as one call per view and as uneven row blocks give the same maps, cost
+    caches, stamps and counts, bit for bit (a pixel reads only the other colour, which no block of its half-step
+    writes)."""
+    opts = PatchMatchOptions(active_share=0.1 if active else -1.0)
+    ctx, _, start = _tiny_problem(12, geometric, opts, 48, 64)
+    pattern = pattern_of(opts)
+    changed = (np.random.default_rng(2).random(start.depth.shape) < 0.003).astype(np.uint8)
+    results = []
+    for pacer in (None, FixedBlocks(1, 2, 7, 30, 31, 47), FixedBlocks(24)):
+        st = start.copy_maps()
+        params = kernel_params(opts, 2.0, 5.0, 0, geometric, False, n_regions(pattern))
+        init_cost(st, ctx, params, pacer=pacer)
+        st.changed[:] = changed  # a converging pass: few pixels moved (what the active set skips)
+        counts = []
+        for t in range(2, 6):
+            params = kernel_params(opts, 2.0, 5.0, t, geometric, False, n_regions(pattern), last=t == 5)
+            for colour in (0, 1):
+                key = np.uint64(stream_key(4, 0, 0, 0, t, colour))
+                counts.append(half_step(st, ctx, colour, st.cost.copy(), pattern, key, params, pacer=pacer))
+        kept = np.arange(st.row_samples.shape[2]) < st.row_count[..., None]  # the row slots in use (others: garbage)
+        arrays = [*st.maps(), st.view_costs, st.versions, st.row_samples[kept], st.row_stamps, st.row_costs[kept],
+                  st.row_count, st.changed, st.clock]
+        results.append(([a.tobytes() for a in arrays], np.array(counts)))
+    for arrays, counts in results[1:]:
+        assert arrays == results[0][0]
+        assert np.array_equal(counts, results[0][1])
+    assert results[0][1][:, K.CNT_SKIPPED].any() == active  # the active set was exercised
+
+
 @pytest.mark.parametrize("all8", [False, True])
 def test_refinement_hypotheses_match_reference(all8: bool) -> None:
     rng = np.random.default_rng(6)

@@ -19,7 +19,7 @@ def test_pass_bars_time_each_pass_from_start_to_last_view(monkeypatch, capsys) -
         clock[0] += 50.0  # work between passes belongs to no bar
     err = capsys.readouterr().err
     # a closed bar leaves one line (carriage returns between its redraws): its last drawing is what stays
-    finals = [re.findall(r"(level 1 \w+) *: 100%.*? 2/2 \[(\d\d:\d\d)<", line)[-1]
+    finals = [re.findall(r"(level 1 \w+) *: 100%.*? 2/2 \[(\d\d:\d\d)[\],<]", line)[-1]
               for line in err.split("\n") if line.strip()]
     # one closed bar per pass (the second geometric pass gets its own), each 60 s: both views, nothing after
     assert [f[0] for f in finals] == ["level 1 photometric", "level 1 geometric", "level 1 geometric"], err

@@ -10,17 +10,24 @@ fusion kernel when a SIGTERM landed during it). An exception raised between two 
 
 So inside :func:`deferred_interrupts` the handlers only record the signal, and the engine's long loops
 call :func:`check_interrupt` after each kernel (every PatchMatch iteration, view, tile, solver
-iteration, stage), which raises KeyboardInterrupt there. Outside that block, or when no signal came,
-:func:`check_interrupt` costs one list test.
+iteration, stage; long PatchMatch kernels run as row blocks of a fraction of a second, ``engine.core.blocks``),
+which raises KeyboardInterrupt there. Outside that block, or when no signal came, :func:`check_interrupt` costs
+one list test. A second signal while a stop is pending (or under way) ends the process at once: one line on
+stderr, exit 130, nothing more written (files are written atomically, so what is on disk is whole: the last
+PatchMatch checkpoint stays for ``deepc run --resume``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 from collections.abc import Iterable, Iterator
 
 _requested: list[int] = []  # signal numbers received inside deferred_interrupts, not yet honoured
+_stopping: list[bool] = []  # not empty once a request was raised inside the current deferred_interrupts block
+EXIT_INTERRUPTED = 130
+SECOND_SIGNAL_LINE = b"\ndeepc: interrupted again: exiting now (saved PatchMatch passes are kept for --resume)\n"
 
 
 def check_interrupt() -> None:
@@ -30,17 +37,22 @@ def check_interrupt() -> None:
     """
     if _requested:
         _requested.clear()
+        _stopping.append(True)
         raise KeyboardInterrupt
 
 
 def _request(signum: int, frame: object) -> None:  # noqa: ARG001  (signal handler signature)
+    if _requested or _stopping:  # the second Ctrl-C: do not wait for the next safe point
+        os.write(2, SECOND_SIGNAL_LINE)  # not sys.stderr: the main thread may be inside its write
+        os._exit(EXIT_INTERRUPTED)
     _requested.append(signum)
 
 
 @contextlib.contextmanager
 def deferred_interrupts(signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
-    """Within the block, ``signals`` set a flag that :func:`check_interrupt` turns into KeyboardInterrupt;
-    on leaving, the previous handlers come back and a request that no safe point honoured yet raises.
+    """Within the block, ``signals`` set a flag that :func:`check_interrupt` turns into KeyboardInterrupt (a
+    second one exits the process at once, status 130); on leaving, the previous handlers come back and a request
+    that no safe point honoured yet raises.
 
     A signal that is ignored (e.g. SIGINT of a background job) stays ignored. Main thread only.
     """
@@ -52,6 +64,7 @@ def deferred_interrupts(signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM)
         previous[sig] = handler
         signal.signal(sig, _request)
     _requested.clear()
+    _stopping.clear()
     try:
         yield
         check_interrupt()  # a signal after the block's last safe point still stops the command
@@ -59,3 +72,4 @@ def deferred_interrupts(signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         _requested.clear()
+        _stopping.clear()

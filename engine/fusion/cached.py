@@ -30,6 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from engine.core.camera import Camera
+from engine.core.interrupt import check_interrupt
 from engine.fusion.cloud import FusedCloud, FusionView
 from engine.fusion.kernel import (
     FUSED,
@@ -48,7 +49,10 @@ from engine.fusion.kernel import (
 from engine.fusion.options import FusionOptions
 from engine.fusion.packing import check_view, fill_rgb, pack_geometry
 
-CHUNK_POINTS = 1 << 18  # points a chunk of the output holds (14 MiB); joined at the end, or handed to a sink
+# points a chunk of the output holds (3.5 MiB); joined at the end, or handed to a sink. The kernel returns when a chunk
+# is full, and a stop request is honoured there: 1 << 18 points took up to 7 s a call at 768 px on the loaded 2-core
+# machine (benchmarks/reliability/bench_stop_latency.py), past the 2 s a Ctrl-C may take
+CHUNK_POINTS = 1 << 16
 
 
 @dataclasses.dataclass
@@ -178,6 +182,7 @@ def fuse_cached(cameras: list[Camera], overlaps: list[list[int]], load: Callable
             if sink is None:
                 out = output_arrays(room)
             work[0][N_OUT] = 0
+            check_interrupt()  # between two calls (engine/core/interrupt.py): the chunks so far are whole
             continue
         if -1 in slots.view:
             s = slots.view.index(-1)

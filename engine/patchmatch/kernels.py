@@ -1,9 +1,11 @@
 """numba kernels of one reference view at one level: random init, initial cost, red-black half-step
 (Xu & Tao 2019 ACMM's kernels with the modifications of Kuhn et al. 2020 DeepC-MVS).
 
-All kernels run ``prange`` over image rows. Per-row scratch arrays are allocated once per row (never
-per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a half-step uses the stream
-``combine(key, y * W + x)``, so results do not depend on the thread count.
+All kernels run ``prange`` over image rows; the initial cost and the half-step over a block of them
+(``records.RowBlock``: ``view_pass`` splits a view into blocks so that a stop request is honoured within a
+fraction of a second; every pixel's result is the same whatever the split). Per-row scratch arrays are
+allocated once per row (never per pixel). Randomness is counter-based (``rng.py``): pixel (x, y) of a
+half-step uses the stream ``combine(key, y * W + x)``, so results do not depend on the thread count.
 
 The kernels take named records (``records.py``): the hypothesis maps, the cost caches, the reference
 view's matching windows, the source images and the iteration's parameters. The small functions they call
@@ -348,7 +350,7 @@ def random_init_kernel(depth, normal, kinv, zmin, zmax, key, only_invalid):
 
 
 @njit(cache=True, parallel=True)
-def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, params):
+def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, params, block):
     """Cost and selected views of the stored hypotheses (the top-k rule of Xu & Tao 2019 ACMM's initial cost).
 
     k = min(#{m_j < 2}, top_k); cost = mean of the k smallest m_j (+ λ · mean g_j over the selected
@@ -359,7 +361,8 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
     ``known`` (H, W, N) f32 holds m_j of the same hypotheses from an earlier pass over the same images (NaN =
     not evaluated), valid where that pass matched pixel (x, y) with the same window set, ``known_wset``
     (H, W) u8; shape (1, 1, 1) for none. Those are not evaluated again. ``ref``: :class:`records.ReferenceWindows`,
-    ``sources``: :class:`records.SourceImages`, ``params``: :class:`records.KernelParams`."""
+    ``sources``: :class:`records.SourceImages`, ``params``: :class:`records.KernelParams`, ``block``: the rows
+    (:class:`records.RowBlock`); every pixel is independent of the others."""
     # the records' fields as locals: the loops below read exactly what they read as separate arguments
     Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
     P = view_costs
@@ -375,7 +378,7 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
     min_var = params.min_var
     have_known = known.shape[0] == h and known.shape[1] == w and known.shape[2] == n_views
     x_lo, y_lo, x_hi, y_hi = box_bounds(params, h, w)
-    for y in prange(y_lo, y_hi):
+    for y in prange(max(y_lo, block.start), min(y_hi, block.stop)):  # the box's rows within the block
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
         win, sidx = ncc_work(ox.shape[1])
@@ -432,17 +435,18 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
 
 
 @njit(cache=True, parallel=True)
-def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, params, counts):
+def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, params, block, counts):
     """Update every pixel of one colour ((x + y) % 2 == colour) of ``maps`` (:class:`records.HypothesisMaps`)
-    inside ``params``' box (:func:`box_bounds`) in place: candidates from the sampling pattern, multi-hypothesis
-    view selection, refinement (Xu & Tao 2019 ACMM, with the DeepC pattern and perturbation of Kuhn et al. 2020);
-    add what it evaluated to
-    ``counts`` (H, N_COUNTS) i64 (columns CNT_*).
+    inside ``params``' box (:func:`box_bounds`) and the rows ``block`` (:class:`records.RowBlock`) in place:
+    candidates from the sampling pattern, multi-hypothesis view selection, refinement (Xu & Tao 2019 ACMM, with the
+    DeepC pattern and perturbation of Kuhn et al. 2020); add what it evaluated to ``counts`` (H, N_COUNTS) i64
+    (columns CNT_*).
 
     ``caches`` (:class:`records.CostCaches`): ``view_costs`` caches m_j of each pixel's stored hypothesis
     (filled by ``init_cost_kernel``): a pixel whose hypothesis survives a half-step keeps its costs, so the
     current hypothesis is only evaluated on views not seen before. A replaced hypothesis clears them and
-    stamps the pixel with the half-step (``caches.clock``, counted by this kernel: ``caches.versions``). With
+    stamps the pixel with the half-step (``caches.clock``, counted by the caller before the half-step's first
+    block: ``caches.versions``). With
     ``caches.rows`` the candidates of each pixel's previous update and their cost rows are kept, with the
     half-step that wrote them (row_count = 0 at the start of a pass): a candidate proposed again by the same
     sample of a neighbour unchanged since (stamped earlier) is bit-identical, so are its costs (which are
@@ -454,7 +458,8 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
     of a pixel it reads (:func:`neighbourhood_changed`) moved a plane (:func:`moved_plane`; ``caches.changed``,
     written while ``params.track_changes``), or if its stream's draw ACTIVE_DRAW falls below the share; the others keep
     everything and are counted in CNT_SKIPPED. The draw and the map only depend on the pixel and the previous
-    half-steps, so the maps do not depend on the thread count.
+    half-steps, so the maps do not depend on the thread count. A pixel reads only pixels of the other colour
+    (samples, 4-neighbours), which no block of this half-step writes: the maps do not depend on the blocks either.
     ``ref``: :class:`records.ReferenceWindows`, ``sources``: :class:`records.SourceImages`, ``pattern``:
     :class:`records.SamplingPattern`, ``key``: the half-step's random stream (``rng.stream_key``),
     ``params``: :class:`records.KernelParams`."""
@@ -486,14 +491,13 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
     mc = params.mc_samples
     min_improvement = params.min_improvement
     CH = caches.changed
-    # this half-step's stamp (the clock is reset with the caches at the start of a pass)
-    caches.clock[0] += np.uint32(1)
+    # this half-step's stamp (counted by the caller; the clock is reset with the caches at the start of a pass)
     now = caches.clock[0]
     share = params.active_share
     active = share >= 0.0
     track = params.track_changes
     x_lo, y_lo, x_hi, y_hi = box_bounds(params, h, w)
-    for y in prange(y_lo, y_hi):
+    for y in prange(max(y_lo, block.start), min(y_hi, block.stop)):  # the box's rows within the block
         reg_cost = np.empty(n_regions, np.float32)
         reg_idx = np.empty(n_regions, np.int64)
         reg_ord = np.empty(n_regions, np.int64)

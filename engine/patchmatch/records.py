@@ -132,7 +132,15 @@ class CostCaches(NamedTuple):
     row_count: np.ndarray  # (H, W) i32 candidates of the last update (0 = none cached)
     changed: np.ndarray  # (H, W) u8 1 = the pixel's last update moved its plane (the active set, see kernels)
     rows: bool  # whether the row cache is used (the row_* arrays are (1, 1, ...) placeholders otherwise)
-    clock: np.ndarray  # (1,) u32 half-steps of this pass so far (each half-step kernel counts itself)
+    clock: np.ndarray  # (1,) u32 half-steps of this pass so far (counted before each half-step's first block)
+
+
+class RowBlock(NamedTuple):
+    """The rows [start, stop) of the level's image that one call of a row kernel updates (``view_pass`` runs a
+    view as blocks of a fraction of a second each, so that a stop request is honoured between them)."""
+
+    start: int
+    stop: int
 
 
 class ReferenceWindows(NamedTuple):

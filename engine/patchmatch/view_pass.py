@@ -3,7 +3,9 @@ then red-black iterations (Xu & Tao 2019 ACMM; Kuhn et al. 2020 DeepC-MVS).
 
 :func:`run_view_level` is the public entry point (the engine runs every view pass with it; tests and
 benchmarks call it on a :class:`~engine.patchmatch.state.ViewState` and a ``context.ViewContext`` they
-build). :func:`init_cost` and :func:`half_step` are its two steps, for tests that look between them.
+build). :func:`init_cost` and :func:`half_step` are its two steps, for tests that look between them. Both run their
+kernel over blocks of rows (``engine.core.blocks``), so that a stop request waits a fraction of a second, not a
+whole view; the maps are the same whatever the blocks.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from collections.abc import Callable
 import numpy as np
 
 import engine.patchmatch.kernels as K
+from engine.core.blocks import RowPacer
 from engine.core.interrupt import check_interrupt
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
@@ -21,13 +24,14 @@ from engine.patchmatch.convergence import Convergence
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.probe.pixel_probe import PassProbe
 from engine.patchmatch.propagation import sampling_pattern
-from engine.patchmatch.records import KernelParams, SamplingPattern, kernel_params
+from engine.patchmatch.records import KernelParams, RowBlock, SamplingPattern, kernel_params
 from engine.patchmatch.rng import stream_key
 from engine.patchmatch.state import ViewState
 
 RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
 
 IterationFn = Callable[[int, np.ndarray, float], object]
+PACER = RowPacer()  # the row blocks of this process's kernel calls (only their time depends on it)
 
 
 def perturbation_scale(options: PatchMatchOptions, iteration: int, done_before: int) -> float:
@@ -50,34 +54,54 @@ def n_regions(pattern: SamplingPattern) -> int:
 
 
 def init_cost(state: ViewState, ctx: ViewContext, params: KernelParams, cache: bool = True,
-              pool: BufferPool | None = None) -> None:
+              pool: BufferPool | None = None, pacer: RowPacer | None = PACER) -> None:
     """Recompute cost and selected views of the stored hypotheses (ACMM's top-k initial cost); with ``cache``
-    also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given)."""
+    also (re)start the cost caches the half-steps of this pass read (allocated from ``pool`` if given).
+    ``pacer``: the row blocks (a stop request is honoured between them); None: one call over the whole view."""
     if cache:
         state.prepare_caches(ctx.num_sources, params.k_update, True, pool)
     view_costs = state.view_costs if cache else np.empty((1, 1, 1), np.float32)
     known, known_wset = state.known_costs, state.known_window_set
     if known is None:  # the kernel also ignores carried-over costs of another shape
         known, known_wset = np.empty((1, 1, 1), np.float32), np.empty((1, 1), np.uint8)
-    K.init_cost_kernel(state.maps(), view_costs, cache, known, known_wset, ctx.reference_windows(),
-                       ctx.source_images(), params)
+    maps, ref, sources = state.maps(), ctx.reference_windows(), ctx.source_images()
+
+    def block(start: int, stop: int) -> None:
+        K.init_cost_kernel(maps, view_costs, cache, known, known_wset, ref, sources, params, RowBlock(start, stop))
+
+    h, w = state.depth.shape
+    if pacer is None:
+        block(0, h)
+    else:
+        pacer.run("init_cost", h, w, block)
     state.known_costs = state.known_window_set = None  # only valid for the hypotheses they were computed for
 
 
 def half_step(state: ViewState, ctx: ViewContext, colour: int, cpre: np.ndarray, pattern: SamplingPattern,
-              key: np.uint64, params: KernelParams) -> np.ndarray:
+              key: np.uint64, params: KernelParams, pacer: RowPacer | None = PACER) -> np.ndarray:
     """One red (``colour`` 1) or black (0) half-step on one view (in place). Call :func:`init_cost` first in
     every pass (and after changing the state's maps from outside): it fills the cost cache the half-steps
     trust. ``cpre`` (H, W) f32: the detail restorer's reference cost (read only with
-    ``params.detail_restorer``); ``key``: the half-step's random stream (``rng.stream_key``).
+    ``params.detail_restorer``); ``key``: the half-step's random stream (``rng.stream_key``); ``pacer``: the row
+    blocks (a stop request is honoured between them: the view is then left half-updated); None: one call.
 
     Returns (N_COUNTS,) int64: NCC windows evaluated for the view-selection rows, the current
     hypotheses, the remaining candidates and the refinement, the number of pixels updated and the number the
     active set left alone (``params.active_share``)."""
     rows = state.prepare_caches(ctx.num_sources, params.k_update, False)
-    counts = np.zeros((state.depth.shape[0], K.N_COUNTS), np.int64)
-    K.half_step_kernel(colour, state.maps(), state.caches(rows), cpre, ctx.reference_windows(), ctx.source_images(),
-                       pattern, key, params, counts)
+    h, w = state.depth.shape
+    counts = np.zeros((h, K.N_COUNTS), np.int64)
+    state.clock[0] += np.uint32(1)  # this half-step's stamp, the same in all its blocks
+    maps, caches, ref, sources = state.maps(), state.caches(rows), ctx.reference_windows(), ctx.source_images()
+
+    def block(start: int, stop: int) -> None:
+        K.half_step_kernel(colour, maps, caches, cpre, ref, sources, pattern, key, params, RowBlock(start, stop),
+                           counts)
+
+    if pacer is None:
+        block(0, h)
+    else:
+        pacer.run("half_step", h, w, block)
     return counts.sum(axis=0)
 
 

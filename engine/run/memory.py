@@ -41,7 +41,7 @@ from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
-_FUSION_CHUNK = 1 << 18  # points of the output chunk (engine.fusion.cached.CHUNK_POINTS): 55 B + 43 B of records
+_FUSION_CHUNK = 1 << 16  # points of the output chunk (engine.fusion.cached.CHUNK_POINTS): 55 B + 43 B of records
 _EVALUATION_CHUNK = 1 << 19  # points of the evaluation's chunk and slab (engine.evaluation.chunked): ~120 B each
 
 

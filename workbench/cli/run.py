@@ -20,10 +20,12 @@ from engine.core.observer import ObserverList
 from engine.io.atomic import remove_stale_temp_files
 from engine.patchmatch.probe.pixel_probe import PixelProbe
 from engine.run.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
+from engine.run.eta import LATER_SHARE, RunEta, format_minutes, pass_plan
 from engine.run.folder import RunMetrics
 from engine.run.fused_maps import FusionRule
 from engine.run.memory import estimate_run_memory, largest_fitting_size, load_kernels
 from engine.run.pass_history import HISTORY_DIR, PassHistory
+from engine.run.per_view import SceneView
 from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.run.probe import probe_run, resolve_view
 from engine.run.probe_output import PROBES_DIR
@@ -45,6 +47,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     record = None if args.record is None else (args.record or str(Path(args.out) / "recording.rrd"))
     live = recording = live_view = None
     progress = PassProgress()
+    eta = progress.eta = _run_eta(scene, options, progress)
     try:
         if not args.headless:
             from workbench.rerun.replay import live_viewer  # lazy: rerun
@@ -54,6 +57,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             from workbench.viewer.live import start_live_viewer  # lazy: viser
 
             live_view = start_live_viewer(scene, options, args.host, args.port, mesh=mesh.method != "none")
+            live_view.eta = eta
         if record or live:
             from workbench.rerun.run_recording import open_run_recording  # lazy: rerun
 
@@ -65,7 +69,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         try:
             # SIGINT/SIGTERM stop the run at the engine's next safe point, never inside a kernel call
             with deferred_interrupts():
-                observer = _observer(recording.stream if recording else None, live_view)
+                observer = _observer(eta, recording.stream if recording else None, live_view)
                 result = run_pipeline(scene, args.out, options, observer=observer, progress=progress,
                                       checkpoint=checkpoint, mesh=mesh, probe=probe, history=history,
                                       executor=executor)
@@ -137,6 +141,17 @@ def _probe_and_history(args: argparse.Namespace, scene: Scene,
         print(f"probe: {len(probe.pixels)} pixel(s) of view {v.name}", file=sys.stderr)
     history = PassHistory(Path(args.out) / HISTORY_DIR) if getattr(args, "history", False) else None
     return probe, history
+
+
+def _run_eta(scene: Scene, options: PipelineOptions, progress: PassProgress) -> RunEta:
+    """The whole run's ETA (``engine/run/eta.py``): timed from PatchMatch's first view on, which is the
+    calibration a line announces ("estimated N min on this machine")."""
+    def announce(seconds: float) -> None:
+        progress.note(f"estimated {format_minutes(seconds)} on this machine for the rest of the run (a rough "
+                      "estimate from the first view; the bars show the run's ETA as it runs)")
+
+    plan = pass_plan([SceneView(scene, i) for i in range(len(scene.views))], options.patchmatch)
+    return RunEta(plan, LATER_SHARE.get(options.pipeline, 0.1), on_first_view=announce)
 
 
 def _observer(*observers: object | None) -> object | None:

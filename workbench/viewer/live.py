@@ -4,8 +4,9 @@
 starts and draws the cameras at once (as the tuning viewer draws them, ``workbench.viewer.app.add_cameras``); then,
 per view, the current PatchMatch depth back-projected as a thinned point cloud that follows the iterations,
 coloured by depth, by GT error (the default when the scene has GT depth) or by confidence (once a
-confidence map of the view is known), and a progress panel: stage, level, pass, iteration, views done and
-the share of GT pixels within 1 % so far (scored as the rerun stream scores it, ``workbench/maps/gt_depth.py``).
+confidence map of the view is known), and a progress panel: stage, level, pass, iteration, views done, the
+whole run's ETA (``engine/run/eta.py``) and the share of GT pixels within 1 % so far (scored as the rerun
+stream scores it, ``workbench/maps/gt_depth.py``).
 After PatchMatch the panel names the stage running (counter maps, confidence, refinement, fusion, meshing,
 evaluation) and the fused cloud replaces the per-view clouds. When the run ends, ``deepc run`` calls
 ``workbench.viewer.app.serve(out, server=live.hand_over(), on_open=live.release)``: the tuning viewer is built on
@@ -128,6 +129,7 @@ class LiveViewer(NullObserver):
         self._fused_shown = False  # the fused cloud has replaced the per-view clouds
         self._released = self._handed_over = self._stopped = False
         self.pushes = 0  # clouds pushed (benchmarks and tests)
+        self.eta: Any = None  # the whole run's ETA (``engine.run.eta.RunEta``: ``text()``), set by ``deepc run``
         self._level_gt = LevelGT([scene.gt_depth(v.index) for v in scene.views])
         self.has_gt = any(g is not None for g in self._level_gt.gt_depths)
         ranges = np.array([v.depth_range for v in scene.views], np.float64)
@@ -347,8 +349,10 @@ class LiveViewer(NullObserver):
         elapsed = f"{time.monotonic() - self._start:,.1f} s"
         if p.stage == "starting":
             return f"**starting…** · {elapsed}"
+        eta = self.eta.text() if self.eta is not None else ""
+        eta = f" · whole run: **{eta}**" if eta else ""
         if p.stage != "patchmatch":
-            return f"**PatchMatch done** · now: **{STAGE_NAMES.get(p.stage, p.stage)}** · {elapsed}"
+            return f"**PatchMatch done** · now: **{STAGE_NAMES.get(p.stage, p.stage)}** · {elapsed}{eta}"
         passes = 1 + self.options.patchmatch.geom_passes
         size = f" ({p.shape[1]}×{p.shape[0]})" if p.shape else ""
         iterations = f"/{p.pass_iterations}" if p.pass_iterations else ""
@@ -362,7 +366,7 @@ class LiveViewer(NullObserver):
                          f"{within[1]} views)")
         elif self.has_gt:
             lines.append("within 1 % of GT: after the first view")
-        lines.append(elapsed)
+        lines.append(elapsed + eta)
         return "  \n".join(lines)
 
     # ---- hand-over and lifecycle -----------------------------------------------------------------------

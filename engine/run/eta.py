@@ -1,0 +1,146 @@
+"""A whole-run time estimate: PatchMatch's work as pixel-iterations over every level and pass, timed as it runs.
+
+A pass's progress alone misleads ("level 2 photometric 1/7 [08:17<49:46]" is one of nine passes at a sixteenth
+of the pixels). :func:`pass_plan` lists every pass with each view's pixels at its level and the pass's planned
+iterations; :func:`eta_seconds` extrapolates the wall time per pixel-iteration measured so far over what is left,
+plus a rough allowance for the stages after PatchMatch (``LATER_SHARE``). :class:`RunEta` follows a run's observer
+events and gives the estimate at any moment. It is rough both ways: a pass that ends by convergence is counted at
+its planned maximum (an overestimate), while a pixel-iteration of the finest level cost 1.5-2x one of the coarser
+levels on sample_scenes/small (so the estimate after the coarse levels was about 25 % short; it converges as the
+finest level runs).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from engine.patchmatch import PatchMatchOptions
+from engine.patchmatch.multiscale import PatchMatchView, effective_levels
+from engine.patchmatch.pyramid import level_size
+
+# the stages after PatchMatch (counter maps, confidence, refinement, fusion, evaluation) as a share of
+# PatchMatch's time, per pipeline: tests/baselines' metrics of tiny, small and fountain_p11 (vanilla 1-4 %,
+# fast 5-8 %, full about 100 %: the refinement), rounded up
+LATER_SHARE = {"vanilla": 0.05, "fast": 0.1, "full": 1.0}
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannedPass:
+    """One PatchMatch pass over all views: ``view_pixels`` per view at its level (0 for a view PatchMatch skips)
+    and its planned (maximum) red-black iterations."""
+
+    level: int
+    pass_index: int
+    view_pixels: tuple[int, ...]
+    iterations: int
+
+    @property
+    def units(self) -> int:
+        """Pixel-iterations of the whole pass."""
+        return sum(self.view_pixels) * self.iterations
+
+
+def pass_plan(views: Sequence[PatchMatchView], options: PatchMatchOptions) -> list[PlannedPass]:
+    """Every pass ``engine.patchmatch.run_patchmatch`` runs on ``views``, in its order (coarsest level first)."""
+    n_levels = effective_levels(list(views), options)
+    active = [bool(v.source_views) and 0.0 < float(v.depth_min) < float(v.depth_max) for v in views]
+    plan = []
+    for level in range(n_levels - 1, -1, -1):
+        sizes = [level_size(v.camera.width, v.camera.height, level) for v in views]
+        pixels = tuple(w * h if ok else 0 for (w, h), ok in zip(sizes, active, strict=True))
+        for pass_index in range(1 + options.geom_passes):
+            plan.append(PlannedPass(level, pass_index, pixels, options.pass_iterations(pass_index)))
+    return plan
+
+
+def units_left(plan: Sequence[PlannedPass], current: int, view: int, iterations_done: int) -> int:
+    """Pixel-iterations still to run when view ``view`` of pass ``plan[current]`` has run ``iterations_done``
+    iterations (the views after it and the passes after it at their planned iterations)."""
+    p = plan[current]
+    left = p.view_pixels[view] * max(p.iterations - iterations_done, 0)
+    left += sum(p.view_pixels[view + 1:]) * p.iterations
+    return left + sum(q.units for q in plan[current + 1:])
+
+
+def eta_seconds(plan: Sequence[PlannedPass], current: int, view: int, iterations_done: int, units_done: int,
+                elapsed: float, later_share: float) -> float | None:
+    """Seconds left to the end of the run: PatchMatch's pixel-iterations left at the wall seconds per
+    pixel-iteration so far (``elapsed`` over the ``units_done`` this process ran), plus ``later_share`` of
+    PatchMatch's whole time for the later stages; None before anything was timed."""
+    if units_done <= 0 or elapsed <= 0:
+        return None
+    rate = elapsed / units_done
+    return rate * units_left(plan, current, view, iterations_done) + later_share * rate * sum(q.units for q in plan)
+
+
+def format_minutes(seconds: float) -> str:
+    """'ETA'-style duration: '40 s' under a minute, else whole minutes ('12 min'), hours past 90 minutes."""
+    if seconds < 60:
+        return f"{max(seconds, 1):.0f} s"
+    if seconds < 90 * 60:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+class RunEta:
+    """An engine observer (``engine.core.observer``) that times PatchMatch's pixel-iterations and answers
+    :meth:`seconds_left` at any moment (thread-safe enough for a reader thread: it reads a few numbers).
+
+    ``on_first_view(seconds)`` is called once the first view pass has been timed
+    (the calibration: ``deepc run`` prints "estimated N min on this machine")."""
+
+    def __init__(self, plan: list[PlannedPass], later_share: float,
+                 on_first_view: Callable[[float], Any] | None = None, clock: Callable[[], float] = time.monotonic):
+        self.plan, self.later_share = plan, later_share
+        self.on_first_view, self.clock = on_first_view, clock
+        self._index = {(p.level, p.pass_index): k for k, p in enumerate(plan)}
+        self.current = 0
+        self.view = 0
+        self.iterations_done = 0
+        self.units_done = 0
+        self.started: float | None = None
+        self.patchmatch_done: float | None = None
+        self._announced = False
+
+    def on_stage(self, name: str, **info: Any) -> None:
+        if name == "patchmatch_pass":
+            self._view_finished()
+            self.current = self._index.get((info.get("level"), info.get("pass_index")), self.current)
+            self.view = self.iterations_done = 0
+            if self.started is None:
+                self.started = self.clock()
+        elif name == "patchmatch_done" and self.started is not None:
+            self.patchmatch_done = self.clock()
+
+    def on_iteration(self, event: Any) -> None:
+        if event.view != self.view:
+            self._view_finished()
+        self.view, self.iterations_done = event.view, event.iteration + 1
+        self.units_done += int(event.depth.size)
+
+    def _view_finished(self) -> None:
+        """The view that ran last has finished its pass: the first time, the calibration is announced."""
+        if not self._announced and self.on_first_view is not None and self.units_done:
+            self._announced = True
+            seconds = self.seconds_left()
+            if seconds is not None:
+                self.on_first_view(seconds)
+
+    def seconds_left(self) -> float | None:
+        """Seconds to the end of the run from now (None before the first iteration is timed)."""
+        if self.started is None:
+            return None
+        now = self.clock()
+        if self.patchmatch_done is not None:  # the later stages: their allowance less the time they have run
+            pm = self.patchmatch_done - self.started
+            return max(self.later_share * pm - (now - self.patchmatch_done), 0.0)
+        return eta_seconds(self.plan, self.current, self.view, self.iterations_done, self.units_done,
+                           now - self.started, self.later_share)
+
+    def text(self) -> str:
+        """'ETA 12 min', '' before anything was timed."""
+        seconds = self.seconds_left()
+        return "" if seconds is None else f"ETA {format_minutes(seconds)}"
