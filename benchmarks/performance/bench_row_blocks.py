@@ -39,6 +39,18 @@ class CountingPacer(RowPacer):
         super().run(kind, height, width, counted)
 
 
+# Top-level keys of this script's result JSON and their types (support/schema.py); the harness adds its own.
+SCHEMA = {"scene": str, "size": str, "rounds": int, "target_s": float, "blocks_per_iteration": (int, None),
+          "one_call_wall_s": float, "blocks_wall_s": float, "one_call_cpu_s": float, "blocks_cpu_s": float,
+          "wall_ratio": float, "cpu_ratio": float, "identical": bool, "runs": dict}
+
+
+def summary(result: dict) -> list[dict]:
+    """One row: best wall and CPU seconds of one call per view against row blocks, their ratios, identical maps."""
+    return [{"scene": f"{result['scene']} {result['size']}", "blocks": result["blocks_per_iteration"],
+             "wall ratio": result["wall_ratio"], "CPU ratio": result["cpu_ratio"], "identical": result["identical"]}]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default=str(bench.SHARED_DATA / "fountain_p11"))

@@ -40,6 +40,14 @@ from support import bench
 
 CALLS: dict[str, list[float]] = {}
 
+# Top-level keys of this script's result JSON and their types (support/schema.py); the harness adds its own.
+SCHEMA = {"scene": str, "size": int, "views": int, "rows": list, "stage_seconds": dict}
+
+
+def summary(result: dict) -> list[dict]:
+    """One row per timed call: how many calls, the longest and the median seconds (a stop waits for one call)."""
+    return result["rows"]
+
 
 def timed(name: str, fn: Callable) -> Callable:
     """``fn`` recording each call's wall seconds under ``name``."""
