@@ -57,9 +57,8 @@ TASK_IMAGE_CACHE = 16  # views whose image a process running per-view tasks keep
 class SceneOptions(Options):
     """How a COLMAP workspace becomes views: working size, depth ranges, source views."""
 
-    max_image_size: int | None = option(None, "longest image side for all processing; unset: half the largest image's "
-                                        "within 640..2560, 0: full size", unit="px", source="OpenMVS", low=0,
-                                        metavar="PX", absent=0)
+    max_image_size: int | None = option(None, "longest image side; unset: half, within 640..2560; 0: full size",
+                                        unit="px", source="OpenMVS", low=0, metavar="PX", absent=0)
     num_source_views: int = option(10, "source views per reference view (COLMAP, ACMM: 20)", source="ours", low=1,
                                    high=32, metavar="N")
     min_triangulation_angle: float = option(1.0, "a source view needs this 75th-percentile triangulation angle",
