@@ -20,7 +20,7 @@ from engine.core.camera import rescaled_size
 from engine.run.memory import estimate_run_memory
 from engine.run.pipeline import PipelineOptions
 from engine.scene import default_image_size
-from support.bench import RESULTS, print_table, write_result
+from support import bench
 
 # (name, views, width, height): the issue's two workspaces and fountain_p11 as ../shared/data holds it
 WORKSPACES = [("7 video frames", 7, 1251, 703), ("56 photos", 56, 1920, 1440), ("fountain_p11", 11, 1536, 1024),
@@ -31,7 +31,7 @@ SOURCES = 10  # SceneOptions.num_source_views
 
 def calibration() -> float:
     """PatchMatch seconds per million view pixels with ACMM's schedule, from the profile of fountain_p11 at 768."""
-    data = json.loads((RESULTS / "profile_patchmatch_passes.json").read_text())
+    data = json.loads((bench.RESULTS / "profile_patchmatch_passes.json").read_text())
     width, height = data["size"]
     return data["total_seconds"] / (data["views"] * width * height / 1e6)
 
@@ -42,6 +42,12 @@ def fake_scene(views: int, width: int, height: int, size: int) -> SimpleNamespac
     view = SimpleNamespace(camera=SimpleNamespace(width=w, height=h), original_size=(width, height),
                            source_views=list(range(min(SOURCES, views - 1))))
     return SimpleNamespace(views=[view] * views, gt_points_path=None)
+
+
+def summary(result: dict) -> list[dict]:
+    """Per workspace and size: working size, estimated peak memory and PatchMatch minutes (ACMM's schedule)."""
+    return [{"workspace": r["workspace"], "size": r["size"], "working": r["working"], "memory MiB": r["memory_mib"],
+             "PatchMatch min": r["patchmatch_min_acmm"]} for r in result["rows"]]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -62,8 +68,8 @@ def main(argv: list[str] | None = None) -> None:
                          "memory_mib": estimate.peak / (1 << 20),
                          "patchmatch_min_acmm": views * w * h / 1e6 * per_mpx / 60})
     print(f"calibration: {per_mpx:.1f} s of PatchMatch per million view pixels (ACMM schedule, 2 cores)")
-    print_table(rows, digits=1)
-    write_result({"seconds_per_mpx_acmm": per_mpx, "baseline_mib": BASELINE >> 20, "rows": rows}, args.json)
+    bench.print_table(rows, digits=1)
+    bench.write_result({"seconds_per_mpx_acmm": per_mpx, "baseline_mib": BASELINE >> 20, "rows": rows}, args.json)
 
 
 if __name__ == "__main__":
