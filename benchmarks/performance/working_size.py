@@ -7,14 +7,21 @@ The time is extrapolated from a calibration: ``benchmarks/results/profile_patchm
 grows linearly with the pixels at a fixed schedule (the window and the source views are per pixel). The memory
 baseline is fixed (250 MiB, a process with the kernels loaded) so the numbers do not depend on this process.
 
+With ``--runs RUN ...`` it records instead what finished runs of one scene at several sizes gave (their
+metrics.json: F1, accuracy and completeness at 2 and 5 cm, points, the per-view shares), to say what halving costs:
+
     python benchmarks/performance/working_size.py [--json OUT]
+    python benchmarks/performance/working_size.py --runs RUN_A RUN_B --json OUT_fountain.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from types import SimpleNamespace
+
+import numpy as np
 
 from engine.core.camera import rescaled_size
 from engine.run.memory import estimate_run_memory
@@ -25,6 +32,8 @@ from support import bench
 # (name, views, width, height): the issue's two workspaces and fountain_p11 as ../shared/data holds it
 WORKSPACES = [("7 video frames", 7, 1251, 703), ("56 photos", 56, 1920, 1440), ("fountain_p11", 11, 1536, 1024),
               ("12 photos 6000 px", 12, 6000, 4000)]
+# the estimates, or with --runs the runs' results
+SCHEMA = {"seconds_per_mpx_acmm?": float, "baseline_mib?": int, "rows?": list, "runs?": list}
 BASELINE = 250 << 20
 SOURCES = 10  # SceneOptions.num_source_views
 
@@ -45,15 +54,44 @@ def fake_scene(views: int, width: int, height: int, size: int) -> SimpleNamespac
 
 
 def summary(result: dict) -> list[dict]:
-    """Per workspace and size: working size, estimated peak memory and PatchMatch minutes (ACMM's schedule)."""
+    """Per workspace and size: working size, estimated peak memory and PatchMatch minutes (ACMM's schedule); or per
+    run (``--runs``): size, F1 at 2 and 5 cm, points and the mean per-view shares."""
+    if "runs" in result:
+        return [{"run": r["size"], "F1 2 cm": r["f1@0.02"], "F1 5 cm": r["f1@0.05"], "points": r["fused_points"],
+                 "fused %": r["fused_pct_mean"], "confirmed %": r["confirmed_pct_mean"]} for r in result["runs"]]
     return [{"workspace": r["workspace"], "size": r["size"], "working": r["working"], "memory MiB": r["memory_mib"],
              "PatchMatch min": r["patchmatch_min_acmm"]} for r in result["rows"]]
+
+
+def run_row(folder: Path) -> dict:
+    """What a finished run's metrics.json says of its quality at its working size, ground truth and none."""
+    metrics = json.loads((folder / "metrics.json").read_text())
+    row = {"size": "x".join(map(str, metrics["image_size"])), "pipeline": metrics["pipeline"],
+           "options": metrics["options"]["patchmatch"]["schedule"], "fused_points": metrics["fused_points"]}
+    e = metrics["eval"]
+    for t in (0.02, 0.05):
+        k = e["tolerances"].index(t)
+        for name in ("f1", "accuracy", "completeness"):
+            row[f"{name}@{t}"] = e[name][k]
+    views = metrics["views"]
+    fused = [v["fused_pct"] for v in views]
+    median = float(np.median(fused))
+    row.update(fused_pct_mean=float(np.mean(fused)), confirmed_pct_mean=float(np.mean([v["confirmed_pct"]
+                                                                                        for v in views])),
+               fused_to_median={v["view"]: v["fused_pct"] / median for v in views}, views=views)
+    return row
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", default=None, help="result file (default: benchmarks/results/working_size.json)")
+    parser.add_argument("--runs", nargs="+", default=None, help="finished runs of one scene to record instead")
     args = parser.parse_args(argv)
+    if args.runs:
+        runs = [run_row(Path(r)) for r in args.runs]
+        bench.print_table([{k: v for k, v in r.items() if k not in ("views", "fused_to_median")} for r in runs])
+        bench.write_result({"runs": runs}, args.json)
+        return
     per_mpx = calibration()
     options = PipelineOptions()
     rows = []
