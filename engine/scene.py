@@ -107,7 +107,7 @@ class Scene:
 
     def __init__(self, root: Path, image_root: Path, model: SparseModel, views: list[View],
                  options: SceneOptions, shared_points: np.ndarray, gt_depth_paths: list[Path | None],
-                 gt_points_path: Path | None):
+                 gt_points_path: Path | None, image_sizes: list[tuple[int, int]] | None = None):
         self.root = root
         self.name = root.resolve().name
         self.image_root = image_root
@@ -117,6 +117,8 @@ class Scene:
         self.shared_points = shared_points  # (n, n) sparse points seen by both views
         self.gt_depth_paths = gt_depth_paths
         self.gt_points_path = gt_points_path
+        # (width, height) of each view's image file before undistortion (None: the views' ``original_size``)
+        self.image_sizes = image_sizes
         self._image = lru_cache(maxsize=SCENE_IMAGE_CACHE)(self._load_image)
 
     def __len__(self) -> int:
@@ -309,12 +311,16 @@ def resolved_image_size(options: SceneOptions, sizes: list[tuple[int, int]]) -> 
     return default_image_size(max((max(size) for size in sizes), default=0))
 
 
-def working_size_line(views: list[View], requested: int | None) -> str:
-    """'working size 1251×703 → 640×360 px (...)': the largest view's size and its working size, how that was chosen
-    (``requested``: the ``max_image_size`` asked for, None for the default) and the flag that changes it."""
-    view = max(views, key=lambda v: (max(v.original_size), v.index))
-    (w, h), (ww, wh) = view.original_size, view.camera.size
-    largest = "largest image " if len({v.original_size for v in views}) > 1 else ""
+def working_size_line(views: list[View], requested: int | None,
+                      image_sizes: list[tuple[int, int]] | None = None) -> str:
+    """'working size 1251×703 → 640×360 px (...)': the largest image's size and its view's working size, how that was
+    chosen (``requested``: the ``max_image_size`` asked for, None for the default) and the flag that changes it.
+    ``image_sizes``: the image files' sizes, where they differ from the views' ``original_size`` (distorted
+    workspaces, undistorted at the working size); by default the latter."""
+    full = image_sizes or [v.original_size for v in views]
+    view = max(views, key=lambda v: (max(full[v.index]), v.index))
+    (w, h), (ww, wh) = full[view.index], view.camera.size
+    largest = "largest image " if len(set(full)) > 1 else ""
     size = f"{w}×{h} px, full size" if (w, h) == (ww, wh) else f"{w}×{h} → {ww}×{wh} px"
     if requested is None:
         how = (f"default: half the size, within {WORKING_SIZE_MIN}..{WORKING_SIZE_MAX} px, never above full size; "
@@ -441,7 +447,9 @@ def load_scene(path: str | Path, options: SceneOptions | None = None,
     for v in views:
         if survey.gt_depth_paths[v.index] is not None:
             _check_gt_depth(survey.gt_depth_paths[v.index], v)
-    return Scene(root, image_root, model, views, options, shared, list(survey.gt_depth_paths), survey.gt_points_path)
+    same_order = [v.name for v in views] == [im.name for im in survey.model.images]
+    return Scene(root, image_root, model, views, options, shared, list(survey.gt_depth_paths), survey.gt_points_path,
+                 list(survey.image_sizes) if same_order else None)
 
 
 def _stderr_line(text: str) -> None:

@@ -14,7 +14,15 @@ from engine.fusion import FUSION_PRESETS
 from engine.run.distributed.streamed import fuse_run_folder, read_view_map
 from engine.run.folder import RunMetrics, read_map, write_map
 from engine.run.view_shares import view_share_lines, view_shares, weak_views
-from engine.scene import SceneOptions, default_image_size, load_scene, resolved_image_size, survey_scene
+from engine.scene import (
+    SceneOptions,
+    default_image_size,
+    load_scene,
+    resolved_image_size,
+    survey_scene,
+    working_size_line,
+)
+from support.colmap_workspaces import write_workspace
 from support.fake_run import make_fake_run
 from workbench.cli.run import print_run_summary
 
@@ -71,3 +79,16 @@ def test_a_view_far_below_the_others_is_warned_about(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert all(f"view {n}" in out for n in names)
     assert [line for line in err.splitlines() if line.startswith("warning: ")] == warnings
+
+
+@pytest.mark.parametrize("model", ["PINHOLE", "SIMPLE_RADIAL"])
+def test_a_large_workspace_is_halved_and_the_line_names_the_image_size(tmp_path, model):
+    workspace = write_workspace(SAMPLES / "tiny", tmp_path / "ws", camera_model=model, scale=8)  # 1280x960
+    survey = survey_scene(workspace, SceneOptions(cache_dir=str(tmp_path / "cache")))
+    assert survey.options.max_image_size == 640 and all(max(v.camera.size) <= 640 for v in survey.views)
+    line = working_size_line(survey.views, None, survey.image_sizes)
+    assert line.startswith("working size: 1280×960 → ") and "--max-image-size N to change, 0 for full size" in line
+    if model == "PINHOLE":  # undistortion changes the size a little; a pinhole workspace at 0 stays whole
+        full = survey_scene(workspace, SceneOptions(max_image_size=0))
+        assert working_size_line(full.views, 0, full.image_sizes) == \
+            "working size: 1280×960 px, full size (--max-image-size 0)"

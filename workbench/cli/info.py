@@ -44,7 +44,7 @@ def describe(survey: SceneSurvey, requested: int | None = None) -> list[str]:
     for (kind, size, undistorted, work), ids in groups.items():
         names = str(ids[0]) if len(ids) == 1 else f"{len(ids)} ({ids[0]}..{ids[-1]})"
         lines.append(f"{names:<12} {kind:<14} {size:>11} {sum(users[c] for c in ids):>6}  {undistorted:>11}  {work}")
-    lines.append(working_size_line(survey.views, requested))
+    lines.append(working_size_line(survey.views, requested, survey.image_sizes))
     if survey.distorted:
         key = survey.cache_key()
         state = "cached" if cached_workspace(survey.cache_root, key) else "not cached yet"

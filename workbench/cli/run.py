@@ -38,7 +38,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     mesh = mesh_options(args.mesh, args.set)
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
-    print(working_size_line(scene.views, scene_options.max_image_size), file=sys.stderr)
+    print(working_size_line(scene.views, scene_options.max_image_size, scene.image_sizes), file=sys.stderr)
     _check_memory(args, scene, options)
     checkpoint = _prepare_output(args)
     executor = _executor(args)
