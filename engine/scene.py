@@ -42,6 +42,11 @@ from engine.io.dense import read_dense_map_header, read_depth_map
 from engine.io.images import decode_image, image_size, image_to_float, resize_area, to_gray
 from engine.io.undistort import LOG_FILE, cache_key, cached_workspace, undistort_workspace, undistorted_camera
 
+# The default working size (``default_image_size``), after OpenMVS's DensifyPointCloud (--resolution-level 1
+# --max-resolution 2560 --min-resolution 640): half the longest side, within these bounds, never above it.
+WORKING_SIZE_DIVISOR = 2
+WORKING_SIZE_MAX = 2560
+WORKING_SIZE_MIN = 640
 # Fewer observed points than this and a view's depth range falls back to all points it sees.
 _MIN_POINTS_FOR_RANGE = 5
 SCENE_IMAGE_CACHE = 64  # views whose image a Scene keeps
@@ -52,8 +57,8 @@ TASK_IMAGE_CACHE = 16  # views whose image a process running per-view tasks keep
 class SceneOptions(Options):
     """How a COLMAP workspace becomes views: working size, depth ranges, source views."""
 
-    max_image_size: int = option(0, "longest image side for all processing; 0 keeps the original size", unit="px",
-                                 source="ours", low=0, metavar="PX")
+    max_image_size: int | None = option(None, "longest image side; unset: half, within 640..2560; 0: full size",
+                                        unit="px", source="OpenMVS", low=0, metavar="PX", absent=0)
     num_source_views: int = option(10, "source views per reference view (COLMAP, ACMM: 20)", source="ours", low=1,
                                    high=32, metavar="N")
     min_triangulation_angle: float = option(1.0, "a source view needs this 75th-percentile triangulation angle",
@@ -102,7 +107,7 @@ class Scene:
 
     def __init__(self, root: Path, image_root: Path, model: SparseModel, views: list[View],
                  options: SceneOptions, shared_points: np.ndarray, gt_depth_paths: list[Path | None],
-                 gt_points_path: Path | None):
+                 gt_points_path: Path | None, image_sizes: list[tuple[int, int]] | None = None):
         self.root = root
         self.name = root.resolve().name
         self.image_root = image_root
@@ -112,6 +117,8 @@ class Scene:
         self.shared_points = shared_points  # (n, n) sparse points seen by both views
         self.gt_depth_paths = gt_depth_paths
         self.gt_points_path = gt_points_path
+        # (width, height) of each view's image file before undistortion (None: the views' ``original_size``)
+        self.image_sizes = image_sizes
         self._image = lru_cache(maxsize=SCENE_IMAGE_CACHE)(self._load_image)
 
     def __len__(self) -> int:
@@ -288,8 +295,47 @@ class SceneSurvey:
                     for im in self.model.images), default=0) if self.distorted else 0
 
 
+def default_image_size(longest: int) -> int:
+    """The ``max_image_size`` the default gives images whose longest side is ``longest`` px: half of it, at most
+    ``WORKING_SIZE_MAX`` and at least ``WORKING_SIZE_MIN``; 0 (full size) where that is not below ``longest``."""
+    size = min(WORKING_SIZE_MAX, max(WORKING_SIZE_MIN, round(longest / WORKING_SIZE_DIVISOR)))
+    return size if size < longest else 0
+
+
+def resolved_image_size(options: SceneOptions, sizes: list[tuple[int, int]]) -> int:
+    """The ``max_image_size`` a run of images of ``sizes`` (width, height) works at: the option when it is given (0
+    keeps full size), else :func:`default_image_size` of the longest side (a run saves this value, so it re-runs
+    as it ran whatever the default becomes)."""
+    if options.max_image_size is not None:
+        return options.max_image_size
+    return default_image_size(max((max(size) for size in sizes), default=0))
+
+
+def working_size_line(views: list[View], requested: int | None,
+                      image_sizes: list[tuple[int, int]] | None = None) -> str:
+    """'working size 1251×703 → 640×360 px (...)': the largest image's size and its view's working size, how that was
+    chosen (``requested``: the ``max_image_size`` asked for, None for the default) and the flag that changes it.
+    ``image_sizes``: the image files' sizes, where they differ from the views' ``original_size`` (distorted
+    workspaces, undistorted at the working size); by default the latter."""
+    full = image_sizes or [v.original_size for v in views]
+    view = max(views, key=lambda v: (max(full[v.index]), v.index))
+    (w, h), (ww, wh) = full[view.index], view.camera.size
+    largest = "largest image " if len(set(full)) > 1 else ""
+    size = f"{w}×{h} px, full size" if (w, h) == (ww, wh) else f"{w}×{h} → {ww}×{wh} px"
+    if requested is None:
+        how = (f"default: half the size, within {WORKING_SIZE_MIN}..{WORKING_SIZE_MAX} px, never above full size; "
+               "--max-image-size N to change, 0 for full size")
+    elif requested == 0:
+        how = "--max-image-size 0"
+    else:
+        how = f"--max-image-size {requested}; 0 for full size"
+    return f"working size: {largest}{size} ({how})"
+
+
 def survey_scene(path: str | Path, options: SceneOptions | None = None) -> SceneSurvey:
     """Check a COLMAP workspace and compute its views without decoding or undistorting an image (seconds).
+
+    The survey's options have ``max_image_size`` resolved (:func:`resolved_image_size`): never None.
 
     Every check that needs no pixels is here: the folders and model files, the model's cameras, poses and points,
     the image names, each registered image's presence, header and size against its camera (the distorted camera
@@ -318,6 +364,8 @@ def survey_scene(path: str | Path, options: SceneOptions | None = None) -> Scene
             raise DeepCError(f"image is {size[0]}x{size[1]} but its COLMAP camera {im.camera_id}{kind} is "
                              f"{cam.width}x{cam.height}", image_root / im.name)
         sizes.append(size)
+    # the default working size becomes a number here: what the run saves and re-runs with
+    options = options.replace(max_image_size=resolved_image_size(options, sizes))
 
     used = sorted({im.camera_id for im in model.images})
     distorted = sorted({model.cameras[c].model for c in used if model.cameras[c].model not in PINHOLE_MODELS})
@@ -399,7 +447,9 @@ def load_scene(path: str | Path, options: SceneOptions | None = None,
     for v in views:
         if survey.gt_depth_paths[v.index] is not None:
             _check_gt_depth(survey.gt_depth_paths[v.index], v)
-    return Scene(root, image_root, model, views, options, shared, list(survey.gt_depth_paths), survey.gt_points_path)
+    same_order = [v.name for v in views] == [im.name for im in survey.model.images]
+    return Scene(root, image_root, model, views, options, shared, list(survey.gt_depth_paths), survey.gt_points_path,
+                 list(survey.image_sizes) if same_order else None)
 
 
 def _stderr_line(text: str) -> None:

@@ -128,6 +128,15 @@ def test_run_writes_the_contract_outputs_and_a_recording(tmp_path):
     assert set(metrics["depth"]) >= {"abs_rel", "within_1pct", "within_5pct", "valid_fraction"}
     assert metrics["eval"]["tolerances"] == [0.01, 0.02, 0.05, 0.1, 0.2, 0.5]
     assert len(metrics["eval"]["f1"]) == 6 and metrics["eval"]["f1"][2] > 30
+    # the working size (tiny is under the default's floor: full size, saved as 0) and the per-view shares
+    assert "working size: 160×120 px, full size (default" in result.stderr
+    assert metrics["options"]["scene"]["max_image_size"] == 0
+    assert [v["view"] for v in metrics["views"]] == names
+    for v in metrics["views"]:
+        assert 0 <= v["fused_pct"] <= 100 and 0 <= v["confirmed_pct"] <= 100 and v["pixels"] == 160 * 120
+    assert sum(round(v["fused_pct"] * v["pixels"] / 100) for v in metrics["views"]) == metrics["fused_points"]
+    for name in names:
+        assert f"view {name}" in result.stdout and "% of pixels fused" in result.stdout
     # The recording: every view's maps at every iteration of every pass and level (2 levels x 2 passes x 2).
     store = RrdReader(str(out / "recording.rrd")).stream().collect()
     summary = str(store.summary())

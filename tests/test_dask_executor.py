@@ -60,7 +60,7 @@ def _outputs(out: Path) -> dict[str, bytes]:
 
 #: metrics.json entries that say how good the run is (the driver of an executor run streams them from the run folder)
 QUALITY = ("fused_points", "eval", "depth", "depth_per_view", "confidence_auc", "confidence_auc_per_view",
-           "confidence_kept_pct")
+           "confidence_kept_pct", "views")
 
 
 def _assert_same(out: Path, reference: Path, maps: int = 5 * 5) -> None:

@@ -26,7 +26,7 @@ T = TypeVar("T", bound="Options")
 #: Where a default comes from: the DeepC-MVS paper (Kuhn et al., 3DV 2020), the code of ACMM or COLMAP that
 #: the paper builds on, Rossi et al.'s refinement code (the paper's refinement), the ETH3D evaluation
 #: program, or this project ("ours": an engineering setting, or a departure explained in docs/decisions.md).
-SOURCES = ("paper", "ACMM", "COLMAP", "Rossi", "ETH3D", "ours")
+SOURCES = ("paper", "ACMM", "COLMAP", "OpenMVS", "Rossi", "ETH3D", "ours")
 ORDERS = ("<", "<=")
 
 

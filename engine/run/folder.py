@@ -100,6 +100,8 @@ class RunMetrics:
         confidence_kept_pct: percent of the estimates the confidence filter kept.
         mesh: the mesh of ``RUN/mesh.ply`` (method, vertices, triangles, seconds, notes, options, ``eval``) when
             the run was meshed (``deepc run --mesh``, ``deepc mesh``).
+        views: per view ``{"view", "pixels", "fused_pct", "confirmed_pct"}``: the share of its pixels that became
+            fused points and that another view confirms (``engine.run.view_shares``); None in runs made before.
         options: ``PipelineOptions.to_dict()`` plus ``scene``: the options the run used.
         version: the engine version that wrote the run.
         extra: every other key (per-view lists, ``seconds_cpu`` of the regression mode, ...).
@@ -120,6 +122,7 @@ class RunMetrics:
     refined_confidence_auc: float | None = None
     confidence_kept_pct: float | None = None
     mesh: dict[str, Any] | None = None
+    views: list[dict[str, Any]] | None = None
     options: dict[str, Any] = dataclasses.field(default_factory=dict)
     version: str = ""
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)

@@ -42,7 +42,7 @@ from engine.refinement.options import RefinementOptions
 from engine.refinement.views import refine_views
 from engine.run.distributed import Executor
 from engine.run.distributed.driver import run_confidence_tasks, run_patchmatch_tasks, run_refinement_tasks
-from engine.run.distributed.streamed import fuse_run_folder, streamed_metrics
+from engine.run.distributed.streamed import fuse_run_folder, read_view_map, streamed_metrics
 from engine.run.folder import (
     file_sha256,
     maps_digest,
@@ -64,6 +64,7 @@ from engine.run.fused_maps import (
 from engine.run.per_view import SceneView, patchmatch_view, view_confidence
 from engine.run.probe_output import finish_probe
 from engine.run.scores import confidence_auc, depth_block
+from engine.run.view_shares import view_shares
 from engine.scene import Scene
 
 STAGES = ("patchmatch", "confidence", "refinement", "fusion")
@@ -274,6 +275,12 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             auc = confidence_auc(scene, lambda i: refined[i].depth, lambda i: refined_confidence[i])
             metrics["refined_confidence_auc"] = auc["pooled"]
             metrics["refined_confidence_auc_per_view"] = auc["per_view"]
+    names = [v.name for v in scene.views]
+    if streamed:  # the counter maps the tasks wrote, view by view
+        metrics["views"] = view_shares(names, cloud.source_view,
+                                       lambda i: read_view_map(out_dir, "counter", names[i]))
+    else:
+        metrics["views"] = view_shares(names, cloud.source_view, lambda i: counter[i])
     if confidence is not None and not streamed:
         kept = sum(int((d > 0).sum()) for d in depths)
         before = refined if refined is not None else maps

@@ -26,7 +26,7 @@ def ensure_run(scene_dir: str | Path, runs_root: str | Path, scene_options: Scen
         raise DeepCError("scene has no ground-truth depth maps (ground_truth/depth_maps/): "
                          "it cannot give training labels", scene.root)
     run_dir = Path(runs_root) / (name or scene.name)
-    expected = {"scene": scene_options.to_dict(), **pipeline_options.to_dict()}
+    expected = {"scene": scene.options.to_dict(), **pipeline_options.to_dict()}  # the working size resolved
     if run_is_complete(run_dir, scene.root, expected):
         return run_dir
     log(f"running the engine on {scene.root} -> {run_dir}")

@@ -13,13 +13,14 @@ import argparse
 from collections import Counter
 
 from engine.io.undistort import cached_workspace
-from engine.scene import SceneOptions, SceneSurvey, survey_scene, views_table
+from engine.scene import SceneOptions, SceneSurvey, survey_scene, views_table, working_size_line
 from workbench.flags.options import options_from_args
 
 
-def describe(survey: SceneSurvey) -> list[str]:
-    """The lines ``deepc info`` prints, memory aside."""
-    model, options = survey.model, survey.options
+def describe(survey: SceneSurvey, requested: int | None = None) -> list[str]:
+    """The lines ``deepc info`` prints, memory aside; ``requested`` is the ``--max-image-size`` given (None: the
+    default working size)."""
+    model = survey.model
     has_gt_depth = any(p is not None for p in survey.gt_depth_paths)
     lines = [f"scene {survey.name}: {len(survey.views)} views, {len(model.points)} sparse points, "
              f"GT depth: {'yes' if has_gt_depth else 'no'}, GT points: "
@@ -43,9 +44,7 @@ def describe(survey: SceneSurvey) -> list[str]:
     for (kind, size, undistorted, work), ids in groups.items():
         names = str(ids[0]) if len(ids) == 1 else f"{len(ids)} ({ids[0]}..{ids[-1]})"
         lines.append(f"{names:<12} {kind:<14} {size:>11} {sum(users[c] for c in ids):>6}  {undistorted:>11}  {work}")
-    longest = max(max(v.camera.size) for v in survey.views)
-    limit = f"at most {options.max_image_size} px" if options.max_image_size else "full size"
-    lines.append(f"working size: {limit}, longest side {longest} px (--max-image-size; 0 keeps full size)")
+    lines.append(working_size_line(survey.views, requested, survey.image_sizes))
     if survey.distorted:
         key = survey.cache_key()
         state = "cached" if cached_workspace(survey.cache_root, key) else "not cached yet"
@@ -73,8 +72,9 @@ def memory_line(survey: SceneSurvey) -> str:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    survey = survey_scene(args.scene, options_from_args(SceneOptions, args))
-    lines = describe(survey)
+    options = options_from_args(SceneOptions, args)
+    survey = survey_scene(args.scene, options)
+    lines = describe(survey, options.max_image_size)
     lines.insert(-len(survey.views) - 1, memory_line(survey))
     print("\n".join(lines))
     return 0

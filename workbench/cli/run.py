@@ -29,7 +29,8 @@ from engine.run.per_view import SceneView
 from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.run.probe import probe_run, resolve_view
 from engine.run.probe_output import PROBES_DIR
-from engine.scene import Scene, load_scene
+from engine.run.view_shares import view_share_lines
+from engine.scene import Scene, load_scene, working_size_line
 from workbench.cli.progress import PassProgress
 from workbench.flags.run import parse_probe
 from workbench.flags.run_options import mesh_options, run_options_from_args
@@ -40,6 +41,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     mesh = mesh_options(args.mesh, args.set)
     scene = load_scene(args.scene, scene_options)
     print(scene.summary(), file=sys.stderr)
+    print(working_size_line(scene.views, scene_options.max_image_size, scene.image_sizes), file=sys.stderr)
     _check_memory(args, scene, options)
     checkpoint = _prepare_output(args)
     executor = _executor(args)
@@ -225,6 +227,11 @@ def print_run_summary(metrics: RunMetrics, out: str) -> None:
         print(f"confidence: {seconds['confidence']:.1f} s, {metrics.confidence_kept_pct:.1f}% of the estimates "
               f"kept at {rule.threshold_option} {rule.fused_confidence_tau:g}{auc}")
     print(f"fused cloud: {metrics.fused_points:,} points ({seconds['fusion']:.1f} s)")
+    if metrics.views:
+        lines, warnings = view_share_lines(metrics.views)
+        print("\n".join(lines))
+        for line in warnings:
+            print(line, file=sys.stderr)
     if metrics.eval is not None:
         e = metrics.eval
         for t, a, c, f in zip(e["tolerances"], e["accuracy"], e["completeness"], e["f1"], strict=True):
