@@ -265,7 +265,7 @@ def test_geometric_tasks_read_their_sources_depth_alone(scene, tmp_path):
     for job in geometric + finish:
         # a geometric pass reads the pass before it; the final maps the last pass of level 0
         at = (job.level, job.pass_index - 1) if isinstance(job, PassJob) else (0, job.pass_index)
-        own = PatchMatchCheckpoint._name(*at, job.view)
+        own = PatchMatchCheckpoint.file_name(*at, job.view)
         assert list(job.inputs) == [own]
         assert sorted(job.depths) == sorted(own.replace(f"/{job.view}.", f"/{j}.")
                                             for j in scene.views[job.view].source_views)

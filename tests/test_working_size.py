@@ -13,6 +13,7 @@ from conftest import SAMPLES
 from engine.fusion import FUSION_PRESETS
 from engine.run.distributed.streamed import fuse_run_folder, read_view_map
 from engine.run.folder import RunMetrics, read_map, write_map
+from engine.run.fused_maps import FusionRule
 from engine.run.view_shares import view_share_lines, view_shares, weak_views
 from engine.scene import (
     SceneOptions,
@@ -63,7 +64,7 @@ def test_a_view_far_below_the_others_is_warned_about(tmp_path, capsys):
     empty = scene.views[2].name
     for kind in ("depth", "counter"):
         write_map(run, kind, empty, np.zeros_like(read_map(run, kind, empty)))
-    cloud = fuse_run_folder(scene, run, FUSION_PRESETS["pixels"], None)
+    cloud = fuse_run_folder(scene, run, FUSION_PRESETS["pixels"], FusionRule())  # vanilla
     names = [v.name for v in scene.views]
     entries = view_shares(names, cloud.source_view, lambda i: read_view_map(run, "counter", names[i]))
     assert [e["view"] for e in entries] == names

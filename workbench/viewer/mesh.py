@@ -63,7 +63,6 @@ class MeshPanel:
 
     def _show_mesh(self, mesh: TriangleMesh, label: str, switch_to: str | None) -> None:
         with self.app.server.atomic():
-            self.mesh = mesh
             self.handle = self.app.server.scene.add_mesh_simple(
                 "/mesh", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.triangles, np.uint32),
                 color=MESH_COLOR, side="double", visible=False)
@@ -73,6 +72,7 @@ class MeshPanel:
             if switch_to is not None:
                 self.show.value = switch_to
         self.apply_visibility()
+        self.mesh = mesh  # last: a reader that sees the mesh sees its handle, status and Show choice too
 
     def apply_visibility(self) -> None:
         """Draw the cloud, the mesh or both, as the Show dropdown says."""
