@@ -195,3 +195,12 @@ def test_interactive_run_streams_live_serves_the_viewer_and_stops_cleanly(tmp_pa
         time.sleep(0.2)
     assert not _rerun_servers() - before, "the rerun web viewer outlived the run"
     assert (tmp_path / "out" / "fused.ply").is_file()
+
+
+def test_output_cut_short_by_its_reader_is_not_an_error():
+    """`deepc run --help-options | head`, the reader gone before deepc writes: no traceback, no error line, exit 0."""
+    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", "run", "--help-options"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, cwd=SAMPLES.parent)
+    proc.stdout.close()  # closed while the interpreter still starts: its first write meets a broken pipe
+    stderr = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 0 and stderr == b""
