@@ -65,9 +65,7 @@ def budget_plan(sizes: Sequence[tuple[int, int]], levels: int, pass_iterations: 
     def size_of(step: int) -> int:
         return 0 if step == 1 else math.ceil(longest / step)
 
-    steps = [max_size] if max_size is not None else None
-    plans = []
-    if steps is None:
+    if max_size is None:
         plans = [(size_of(s), 1) for s in range(1, STEP_BEFORE_THINNING + 1)]
         plans += [(size_of(STEP_BEFORE_THINNING), k) for k in range(2, MAX_EVERY + 1)]
         plans += [(size_of(s), MAX_EVERY) for s in range(STEP_BEFORE_THINNING + 1, MAX_STEP + 1)]

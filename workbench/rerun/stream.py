@@ -78,6 +78,7 @@ TIMELINES = ("view_iteration", "pass", "iteration")  # the first is the one layo
 #: integer steps of a logged depth map from 0 to its far end (a 16-bit PNG): 0.025 % of the far depth, 40 times finer
 #: than the 1 % that counts as right, and a third of the bytes of whole 16-bit steps (bench_recording.py)
 DEPTH_STEPS = 4095
+DEPTH_PNG_LEVEL = 3
 
 
 def depth_image(depth: np.ndarray, depth_range: tuple[float, float]) -> rr.EncodedDepthImage | rr.DepthImage:
@@ -89,8 +90,9 @@ def depth_image(depth: np.ndarray, depth_range: tuple[float, float]) -> rr.Encod
     scale = DEPTH_STEPS / far if far > 0 else 1.0
     steps = np.clip(np.rint(np.asarray(depth, np.float64) * scale), 0, DEPTH_STEPS).astype(np.uint16)
     steps[(depth > 0) & (steps == 0)] = 1
+    # zlib level 3: about 2 % more bytes than level 9 at a quarter of its time (this runs in the engine's thread)
     return rr.DepthImage(steps, meter=scale, colormap="turbo", depth_range=[dmin * scale, dmax * scale]).compress(
-        compress_level=9)
+        compress_level=DEPTH_PNG_LEVEL)
 
 
 def png_image(values: np.ndarray) -> rr.EncodedImage:
