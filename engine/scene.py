@@ -37,6 +37,7 @@ from engine.core.camera import Camera, rescaled_size
 from engine.core.errors import DeepCError
 from engine.core.options import Options, option
 from engine.core.resample import resample_depth
+from engine.core.words import plural
 from engine.io.colmap_model import PINHOLE_MODELS, SparseCamera, SparseModel, find_model_dir, read_sparse_model
 from engine.io.dense import read_dense_map_header, read_depth_map
 from engine.io.images import decode_image, image_size, image_to_float, resize_area, to_gray
@@ -172,7 +173,8 @@ class Scene:
 
     def summary(self) -> str:
         """A human-readable table of the views."""
-        lines = [f"scene {self.name}: {len(self.views)} views, {len(self.model.points)} sparse points, "
+        lines = [f"scene {self.name}: {plural(len(self.views), 'view')}, "
+                 f"{plural(len(self.model.points), 'sparse point')}, "
                  f"GT depth: {'yes' if self.has_gt_depth else 'no'}, GT points: "
                  f"{'yes' if self.has_gt_points else 'no'}"]
         return "\n".join(lines + views_table(self.views))

@@ -2,7 +2,7 @@
 
 Each layout is a function of a recording's :class:`Contents` (which views and entities it holds, which
 timelines) and the view to show, returning an ``rrb.Blueprint``. Panel titles name the view first, short enough
-to stay readable in a narrow panel (``003 · depth``; the view's image name is in the tab and ``about``). A
+to stay readable in a narrow panel (``003 · depth (m)``; the view's image name is in the tab and ``about``). A
 recording opened from a file starts paused at its start; a live stream follows the run. A map the
 recording lacks gets a text panel saying so (``missing/<view>/<kind>``, written by ``deepc replay`` next
 to the recording) instead of an empty "No data available" panel.
@@ -27,9 +27,10 @@ from collections.abc import Callable
 import rerun.blueprint as rrb
 
 # the maps of a view the layouts show, with their panel labels
-MAP_LABELS = {"depth": "depth", "normal": "normal", "cost": "cost", "selected_count": "selected views",
+# depth carries its unit: rerun's hover prints the depth without one
+MAP_LABELS = {"depth": "depth (m)", "normal": "normal", "cost": "cost", "selected_count": "selected views",
               "error": "error vs GT", "counter": "counter", "confidence": "confidence", "label": "GT labels",
-              "refined_depth": "refined depth"}
+              "refined_depth": "refined depth (m)"}
 STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT",
                 "confidence_auc": "confidence ROC-AUC", "confidence_kept_pct": "confidence >= tau %"}
 PIPELINES = ("vanilla", "fast", "full")

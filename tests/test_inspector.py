@@ -8,7 +8,7 @@ import pytest
 from conftest import SAMPLES, wait_for
 
 from support.probe_traces import make_trace
-from workbench.trace.figures import candidate_table_html, summary_markdown, trace_figure
+from workbench.trace.figures import PANEL_PX, candidate_table_html, summary_markdown, trace_figure, trace_plot
 from workbench.trace.windows import window_corners, window_thumbnails
 
 pytestmark = pytest.mark.timeout(300)
@@ -21,12 +21,43 @@ def test_figures_of_a_trace(noisy_run):
     scene = load_scene(SAMPLES / "tiny")
     trace = make_trace(scene, 0, 40, 30, 3.0)
     image = trace_figure(trace, 3)
-    assert image.dtype == np.uint8 and image.shape == (560, 420, 3) and image.std() > 10
+    assert image.dtype == np.uint8 and image.shape == (2 * 500, 2 * PANEL_PX, 3) and image.std() > 10
     table = candidate_table_html(trace, 3)
-    assert table.count("<tr") == 1 + len(trace["iterations"][3]["candidates"])
+    assert table.count("<tr") == 1 + 2 * len(trace["iterations"][3]["candidates"])  # a candidate, its view costs
     assert "pattern:0" in table and "L1 p1 i0" in table
     text = summary_markdown(trace, "0: view_000.png")
     assert "pixel (40, 30)" in text and "counter: 2 of 4" in text and "GT" in text
+
+
+def test_trace_text_is_legible_and_the_candidate_table_fits_at_the_default_panel_width(noisy_run):
+    """Shown at the default panel width (viser's 20 em), no text of the trace figure is under 10 px (it was
+    about 6 px), and the candidate table has no row wider than three columns, however many source views."""
+    from matplotlib.text import Text
+
+    from engine.scene import load_scene
+
+    trace = make_trace(load_scene(SAMPLES / "tiny"), 0, 40, 30, 3.0)
+    figure = trace_plot(trace, 3, title="pixel (40, 30) · 0: view_000.png · after re-run")
+    figure.canvas.draw()
+    image_width = figure.get_figwidth() * figure.dpi
+    texts = [t for t in figure.findobj(Text) if t.get_visible() and t.get_text().strip()]
+    assert len(texts) > 20
+    shown_px = [t.get_fontsize() * figure.dpi / 72 * PANEL_PX / image_width for t in texts]
+    assert min(shown_px) >= 10, min(shown_px)
+    renderer = figure.canvas.get_renderer()
+    ticks = {id(t) for ax in figure.axes for t in ax.get_xticklabels() + ax.get_yticklabels()}
+    for text in (t for t in texts if id(t) not in ticks):  # titles, labels and legends are not cut off
+        box = text.get_window_extent(renderer)
+        assert box.x0 >= -1 and box.x1 <= image_width + 1, text.get_text()
+    wide = dict(trace, source_views=[f"view_{i:03d}.png" for i in range(12)])
+    for step in wide["iterations"]:
+        for cand in step["candidates"]:
+            cand["view_costs"] = [0.5] * 12
+    table = candidate_table_html(wide, 3)
+    assert "width:100%" in table and "table-layout:fixed" in table
+    rows = table.split("<tr")[1:]
+    assert all(row.count("<td") + row.count("<th") <= 3 for row in rows)
+    assert table.count("view_0") == 12 * len(wide["iterations"][3]["candidates"])  # every view's cost is there
 
 
 def test_window_corners_lie_on_the_plane_and_project_back(noisy_run):

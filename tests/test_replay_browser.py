@@ -82,7 +82,7 @@ def test_layouts_name_the_chosen_view_and_say_what_is_missing(recording, tmp_pat
     for view in ("img/1.png", "1"):
         rbl, notes_rrd = layout_files(recording, "iterations", tmp_path, view=view)
         titles = blueprint_titles(rbl)
-        assert "001 · depth" in titles and "001 · cost" in titles
+        assert "001 · depth (m)" in titles and "001 · cost" in titles
         assert "001 · error vs GT: not recorded" in titles
         assert not [t for t in titles if t.startswith("000")]
     docs = notes(notes_rrd)
@@ -183,7 +183,7 @@ def test_a_run_recording_says_what_it_will_not_record(tmp_path):
     assert "fast and full pipelines" in docs[f"/missing/{second}/confidence"]
     assert f"/missing/{second}/depth" not in docs
     titles = blueprint_titles(tmp_path / "run.rrd")
-    assert "001 · depth" in titles
+    assert "001 · depth (m)" in titles
 
 
 def test_a_recording_from_before_per_view_timelines_still_replays(tmp_path):
@@ -201,7 +201,7 @@ def test_a_recording_from_before_per_view_timelines_still_replays(tmp_path):
     contents = recording_contents(path).contents
     assert contents.timelines == {"iteration"} and contents.timeline == "iteration"
     rbl, notes_rrd = layout_files(path, "iterations", tmp_path)
-    assert "000 · depth" in blueprint_titles(rbl)
+    assert "000 · depth (m)" in blueprint_titles(rbl)
     docs = notes(notes_rrd)
     assert "Recorded before per-view timelines" in docs["/about"] and "Colour legends" in docs["/legend"]
 

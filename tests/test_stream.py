@@ -179,8 +179,9 @@ def test_stream_options_are_validated():
 
 
 def test_depth_maps_are_logged_losslessly_to_a_step_of_their_range():
-    """PNG depth: back in model units within half a step of the farther of the range and the map's maximum
-    (so a depth beyond the range is not cut), 'no depth' stays 0 and a valid depth never becomes 0."""
+    """PNG depth: back in model units within half a step, a step at most 2.5 × the farther of the range and the
+    map's maximum / DEPTH_STEPS (so a depth beyond the range is not cut), 'no depth' stays 0 and a valid depth
+    never becomes 0."""
     from PIL import Image
 
     from workbench.rerun.stream import DEPTH_STEPS, depth_image
@@ -191,6 +192,31 @@ def test_depth_maps_are_logged_losslessly_to_a_step_of_their_range():
     image = depth_image(depth, (1.0, 8.0))
     blob = bytes(image.blob.as_arrow_array().to_pylist()[0])
     back = np.asarray(Image.open(io.BytesIO(blob))).astype(np.float64) / image.meter.as_arrow_array().to_pylist()[0]
-    step = depth.max() / DEPTH_STEPS
+    step = 1 / image.meter.as_arrow_array().to_pylist()[0]
+    assert step <= 2.5 * depth.max() / DEPTH_STEPS
     assert np.abs(back - depth)[2:].max() <= 0.5 * step * (1 + 1e-6)
     assert (back[0] == 0).all() and (back[1:] > 0).all()
+
+
+def test_depth_hover_reads_metres_in_a_few_digits_and_the_legend_says_what_position_counts():
+    """Rerun 0.41's hover prints steps / meter with every digit and no unit ("Depth 7.031 013 431 013 43", seen in
+    chromium): the meter is a round number, so the hover prints a short decimal of metres, the panel title names
+    the unit, and the legend says which pixels a hover's position counts."""
+    from PIL import Image
+
+    from layouts import Contents, map_panel
+    from workbench.rerun.legends import legend_markdown
+    from workbench.rerun.stream import depth_image
+
+    for far in (0.7, 8.33, 41.0, 260.0):
+        depth = np.random.default_rng(1).uniform(far / 4, far, (12, 16))
+        image = depth_image(depth, (far / 5, far))
+        meter = image.meter.as_arrow_array().to_pylist()[0]
+        blob = bytes(image.blob.as_arrow_array().to_pylist()[0])
+        steps = np.asarray(Image.open(io.BytesIO(blob))).astype(np.float64)
+        shown = [repr(float(v) / meter) for v in steps.ravel()[:50]]  # as rerun formats f64: shortest round trip
+        assert max(len(text.split(".")[-1]) for text in shown) <= 4, (far, meter, shown[:3])
+    view = entity_name(3, "img/3.png")
+    assert map_panel(Contents([view]), view, "depth").name == "003 · depth (m)"
+    legend = legend_markdown()
+    assert "Hover position" in legend and "2^L full-resolution pixels" in legend and "depth in metres" in legend

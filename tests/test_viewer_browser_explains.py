@@ -78,7 +78,7 @@ def test_tau_is_disabled_under_vanilla_with_its_reason(page, app):
 
 def test_a_colour_mode_shows_its_legend_with_unit(page, app):
     page.get_by_text("Colour").first.wait_for()
-    _choose(page, app.color_mode, "error")
+    _choose(page, app.color_mode, "GT distance (cm)")
     page.get_by_text("distance to the nearest GT point").wait_for()
     page.get_by_text("≥ 4 cm").wait_for()
     page.get_by_text("confidence of the fast estimates").wait_for()  # the histogram with τ

@@ -13,7 +13,7 @@ from conftest import running_viewer
 from engine.core.errors import DeepCError
 from engine.fusion import FUSION_PRESETS
 from engine.run.folder import read_metrics, write_metrics
-from workbench.viewer.session import ViewerSession, ViewParams
+from workbench.viewer.session import GT_DISTANCE, ViewerSession, ViewParams
 
 
 def _with_options(run, tmp_path, name: str, **metrics):
@@ -88,10 +88,10 @@ def test_previews_say_they_are_approximate(app):
 
 
 def test_every_colour_mode_has_a_legend_with_its_unit_and_the_no_data_colour(app):
-    for mode, unit in (("confidence", "no confidence"), ("views", "views"), ("error", "cm")):
+    for mode, unit in (("confidence", "no confidence"), ("views", "views"), (GT_DISTANCE, "cm")):
         app.color_mode.value = mode
         assert unit in app.color_legend.content and "linear-gradient" in app.color_legend.content
-    assert "≥ 4 cm" in app.session.cloud_legend("error")
+    assert "≥ 4 cm" in app.session.cloud_legend(GT_DISTANCE)
     app.color_mode.value = "rgb"
     assert app.wait_idle(60)
 
@@ -127,11 +127,11 @@ def test_a_vanilla_run_without_gt_or_confidence_offers_only_what_it_has(fake_run
         (run / "stereo" / "confidence_maps" / f"{v.name}.bin").unlink()
     session = ViewerSession.open(run)
     modes = session.color_modes()
-    assert modes["confidence"] and "no confidence maps" in modes["confidence"] and modes["error"] is None
+    assert modes["confidence"] and "no confidence maps" in modes["confidence"] and modes[GT_DISTANCE] is None
     with pytest.raises(DeepCError, match="confidence"):
         session.colors(session.cloud(ViewParams()), "confidence")
     session.scene.gt_points_path = None  # a scene without GT points: no error colouring, and it says why
-    assert "no GT points" in session.color_modes()["error"] and "no GT points" in session.cloud_legend("error")
+    assert "no GT points" in session.color_modes()[GT_DISTANCE] and "no GT points" in session.cloud_legend(GT_DISTANCE)
     with running_viewer(run) as viewer:
         assert viewer.pipeline.value == "vanilla" and viewer.pipeline.disabled and viewer.fused_confidence_tau.disabled
         assert "confidence" not in viewer.color_mode.options

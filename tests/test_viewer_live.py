@@ -80,7 +80,7 @@ def test_every_view_gets_a_thinned_cloud_and_within_1pct_is_scored_as_the_stream
     # the default colouring is the GT error: a bad view is red where a good one is green
     live.on_iteration(_event(tiny, 0, 0, 1, 99, noise=0.2))
     assert live.wait_idle(30)
-    assert str(live.color_mode.value) == "error"
+    assert str(live.color_mode.value) == "depth error (%)"
     red = lambda handle: float(np.mean(handle.colors[:, 0].astype(int) - handle.colors[:, 1]))  # noqa: E731
     assert red(live._clouds[0]) > red(live._clouds[1]) + 50
 
@@ -295,3 +295,33 @@ def test_deepc_run_interrupted_during_patchmatch_stops_the_live_viewer(tmp_path)
     assert not (tmp_path / "out" / "metrics.json").exists()  # stopped during the run, not after it
     with pytest.raises(OSError), socket.create_connection(("127.0.0.1", port), timeout=2):
         pass
+
+
+def test_a_pass_start_names_no_view_until_one_reports(tiny, live):
+    """At a pass start the panel neither shows "view None" nor the previous pass's view and map size."""
+    live.on_stage("patchmatch_pass", level=1, pass_kind="photometric", pass_index=0, iterations=2)
+    live.on_iteration(_event(tiny, 3, 1, 1, 0, noise=0.0))
+    assert live.wait_idle(30) and "view 3: " in live.progress.content and "(80×60)" in live.progress.content
+    live.on_stage("patchmatch_pass", level=0, pass_kind="photometric", pass_index=0, iterations=2)
+    assert live.wait_idle(30)
+    text = live.progress.content
+    assert "None" not in text and "view 3" not in text and "(80×60)" not in text
+    assert "level 0" in text and "first view to come" in text and f"0 of {len(tiny.views)} views done" in text
+    live.on_iteration(_event(tiny, 1, 0, 0, 1, noise=0.0))
+    assert live.wait_idle(30) and "view 1: " in live.progress.content and "(160×120)" in live.progress.content
+
+
+def test_one_view_is_one_view_and_the_error_colour_names_its_unit(tiny):
+    import copy
+
+    one = copy.copy(tiny)
+    one.views = tiny.views[:1]
+    viewer = LiveViewer(one, PipelineOptions(pipeline="vanilla", patchmatch=SMALL_RUN), port=0)
+    try:
+        viewer.on_stage("patchmatch_pass", level=0, pass_kind="photometric", pass_index=0, iterations=2)
+        assert viewer.wait_idle(30)
+        assert "· 1 view ·" in viewer._panel[0].content and "0 of 1 view done" in viewer.progress.content
+        # "error" is the depth error in % of the GT depth here, the distance to GT points in cm in the tuning viewer
+        assert viewer.color_mode.value == "depth error (%)" and "% of the GT depth" in viewer.legend.content
+    finally:
+        viewer.stop()

@@ -10,7 +10,7 @@ import pytest
 from engine.core.errors import DeepCError
 from engine.refinement.options import RefinementOptions
 from workbench.viewer.export import safe_file_name
-from workbench.viewer.session import ViewerSession, ViewParams
+from workbench.viewer.session import COLOR_MODES, ViewerSession, ViewParams
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +107,7 @@ def test_preview_approximates_the_exact_cloud(session):
 
 def test_colour_modes_and_view_images(session):
     cloud = session.cloud(ViewParams(pipeline="fast"))
-    for mode in ("rgb", "confidence", "views", "error"):
+    for mode in COLOR_MODES:
         colors = session.colors(cloud, mode)
         assert colors.shape == (len(cloud), 3) and colors.dtype == np.uint8
     with pytest.raises(DeepCError):

@@ -24,6 +24,7 @@ from engine.core.errors import DeepCError
 from engine.core.heap_trim import release_free_memory
 from engine.core.interrupt import check_interrupt
 from engine.core.observer import IterationEvent, readonly
+from engine.core.words import plural
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.options import PatchMatchOptions
@@ -404,7 +405,7 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
     options = (options or PatchMatchOptions()).validate()
     active = check_views(views, options)
     if not 0 <= view < len(views):
-        raise DeepCError(f"view {view} does not exist (the scene has {len(views)} views)")
+        raise DeepCError(f"view {view} does not exist (the scene has {plural(len(views), 'view')})")
     if not active[view]:
         raise DeepCError(f"view {view} ({views[view].name}) has no PatchMatch (no source view or no depth range)")
     if probe is not None:

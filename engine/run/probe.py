@@ -26,6 +26,7 @@ import numpy as np
 
 from engine.core.camera import Camera
 from engine.core.errors import DeepCError
+from engine.core.words import plural
 from engine.patchmatch import PatchMatchOptions, PatchMatchView, effective_levels
 from engine.patchmatch.multiscale import level_start, replay_view, run_view_pass, view_pyramids
 from engine.patchmatch.probe.partial import trace_from_states
@@ -140,7 +141,7 @@ def resolve_view(names: list[str], view: str | int) -> int:
         i = int(view)
         if 0 <= i < len(names):
             return i
-        raise DeepCError(f"probe: view {i} does not exist (there are {len(names)} views, 0-{len(names) - 1})")
+        raise DeepCError(f"probe: view {i} does not exist (there are {plural(len(names), 'view')}, 0-{len(names) - 1})")
     shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
     raise DeepCError(f"probe: no view named {view!r} (views: {shown})")
 

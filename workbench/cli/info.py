@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from collections import Counter
 
+from engine.core.words import plural
 from engine.io.undistort import cached_workspace
 from engine.scene import SceneOptions, SceneSurvey, survey_scene, views_table, working_size_line
 from workbench.flags.options import options_from_args
@@ -22,7 +23,8 @@ def describe(survey: SceneSurvey, requested: int | None = None) -> list[str]:
     default working size)."""
     model = survey.model
     has_gt_depth = any(p is not None for p in survey.gt_depth_paths)
-    lines = [f"scene {survey.name}: {len(survey.views)} views, {len(model.points)} sparse points, "
+    lines = [f"scene {survey.name}: {plural(len(survey.views), 'view')}, "
+             f"{plural(len(model.points), 'sparse point')}, "
              f"GT depth: {'yes' if has_gt_depth else 'no'}, GT points: "
              f"{'yes' if survey.gt_points_path is not None else 'no'}  ({survey.model_dir})"]
     registered = {im.name for im in model.images}

@@ -17,6 +17,7 @@ from pathlib import Path
 from engine.core.errors import DeepCError
 from engine.core.interrupt import deferred_interrupts
 from engine.core.observer import ObserverList
+from engine.core.words import plural
 from engine.io.atomic import remove_stale_temp_files
 from engine.patchmatch.probe.pixel_probe import PixelProbe
 from engine.run.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
@@ -210,7 +211,7 @@ def _prepare_output(args: argparse.Namespace) -> PatchMatchCheckpoint:
 def print_run_summary(metrics: RunMetrics, out: str) -> None:
     """What ``deepc run`` prints when it is done: sizes, times, depth and cloud quality."""
     seconds = metrics.seconds
-    print(f"{metrics.scene}: {metrics.num_images} views at {metrics.image_size[0]}x"
+    print(f"{metrics.scene}: {plural(metrics.num_images, 'view')} at {metrics.image_size[0]}x"
           f"{metrics.image_size[1]}, pipeline {metrics.pipeline}, {seconds['total']:.1f} s "
           f"(PatchMatch {seconds['patchmatch']:.1f} s)")
     if metrics.depth is not None:

@@ -24,6 +24,7 @@ import numpy as np
 from engine.confidence.data import load_run
 from engine.confidence.options import TrainOptions
 from engine.core.errors import DeepCError
+from engine.core.words import plural
 from engine.io.atomic import atomic_write_text, write_json
 from engine.patchmatch import PatchMatchOptions
 from engine.run.folder import INFERENCE, POST_REFINEMENT, file_sha256
@@ -86,7 +87,7 @@ class Refiner:
             _log(f"{run}: cached refined maps reused (stamp matches)")
         else:
             s = result.seconds
-            _log(f"{run}: {result.views} views refined in {sum(s.values()):.0f} s (confidence "
+            _log(f"{run}: {plural(result.views, 'view')} refined in {sum(s.values()):.0f} s (confidence "
                  f"{s['confidence']:.0f} s, refinement {s['refinement']:.0f} s, counter maps {s['counter']:.0f} s)")
 
     def description(self) -> dict:
@@ -226,9 +227,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     if overlap:
         raise DeepCError(f"scene(s) {', '.join(sorted(overlap))} are both in training and validation")
     labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
-    _log(f"training data ({'refined' if refiner else 'vanilla'} maps): {len(train_runs)} runs, "
-         f"{len(train_samples)} views, {labelled:,} labelled pixels; "
-         f"validation: {', '.join(f'{v.name} ({len(v.samples)} views)' for v in validation) or 'none'} "
+    named = [(v, plural(len(v.samples), "view")) for v in validation]
+    _log(f"training data ({'refined' if refiner else 'vanilla'} maps): {plural(len(train_runs), 'run')}, "
+         f"{plural(len(train_samples), 'view')}, {labelled:,} labelled pixels; "
+         f"validation: {', '.join(f'{v.name} ({n})' for v, n in named) or 'none'} "
          f"({time.perf_counter() - t:.0f} s)")
 
     progress = _progress_logger(options, checkpoint)

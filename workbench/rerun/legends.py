@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.core.words import plural
 from workbench.maps.images import colormap_lut
 
 NO_DATA = 0
@@ -100,7 +101,8 @@ def cost_context():
 def selected_count_context(n_sources: int):
     n = max(n_sources, 1)
     lut = colormap_lut("viridis", n + 1)
-    return _context([(k + 1, f"{k} of {n_sources} source views selected", tuple(int(c) for c in lut[min(k, n)]))
+    sources = plural(n_sources, "source view")
+    return _context([(k + 1, f"{k} of {sources} selected", tuple(int(c) for c in lut[min(k, n)]))
                      for k in range(33)], "no data")  # a uint32 mask selects at most 32
 
 
@@ -114,8 +116,10 @@ CONTEXTS = {"error": error_context, "confidence": confidence_context, "counter":
             "label": label_context, "cost": cost_context}
 
 LEGENDS: dict[str, str] = {
-    "depth": "**depth** — camera-frame z in model units (the scene's units), colour scale *turbo* from the view's "
-             "depth range minimum (blue) to maximum (red). Hover: the depth. No data: transparent (0 = no estimate).",
+    "depth": "**depth (m)** — camera-frame z in metres (the model's units), colour scale *turbo* from the view's "
+             "depth range minimum (blue) to maximum (red). Hover: *Depth* is the depth in metres (rerun prints it "
+             "without its unit; the panel title has it), *Val* the stored step. No data: transparent (0 = no "
+             "estimate).",
     "normal": "**normal** — unit normal in the camera frame (x right, y down, z forward), RGB = (n + 1) / 2: a "
               "surface facing the camera, n = (0, 0, -1), is olive; tilting right adds red, down adds green. "
               "No data: black.",
@@ -140,7 +144,18 @@ LEGENDS: dict[str, str] = {
 }
 
 
+#: What a hover's *Position* counts. Rerun reads it off the logged image and no transform changes that, so the
+#: coarse levels are logged at their own size (a quarter of the bytes of an upsampled copy) and this says how to
+#: get to the full-resolution pixels the viser inspector takes.
+HOVER_POSITION = ("**Hover position** — *Position* is a pixel of the map as logged: at pyramid level L (the "
+                  "*level* scalar) it is 2^L full-resolution pixels across, and a recording that bounds the map size "
+                  "(about this recording says so) shrinks it by the full width ÷ the map's width. Multiply by that "
+                  "factor for the full-resolution pixel the viewer's inspector takes.")
+
+
 def legend_markdown(kinds: list[str] | None = None) -> str:
-    """One markdown document explaining the colour scale, unit and 'no data' of each map kind."""
+    """One markdown document explaining what a hover's position counts and the colour scale, unit and 'no data'
+    of each map kind."""
     kinds = kinds or list(LEGENDS)
-    return "# Colour legends\n\n" + "\n\n".join(f"- {LEGENDS[k]}" for k in kinds if k in LEGENDS) + "\n"
+    return ("# Colour legends\n\n" + HOVER_POSITION + "\n\n"
+            + "\n\n".join(f"- {LEGENDS[k]}" for k in kinds if k in LEGENDS) + "\n")

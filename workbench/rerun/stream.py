@@ -32,6 +32,7 @@ logged with the maps at every logged iteration of every level.
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -42,6 +43,7 @@ from PIL import Image
 from engine.confidence.labels import label_map
 from engine.core.camera import Camera
 from engine.core.observer import IterationEvent, NullObserver
+from engine.core.words import plural
 from workbench.maps.gt_depth import LevelGT, depth_error
 from workbench.maps.images import normal_to_rgb, subsample
 from workbench.rerun.legends import (
@@ -75,19 +77,29 @@ def selected_views_list(mask: int, source_views: list[int]) -> list[int]:
 TIMELINES = ("view_iteration", "pass", "iteration")  # the first is the one layouts show
 
 
-#: integer steps of a logged depth map from 0 to its far end (a 16-bit PNG): 0.025 % of the far depth, 40 times finer
-#: than the 1 % that counts as right, and a third of the bytes of whole 16-bit steps (bench_recording.py)
+#: integer steps of a logged depth map from 0 to its far end (a 16-bit PNG): at most 0.06 % of the far depth, 16
+#: times finer than the 1 % that counts as right, and a third of the bytes of whole 16-bit steps (bench_recording.py)
 DEPTH_STEPS = 4095
 DEPTH_PNG_LEVEL = 3
 
 
+def depth_meter(far: float) -> float:
+    """Steps per model unit of a map reaching ``far``: the largest 1, 2 or 5 × 10^k that keeps ``far`` within
+    ``DEPTH_STEPS``. Rerun's hover prints steps / meter with every digit and no unit ("Depth 7.031 013 431 013 43"
+    for 4095 steps over 8.33 m); a round meter prints the depth as a short decimal ("Depth 7.031")."""
+    if far <= 0:
+        return 1.0
+    limit = DEPTH_STEPS / far
+    decade = 10.0 ** math.floor(math.log10(limit))
+    return max(m * decade for m in (1, 2, 5) if m * decade <= limit)
+
+
 def depth_image(depth: np.ndarray, depth_range: tuple[float, float]) -> rr.EncodedDepthImage | rr.DepthImage:
-    """(H, W) depth in model units (0 = none) as a PNG depth image: ``DEPTH_STEPS`` steps from 0 to the farther of
-    the range's far end and the map's largest depth (``meter`` = steps per model unit, so the viewer's hover reads
-    model units), a valid depth never rounded to 0; colormapped over ``depth_range``."""
+    """(H, W) depth in model units (0 = none) as a PNG depth image in steps of 1 / :func:`depth_meter` of the
+    farther of the range's far end and the map's largest depth (``meter`` = steps per model unit, so the viewer's
+    hover reads model units), a valid depth never rounded to 0; colormapped over ``depth_range``."""
     dmin, dmax = depth_range
-    far = max(dmax, float(depth.max()) if depth.size else 0.0)
-    scale = DEPTH_STEPS / far if far > 0 else 1.0
+    scale = depth_meter(max(dmax, float(depth.max()) if depth.size else 0.0))
     steps = np.clip(np.rint(np.asarray(depth, np.float64) * scale), 0, DEPTH_STEPS).astype(np.uint16)
     steps[(depth > 0) & (steps == 0)] = 1
     # zlib level 3: about 2 % more bytes than level 9 at a quarter of its time (this runs in the engine's thread)
@@ -336,7 +348,7 @@ class RerunStream(NullObserver):
                 self._log_maps(*skipped, pass_end=True)
             self.rec.log("log", rr.TextLog(
                 f"{info['view_name']}: level {info['level']} pass {info['pass_index']} converged after "
-                f"{info['iterations']} of {info['planned']} iterations", level=rr.TextLogLevel.INFO))
+                f"{info['iterations']} of {plural(info['planned'], 'iteration')}", level=rr.TextLogLevel.INFO))
             return
         self.rec.log("log", rr.TextLog(f"stage {name} done", level=rr.TextLogLevel.INFO))
         small = self.options.max_size or 0

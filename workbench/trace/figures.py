@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import html
 import math
+import textwrap
 from typing import Any
 
 import numpy as np
+
+from engine.core.words import plural
 
 SELECTED, OTHER = "#2a9d4b", "#b5b5b5"  # bar colours of selected / not selected source views
 LABELS = {1: "inlier", 0: "outlier", -1: "unlabelled", "inlier": "inlier", "outlier": "outlier"}
@@ -26,6 +29,13 @@ ORIGIN_COLOURS = {"current": (120, 120, 120), "upsampled": (150, 110, 60), "patt
                   "perturbation": (230, 140, 30), "random": (200, 60, 200), "combination": (40, 180, 170),
                   "restorer": (150, 110, 60)}
 WITHIN = 0.01  # the "within 1 %" band of the depth plot (relative to the GT depth)
+# The inspector shows its figures at the width of viser's default control panel (20 em of 16 px, less the
+# folder's padding): drawn for that width in CSS pixels, text is as large on screen as it is set here (1 pt =
+# 100/72 CSS px), and PIXEL_RATIO image pixels per CSS pixel keep it sharp on high-density screens.
+PANEL_PX = 288
+PIXEL_RATIO = 2
+FONT_PT = 8.0  # the smallest text of a figure: 11 CSS px
+TITLE_CHARS = 40  # a title line that fits PANEL_PX at FONT_PT
 
 
 def _number(value: Any) -> float:
@@ -61,9 +71,17 @@ def _pass_starts(arrays: dict[str, np.ndarray]) -> list[tuple[int, str]]:
     return out
 
 
-def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: tuple[int, int] = (420, 560),
-                 compare: dict | None = None) -> np.ndarray:
-    """(H, W, 3) uint8 picture of a trace: cost and depth against the iteration (level and pass boundaries
+def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: tuple[int, int] = (PANEL_PX, 500),
+                 compare: dict | None = None, pixel_ratio: int = PIXEL_RATIO) -> np.ndarray:
+    """(H, W, 3) uint8 picture of :func:`trace_plot` at ``pixel_ratio`` image pixels per CSS pixel of ``size``."""
+    fig = trace_plot(trace, entry, title, size, compare, pixel_ratio)
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+
+
+def trace_plot(trace: dict, entry: int | None = None, title: str = "", size: tuple[int, int] = (PANEL_PX, 500),
+               compare: dict | None = None, pixel_ratio: int = PIXEL_RATIO) -> Any:
+    """A matplotlib Figure of a trace: cost and depth against the iteration (level and pass boundaries
     marked, the GT depth and its ±1 % band when known), and the per-source-view costs of entry ``entry``'s
     winning candidate (default: the last), selected views in green.
 
@@ -71,15 +89,17 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
         trace: a probe trace (module docstring).
         entry: index into ``trace["iterations"]`` whose view costs the bottom plot shows.
         title: the figure's title (the pixel and view).
-        size: (width, height) in pixels.
+        size: (width, height) in CSS pixels, the size it is shown at (text is set for it: ``FONT_PT`` at least).
         compare: another trace of the same pixel (the run's, before a region re-run) drawn dashed in grey.
+        pixel_ratio: image pixels per CSS pixel.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib (no pyplot: thread-safe)
     from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator  # lazy: matplotlib
 
     width, height = size
-    fig = Figure(figsize=(width / 100, height / 100), dpi=100)
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100 * pixel_ratio)
+    small = FONT_PT
     FigureCanvasAgg(fig)
     axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": [1, 1, 1.1]})
     steps = trace["iterations"]
@@ -92,7 +112,7 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
             x = np.array([where[_key(s)] for s in steps])
     final = trace.get("final") or {}
     gt = final.get("gt_depth")
-    for ax, key, label in ((axes[0], "cost", "cost (1 − NCC)"), (axes[1], "depth", "depth")):
+    for ax, key, label in ((axes[0], "cost", "cost (1 − NCC)"), (axes[1], "depth", "depth (m)")):
         if compare is not None and compare.get("iterations"):
             other = trace_arrays(compare)[key]
             ax.plot(np.arange(len(other)), other, "--", color="#999999", lw=1, label="before re-run")
@@ -101,18 +121,18 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
         for start, name in _pass_starts(passes):
             ax.axvline(start - 0.5, color="#dddddd", lw=0.8)
             if key == "cost":
-                ax.text(start, 1.0, name, fontsize=6.5, color="#777777", transform=ax.get_xaxis_transform(),
+                ax.text(start, 1.0, name, fontsize=small, color="#777777", transform=ax.get_xaxis_transform(),
                         va="bottom")
         if entry is not None and 0 <= entry < len(x):
             ax.axvline(x[entry], color="#e07b00", lw=1)
-        ax.set_ylabel(label, fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.set_ylabel(label, fontsize=small)
+        ax.tick_params(labelsize=small)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     if gt is not None and gt > 0:
         axes[1].axhline(gt, color="#2a9d4b", ls="--", lw=1, label="GT depth")
         axes[1].axhspan(gt * (1 - WITHIN), gt * (1 + WITHIN), color="#2a9d4b", alpha=0.12, label="±1 %")
-    axes[1].legend(fontsize=6, loc="best")
-    axes[1].set_xlabel("iteration (run order)", fontsize=8)
+    axes[1].legend(fontsize=small, loc="best")
+    axes[1].set_xlabel("iteration (run order)", fontsize=small)
     index = len(steps) - 1 if entry is None else entry
     names = list(trace.get("source_views") or [])
     ax = axes[2]
@@ -128,19 +148,21 @@ def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: t
             ax.bar(np.arange(len(costs)), shown, color=colours)
             for i, c in enumerate(costs):
                 if not np.isfinite(c):
-                    ax.text(i, 0.02, "n/e", ha="center", fontsize=6, color="#777777")
-            ax.set_xticks(np.arange(len(costs)), labels, fontsize=6, rotation=30, ha="right")
+                    ax.text(i, 0.02, "n/e", ha="center", fontsize=small, color="#777777")
+            ax.set_xticks(np.arange(len(costs)), labels, fontsize=small, rotation=40, ha="right")
             ax.set_ylim(0, 2)
-            ax.set_title(f"winner's view costs ({winner['origin']}, {iteration_label(step)}); green: selected",
-                         fontsize=7)
-    ax.set_ylabel("view cost", fontsize=8)
-    ax.tick_params(labelsize=7)
-    if title:
-        fig.suptitle(title, fontsize=8)
-    # fixed margins: tight_layout measured every tick label and took a third of the figure's time
-    fig.subplots_adjust(left=0.15, right=0.97, top=0.93 if title else 0.96, bottom=0.09, hspace=0.62)
-    fig.canvas.draw()
-    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+            ax.set_title(f"winner's view costs ({winner['origin']}, {iteration_label(step)})\ngreen: selected",
+                         fontsize=small)
+    ax.set_ylabel("view cost", fontsize=small)
+    ax.tick_params(labelsize=small)
+    lines = textwrap.wrap(title, TITLE_CHARS, break_on_hyphens=False) if title else []
+    if lines:
+        fig.suptitle("\n".join(lines), fontsize=small + 1)
+    # fixed margins (in CSS px, as the text is): tight_layout measured every tick label and took a third of the
+    # figure's time
+    top = (24 + 15 * len(lines)) / height  # the title's lines and the pass names above the first plot
+    fig.subplots_adjust(left=52 / width, right=1 - 8 / width, top=1 - top, bottom=62 / height, hspace=0.95)
+    return fig
 
 
 def _short(name: str, keep: int = 12) -> str:
@@ -158,30 +180,36 @@ def _fmt(value: Any, digits: int = 4) -> str:
 
 
 def candidate_table_html(trace: dict, entry: int) -> str:
-    """HTML table of the candidates of trace entry ``entry``: origin, depth, cost, the per-view costs (the
-    selected views' cells shaded, views not evaluated '·') and the winner in bold."""
+    """HTML table of the candidates of trace entry ``entry``, as wide as the panel whatever the number of source
+    views: origin, depth and cost in columns, under each candidate its per-view costs as chips that wrap (the
+    selected views' chips green, views not evaluated '·'), the winner in bold."""
     steps = trace["iterations"]
     if not steps:
         return "<p><i>the trace has no iterations</i></p>"
     step = steps[max(0, min(entry, len(steps) - 1))]
     names = list(trace.get("source_views") or [])
-    head = "".join(f"<th title='{html.escape(str(n))}'>{html.escape(_short(n, 5))}</th>" for n in names)
+    chip = "display:inline-block;margin:1px 2px 1px 0;padding:0 3px;border-radius:3px;white-space:nowrap"
     rows = []
     for k, cand in enumerate(step.get("candidates") or []):
         selected = set(cand.get("selected_views") or [])
-        cells = []
+        chips = []
         for j, cost in enumerate(cand.get("view_costs") or []):
-            shade = " style='background:#d6f0dc'" if j < len(names) and names[j] in selected else ""
-            cells.append(f"<td{shade}>{'·' if cost is None else f'{float(cost):.2f}'}</td>")
-        weight = " style='font-weight:bold;background:#fff3d6'" if k == step.get("winner") else ""
-        rows.append(f"<tr{weight}><td>{html.escape(str(cand['origin']))}</td><td>{_fmt(cand['depth'])}</td>"
-                    f"<td>{_fmt(cand['cost'], 3)}</td>{''.join(cells)}</tr>")
+            name = names[j] if j < len(names) else str(j)
+            shade = "#bfe6c8" if name in selected else "#eeeeee"
+            chips.append(f"<span title='{html.escape(str(name))}' style='{chip};background:{shade}'>"
+                         f"{html.escape(_short(name, 6))} {'·' if cost is None else f'{float(cost):.2f}'}</span>")
+        weight = "font-weight:bold;background:#fff3d6;" if k == step.get("winner") else ""
+        rows.append(f"<tr style='{weight}border-top:1px solid #bbb'><td>{html.escape(str(cand['origin']))}</td>"
+                    f"<td>{_fmt(cand['depth'])}</td><td>{_fmt(cand['cost'], 3)}</td></tr>"
+                    f"<tr style='{weight}'><td colspan='3' style='white-space:normal'>{''.join(chips)}</td></tr>")
     decided = html.escape(str(step.get("decided_by") or ""))
-    return ("<div style='font-size:10px;overflow-x:auto'>"
+    return ("<div style='font-size:11px;max-width:100%'>"
             f"<b>{html.escape(iteration_label(step))}</b> · winner in bold"
             + (f" · decided by <i>{decided}</i>" if decided else "")
-            + " · green cells: selected views<table style='border-collapse:collapse' border='1' cellpadding='2'>"
-            f"<tr><th>origin</th><th>depth</th><th>cost</th>{head}</tr>{''.join(rows)}</table></div>")
+            + " · under each candidate its cost in each source view, green: selected"
+            "<table style='border-collapse:collapse;width:100%;table-layout:fixed' cellpadding='2'>"
+            "<tr><th style='text-align:left'>origin</th><th style='text-align:left'>depth (m)</th>"
+            f"<th style='text-align:left'>cost</th></tr>{''.join(rows)}</table></div>")
 
 
 def candidate_table_markdown(trace: dict, entry: int) -> str:
@@ -239,7 +267,7 @@ def summary_markdown(trace: dict, view_label: str) -> str:
                 text += f" {why['reprojection_px']:.1f} px"
             groups.setdefault(verdict, []).append(text)
         agree = len(groups.get("consistent", []))
-        lines.append(f"counter: {agree} of {len(verdicts)} source views consistent  \n"
+        lines.append(f"counter: {agree} of {plural(len(verdicts), 'source view')} consistent  \n"
                      + "; ".join(f"*{verdict}*: {', '.join(names)}" for verdict, names in groups.items()))
     steps = trace.get("iterations") or []
     if steps:

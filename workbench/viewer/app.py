@@ -281,7 +281,7 @@ class ViewerApp(ControlPanel):
             with self.server.atomic():
                 if self.cloud_handle is None:
                     self.cloud_handle = self.server.scene.add_point_cloud(
-                        "/fused", points, colors=colors, point_size=float(self.point_size.value),
+                        "/fused", points, colors=colors, point_size=self.cloud_point_size(),
                         precision="float32")
                     self.mesh_panel.apply_visibility()  # a new cloud handle starts visible
                 else:
@@ -307,7 +307,7 @@ class ViewerApp(ControlPanel):
 
     def _set_point_size(self) -> None:
         if self.cloud_handle is not None:
-            self.cloud_handle.point_size = float(self.point_size.value)
+            self.cloud_handle.point_size = self.cloud_point_size()
 
     def select_view(self, index: int) -> None:
         """Show view ``index``'s image and maps in the side panel (also on a frustum click, the view
@@ -360,7 +360,7 @@ class ViewerApp(ControlPanel):
         if self.cloud is None:
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
-        write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, float(self.point_size.value),
+        write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, self.cloud_point_size(),
                         self.selected_view,
                         {k.replace(" ", "_"): image for k, (image, _) in
                          self.session.view_maps(self.selected_view, self.cloud_params).items()})

@@ -29,9 +29,10 @@ import numpy as np
 
 from engine.core.errors import DeepCError
 from engine.patchmatch.options import PATTERNS, PatchMatchOptions
-from workbench.maps.images import colorize
-from workbench.trace.figures import ORIGIN_COLOURS, candidate_table_html, summary_markdown, trace_figure
-from workbench.trace.windows import ray_points, window_thumbnails
+from workbench.trace.figures import ORIGIN_COLOURS, PANEL_PX, candidate_table_html, summary_markdown, trace_figure
+from workbench.trace.windows import THUMB, ray_points, window_thumbnails
+from workbench.viewer.legends import scale_html
+from workbench.viewer.region import region_markdown, region_picture, region_scales
 from workbench.viewer.scheduler import NewestWorker
 
 # A probe replays the whole view, so 9 pixels cost what one does (fountain_p11 at 192 px: 9.8 s for 25, 9.6 s
@@ -40,8 +41,6 @@ from workbench.viewer.scheduler import NewestWorker
 PROBE_NEIGHBOURS = 1
 PICK_RADIANS = 0.006  # a click picks cloud points within this angle of its ray (about 5 px at a 60° view)
 REGION_SIDE = 64  # default side of the re-run box, centred on the inspected pixel
-REGION_TILE = 200  # longest side of each before/after map in the region picture
-ERROR_PCT = 5.0  # the region's error maps saturate here (percent of the GT depth), as the View folder's
 MAP_KINDS = ("depth", "cost", "GT error", "image")  # what the map plane can show
 
 # The region form's options: PatchMatchOptions field -> (label, kind). Level and pass are rerun_region's own.
@@ -198,6 +197,7 @@ class InspectorPanel:
             self.region_status = gui.add_markdown("")
             self.region_image = gui.add_image(np.full((8, 8, 3), 255, np.uint8), label="before | after",
                                               format="png", visible=False)
+            self.region_legend = gui.add_html("")
             self.region_numbers = gui.add_markdown("")
         self.inspect_button.on_click(lambda _event: self.inspect_typed())
         self.entry.on_update(lambda _event: self._entry_changed())
@@ -397,7 +397,8 @@ class InspectorPanel:
         costs = winner.get("view_costs") if winner else None
         return window_thumbnails(images, cameras, [names[k] for k in keep], x, y, float(after["depth"] or 0),
                                  after.get("normal"), half, set(winner.get("selected_views") or []),
-                                 [costs[k - 1] for k in keep[1:]] if costs else None)
+                                 [costs[k - 1] for k in keep[1:]] if costs else None,
+                                 columns=PANEL_PX // THUMB)  # as wide as the panel: shown at its own size
 
     def save_rrd(self) -> Path | None:
         """The shown trace (and its view's depth and GT error maps) as OUT/exports/probe_<view>_<x>_<y>.rrd."""
@@ -586,14 +587,15 @@ class InspectorPanel:
         result = self.region_fn(self.run_dir, job["view"] if isinstance(job["view"], str) else name, box=job["box"],
                              level=job["level"], pass_index=job["pass_index"], overrides=job["overrides"] or None,
                              probe_pixels=job["pixels"])
-        picture = region_picture(result, self.app.session.scene.views[self._view_index(name)].depth_range,
-                                 job["pixels"][0] if job["pixels"] else None)
+        scales = region_scales(result, self.app.session.scene.views[self._view_index(name)].depth_range)
+        picture = region_picture(result, scales, job["pixels"][0] if job["pixels"] else None)
         seconds = time.perf_counter() - job["started"]
         changed = ", ".join(f"{k} {v}" for k, v in job["overrides"].items()) or "run options"
         with self.app.server.atomic():
             self.region = result
             self.region_image.image = picture
             self.region_image.visible = True
+            self.region_legend.content = "".join(scale_html(scale) for scale in scales)
             self.region_numbers.content = region_markdown(result)
             self.region_status.content = f"box {tuple(result.box)} of {name} · {changed} · {seconds:.2f} s"
         self.latencies.append(("region", seconds))
@@ -635,62 +637,4 @@ def mark_pixel(image: np.ndarray, x: int, y: int, colour=(255, 0, 255)) -> np.nd
     return out
 
 
-def _tile(values: np.ndarray | None, lo: float, hi: float, cmap: str, invalid: np.ndarray | None) -> np.ndarray:
-    from PIL import Image  # lazy: pillow
-
-    if values is None:
-        return np.full((REGION_TILE // 2, REGION_TILE, 3), 200, np.uint8)
-    rgb = colorize(values, lo, hi, cmap, invalid)
-    h, w = rgb.shape[:2]
-    scale = max(1, REGION_TILE // max(h, w))
-    return np.asarray(Image.fromarray(rgb).resize((w * scale, h * scale), Image.NEAREST))
-
-
-def region_picture(result: Any, depth_range: tuple[float, float], pixel: tuple[int, int] | None) -> np.ndarray:
-    """(H, W, 3) uint8: depth before | after on top (turbo over the box's own 2-98 % depth range, else
-    ``depth_range``), error before | after below (0-5 % of GT, when known); the inspected pixel in magenta."""
-    both = np.concatenate([np.ravel(result.depth_before), np.ravel(result.depth_after)])
-    both = both[np.isfinite(both) & (both > 0)]
-    # the box's own depth range (2-98 %), not the view's: a region spans a sliver of it
-    lo, hi = np.percentile(both, (2, 98)) if len(both) else depth_range
-    if hi <= lo:
-        lo, hi = depth_range
-    rows = []
-    pairs = [(result.depth_before, result.depth_after, lo, hi, "turbo")]
-    if result.error_before is not None and result.error_after is not None:
-        pairs.append((np.asarray(result.error_before) * 100, np.asarray(result.error_after) * 100, 0.0, ERROR_PCT,
-                      "RdYlGn_r"))
-    for before, after, vmin, vmax, cmap in pairs:
-        tiles = []
-        for values in (before, after):
-            values = np.asarray(values, np.float32)
-            invalid = ~np.isfinite(values) | ((values <= 0) if cmap == "turbo" else np.zeros_like(values, bool))
-            tile = _tile(np.nan_to_num(values, nan=0.0), vmin, vmax, cmap, invalid).copy()
-            if pixel is not None:
-                scale = tile.shape[0] // values.shape[0]
-                px, py = (pixel[0] - result.box[0]) * scale, (pixel[1] - result.box[1]) * scale
-                tile[max(0, py - 1):py + scale + 1, max(0, px - 1):px + scale + 1] = (255, 0, 255)
-            tiles.append(tile)
-        gap = np.full((tiles[0].shape[0], 6, 3), 255, np.uint8)
-        rows.append(np.concatenate([tiles[0], gap, tiles[1]], axis=1))
-    width = max(r.shape[1] for r in rows)
-    rows = [np.pad(r, ((0, 6), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
-    return np.concatenate(rows, axis=0)
-
-
-def region_markdown(result: Any) -> str:
-    """The region's numbers: depth changed, within 1 % of GT before and after, time."""
-    before, after = np.asarray(result.depth_before), np.asarray(result.depth_after)
-    changed = 100.0 * float(np.count_nonzero(before != after)) / max(1, before.size)
-    lines = [f"left: before · right: after · {changed:.1f} % of the box's depths changed"]
-    if result.within_1pct_before is not None and result.within_1pct_after is not None:
-        delta = result.within_1pct_after - result.within_1pct_before
-        lines.append(f"within 1 % of GT: **{result.within_1pct_before:.1f} % → {result.within_1pct_after:.1f} %** "
-                     f"({delta:+.1f})")
-    else:
-        lines.append("no GT depth: no error maps")
-    lines.append(f"re-run took {float(result.seconds):.2f} s in the engine")
-    return "  \n".join(lines)
-
-
-__all__ = ["InspectorPanel", "ProbeRequest", "nearest_point_on_ray", "region_markdown", "region_picture"]
+__all__ = ["InspectorPanel", "ProbeRequest", "nearest_point_on_ray"]

@@ -30,6 +30,7 @@ import numpy as np
 
 from engine.core.camera import Camera
 from engine.core.observer import IterationEvent, NullObserver
+from engine.core.words import plural
 from engine.run.pipeline import PipelineOptions
 from engine.scene import Scene
 from workbench.maps.gt_depth import LevelGT, depth_error
@@ -45,6 +46,8 @@ LIVE_MAX_SIZE = 128
 PUSH_HZ = 10.0  # the worker pushes at most this often (newer snapshots replace waiting ones meanwhile)
 FUSED_MAX_POINTS = DISPLAY_MAX_POINTS // 4  # the fused cloud shown until the tuning viewer's exact one
 STOP_TIMEOUT_S = 10.0
+# the colour mode of the relative depth error; the tuning viewer's GT distance (session.GT_DISTANCE) is in cm
+DEPTH_ERROR = "depth error (%)"
 
 # What the panel says runs after PatchMatch (the stage names of engine/run/pipeline.py's on_stage calls).
 STAGE_NAMES = {"counter": "counter maps (geometric consistency of the PatchMatch maps)",
@@ -151,11 +154,11 @@ class LiveViewer(NullObserver):
     def _build_panel(self) -> None:
         gui = self.server.gui
         s = self.scene
-        self._panel = [gui.add_markdown(f"**DeepC Workbench** · {s.name} · {len(s.views)} views · "
+        self._panel = [gui.add_markdown(f"**DeepC Workbench** · {s.name} · {plural(len(s.views), 'view')} · "
                                         f"`{self.options.pipeline}` run, live")]
         self.progress = gui.add_markdown("starting…")
         self.color_mode = gui.add_dropdown("Colour", options=self._modes(), initial_value=self._modes()[-1],
-                                           hint="depth: each point's depth; error: |z - z_gt| / z_gt at the "
+                                           hint=f"depth: each point's depth; {DEPTH_ERROR}: |z - z_gt| / z_gt at the "
                                                 "level's resolution (with GT depth); confidence: once known")
         self.legend = gui.add_html(self._legend())
         self.live_point_size = gui.add_slider("Point size", min=0.25, max=4.0, step=0.25, initial_value=1.0,
@@ -168,13 +171,13 @@ class LiveViewer(NullObserver):
     def _modes(self) -> tuple[str, ...]:
         """Colour modes with their data, the default last: error with GT depth, else depth."""
         modes = ["depth", *(["confidence"] if self._confidence else [])]
-        return (*modes, "error") if self.has_gt else tuple(modes)
+        return (*modes, DEPTH_ERROR) if self.has_gt else tuple(modes)
 
     def _legend(self) -> str:
         mode = str(self.color_mode.value)
-        if mode == "error":
-            return scale_html(Scale("depth error vs GT (at the level's resolution)", 0.0, DEPTH_ERROR_PCT,
-                                    "RdYlGn_r", "%", no_data="no GT depth", saturates=True, digits=1))
+        if mode == DEPTH_ERROR:
+            return scale_html(Scale("depth error vs GT, % of the GT depth (at the level's resolution)", 0.0,
+                                    DEPTH_ERROR_PCT, "RdYlGn_r", "%", no_data="no GT depth", saturates=True, digits=1))
         if mode == "confidence":
             return scale_html(Scale("confidence", 0.0, 1.0, "viridis", no_data="no confidence yet"))
         return scale_html(self._depth_scale) + note_html("one thinned cloud per view: its depth after the newest "
@@ -215,9 +218,12 @@ class LiveViewer(NullObserver):
         with self._lock:
             p = self._progress
             if name == "patchmatch_pass":
+                # the previous pass's view and (at a new level) its map size are not this pass's
+                if p.level != info.get("level"):
+                    p.shape = None
                 p.stage, p.level, p.pass_kind = "patchmatch", info.get("level"), str(info.get("pass_kind", ""))
                 p.pass_index, p.pass_iterations = int(info.get("pass_index", 0)), int(info.get("iterations", 0))
-                p.iteration, p.views_done = 0, set()
+                p.iteration, p.views_done, p.view = 0, set(), None
                 p.coarsest = max(p.coarsest, int(info.get("level") or 0))
             elif name == "patchmatch_done":
                 p.stage = "counter"
@@ -297,12 +303,12 @@ class LiveViewer(NullObserver):
         camera = self.scene.views[view].camera
         points = camera.camera_to_world(self._rays[key][valid] * d[valid][:, None]).astype(np.float32)
         mode = str(self.color_mode.value)
-        if mode == "error" and error is not None:
+        if mode == DEPTH_ERROR and error is not None:
             colors = colorize(error.rel[::step, ::step][valid] * 100, 0.0, DEPTH_ERROR_PCT, "RdYlGn_r")
             colors[np.isnan(error.rel[::step, ::step][valid])] = NO_DATA
         elif mode == "confidence" and confidence is not None:
             colors = colorize(_resampled(confidence, shape)[::step, ::step][valid], 0.0, 1.0, "viridis")
-        elif mode in ("error", "confidence"):
+        elif mode in (DEPTH_ERROR, "confidence"):
             colors = np.tile(np.array(NO_DATA, np.uint8), (len(points), 1))
         else:
             colors = colorize(d[valid], self._depth_scale.vmin, self._depth_scale.vmax, "turbo")
@@ -356,14 +362,18 @@ class LiveViewer(NullObserver):
         passes = 1 + self.options.patchmatch.geom_passes
         size = f" ({p.shape[1]}×{p.shape[0]})" if p.shape else ""
         iterations = f"/{p.pass_iterations}" if p.pass_iterations else ""
-        view = self.scene.views[p.view].name if p.view is not None and p.view < n else "–"
+        done = f"{len(p.views_done)} of {plural(n, 'view')} done in this pass"
+        if p.view is not None and p.view < n:
+            step = f"iteration {p.iteration + 1}{iterations}"
+            view = f"view {p.view}: {self.scene.views[p.view].name} · {done}"
+        else:  # a pass has started and no view has reported an iteration of it yet
+            step, view = "starting", f"first view to come · {done}"
         lines = [f"**PatchMatch** · level {p.level}{size} (levels {p.coarsest} → 0, 0 = finest)",
-                 f"{p.pass_kind} pass {p.pass_index + 1} of {passes} · iteration {p.iteration + 1}{iterations}",
-                 f"view {p.view}: {view} · {len(p.views_done)} of {n} views done in this pass"]
+                 f"{p.pass_kind} pass {p.pass_index + 1} of {passes} · {step}", view]
         within = self.within_so_far(p.level) if p.level is not None else None
         if within is not None:
             lines.append(f"within 1 % of GT so far: **{within[0]:.1f} %** of the GT pixels (level {p.level}, "
-                         f"{within[1]} views)")
+                         f"{plural(within[1], 'view')})")
         elif self.has_gt:
             lines.append("within 1 % of GT: after the first view")
         lines.append(elapsed + eta)

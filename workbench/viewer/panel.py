@@ -16,6 +16,7 @@ from typing import Any
 
 import viser
 
+from engine.core.words import plural
 from engine.fusion import FUSION_PRESETS, FusionOptions
 from workbench.maps.images import subsample
 from workbench.viewer.session import COLOR_MODES, ViewerSession, ViewParams
@@ -58,6 +59,29 @@ def view_label(index: int, name: str) -> str:
     return f"{index}: {name}"
 
 
+@dataclasses.dataclass(frozen=True)
+class SizeSlider:
+    """The point size slider in a unit that puts the default between 1 and 1000 (model units are metres, as
+    the evaluation's cm tolerances take them): round ends and steps instead of 0.001222 … 0.122166."""
+
+    unit: str
+    per_metre: float  # slider value of one model unit
+    min: float
+    max: float
+    step: float
+    initial: float
+
+    @classmethod
+    def around(cls, default: float) -> SizeSlider:
+        """A tenth of ``default`` (model units) to ten times it, in steps of about a tenth of it."""
+        unit, per_metre = next(((u, f) for u, f in (("m", 1.0), ("cm", 100.0)) if default * f >= 1), ("mm", 1000.0))
+        value = default * per_metre
+        step = 10.0 ** math.floor(math.log10(value / 10)) if value > 0 else 0.1
+        digits = max(0, -math.floor(math.log10(step)))
+        return cls(unit, per_metre, round(step, digits), round(value * 10, digits), round(step, digits),
+                   max(round(value, digits), round(step, digits)))
+
+
 class ControlPanel:
     """The GUI of a viewer app; subclasses provide ``server``, ``session``, ``default_point_size`` and the
     handlers named in the module docstring."""
@@ -74,7 +98,7 @@ class ControlPanel:
         self._base_fusion = start.fusion  # the fields the panel does not control keep the run's values
         self._last_tau = start.fused_confidence_tau
         modes = s.color_modes()
-        gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {len(s.scene.views)} views")
+        gui.add_markdown(f"**DeepC Workbench** · {s.scene.name} · {plural(len(s.scene.views), 'view')}")
         self.run_text = gui.add_markdown(f"**{run_label(start, s.run is not None, s.sky_filter)}**" if s.has_maps
                                          else "**no run:** a COLMAP workspace, its sparse points only")
         self.reset_button = gui.add_button("Reset to the run's settings", disabled=s.run is None,
@@ -90,7 +114,10 @@ class ControlPanel:
                                                        hint="keep pixels whose confidence is at least this: "
                                                             "confidence.tau under fast, refinement."
                                                             "refined_confidence_tau (network 2's) under full")
-            self.mask_k = gui.add_slider("Mask k", min=0, max=10, step=1, initial_value=start.mask_k,
+            # k counts consistent source views: a k above a view's number of sources removes every pixel
+            sources = max((len(v.source_views) for v in s.scene.views), default=1)
+            self.mask_k = gui.add_slider("Mask k", min=0, max=max(1, sources), step=1,
+                                         initial_value=min(start.mask_k, max(1, sources)),
                                          disabled=not s.has_counter,
                                          hint="keep pixels with ≥ k consistent source views (0 = off)")
             self.control_notes = gui.add_markdown(self._control_notes(start.pipeline))
@@ -116,9 +143,11 @@ class ControlPanel:
             self._fusion_handles = dict(zip(FUSION_CONTROLS, (self.reproj, self.depth_err, self.normal_err,
                                                               self.min_views, self.per_pixel), strict=True))
         with gui.add_folder("Display"):
-            self.point_size = gui.add_slider("Point size", min=self.default_point_size / 10,
-                                             max=self.default_point_size * 10, step=self.default_point_size / 10,
-                                             initial_value=self.default_point_size)
+            size = self.size_slider = SizeSlider.around(self.default_point_size)
+            self.point_size = gui.add_slider(f"Point size ({size.unit})", min=size.min, max=size.max, step=size.step,
+                                             initial_value=size.initial,
+                                             hint="diameter of a point in the scene; the default is about one "
+                                                  "pixel's footprint at a typical depth")
             available = tuple(mode for mode in COLOR_MODES if not modes[mode])
             self.color_mode = gui.add_dropdown("Colour", options=available, initial_value="rgb",
                                                hint="; ".join(f"{m}: {r}" for m, r in modes.items() if r) or None)
@@ -272,6 +301,10 @@ class ControlPanel:
             finally:
                 self._applying_preset = False
         self.request(self.params())
+
+    def cloud_point_size(self) -> float:
+        """The point size slider's value in model units."""
+        return float(self.point_size.value) / self.size_slider.per_metre
 
     def params(self) -> ViewParams:
         """The ViewParams the controls describe now."""

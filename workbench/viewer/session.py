@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from engine.core.errors import DeepCError
+from engine.core.words import plural
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.io.ply import read_points
@@ -28,7 +29,9 @@ from engine.scene import Scene, SceneOptions, load_scene
 from workbench.maps.images import colorize, normal_to_rgb, view_images
 from workbench.viewer.legends import NO_DATA, Scale, categories_html, histogram_html, note_html, scale_html
 
-COLOR_MODES = ("rgb", "confidence", "views", "error")
+# "error" alone names two quantities (the live view's depth error in %, this distance in cm): each mode says its unit
+GT_DISTANCE = "GT distance (cm)"
+COLOR_MODES = ("rgb", "confidence", "views", GT_DISTANCE)
 REPORT_TOLERANCE = 0.02  # the paper's and ETH3D's headline tolerance (model units: metres)
 ERROR_SATURATION = 2 * REPORT_TOLERANCE  # the error colouring saturates here (4 cm)
 DEPTH_ERROR_PCT = 5.0  # the per-view GT depth error map saturates here (percent of the GT depth)
@@ -348,7 +351,7 @@ class ViewerSession:
         return {"rgb": None,
                 "confidence": None if self.has_confidence else "unavailable: the run wrote no confidence maps",
                 "views": None,
-                "error": None if self.has_gt else "unavailable: the scene has no GT points"}
+                GT_DISTANCE: None if self.has_gt else "unavailable: the scene has no GT points"}
 
     def cloud_scale(self, mode: str) -> Scale | None:
         """The colour scale of a cloud colour mode (None for the images' own colours)."""
@@ -357,7 +360,7 @@ class ViewerSession:
                          no_data="no confidence (fused without)")
         if mode == "views":
             return Scale("views supporting the point", 1, max(2, len(self.scene.views)), "plasma", "views", digits=0)
-        if mode == "error":
+        if mode == GT_DISTANCE:
             return Scale("distance to the nearest GT point", 0.0, 100 * ERROR_SATURATION, "RdYlGn_r", "cm",
                          saturates=True, digits=1)
         return None
@@ -502,7 +505,7 @@ class ViewerSession:
             out.append(histogram_html("counter: consistent source views per estimate", *counts["counter"],
                                       params.mask_k - 0.5 if params.mask_k > 0 else None,
                                       threshold_name="mask k", below="below k (removed)", shown=str(params.mask_k),
-                                      axis=("0", f"{len(counts['counter'][0]) - 1} views")))
+                                      axis=("0", plural(len(counts["counter"][0]) - 1, "view"))))
         return out
 
     def view_images(self, i: int) -> dict[str, np.ndarray]:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from engine.core.errors import DeepCError
+from engine.core.words import plural
 from engine.patchmatch.context import ViewContext
 from engine.patchmatch.kernels import ACTIVE_DRAW, neighbourhood_changed
 from engine.patchmatch.probe.explain import explain_pixel
@@ -93,7 +94,7 @@ class PixelProbe:
         """Check the probe against the run's views (``names``, full-resolution ``sizes`` (W, H), source indices)
         and forget earlier traces."""
         if self.view >= len(names):
-            raise DeepCError(f"probe: view {self.view} does not exist (the scene has {len(names)} views, "
+            raise DeepCError(f"probe: view {self.view} does not exist (the scene has {plural(len(names), 'view')}, "
                              f"0-{len(names) - 1})")
         self.view_name = names[self.view]
         self.width, self.height = sizes[self.view]

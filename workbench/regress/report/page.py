@@ -17,6 +17,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from engine.core.words import plural
 from engine.io.atomic import atomic_write_text
 from workbench.regress.calibration import Calibration
 from workbench.regress.comparison import (
@@ -165,7 +166,7 @@ def run_section(result: RunResult, analysis: RunAnalysis, report_dir: Path) -> s
              _link(result.out_dir / "fused.ply", report_dir, "fused.ply")]
     if result.recording:
         links.append(_link(result.recording, report_dir, "recording.rrd") + " (deepc replay FILE.rrd)")
-    parts.append(f"<p>{m.num_images} views at {_e('×'.join(map(str, m.image_size)))}, pipeline "
+    parts.append(f"<p>{plural(m.num_images, 'view')} at {_e('×'.join(map(str, m.image_size)))}, pipeline "
                  f"{_e(m.pipeline)}, {m.fused_points:,} fused points; seconds: "
                  + ", ".join(f"{k} {v:.1f}" for k, v in m.seconds.items() if v)
                  + f" (1-min load average {result.load_average[0]:.1f} before, {result.load_average[1]:.1f} after)."
