@@ -57,7 +57,7 @@ def test_trace_text_is_legible_and_the_candidate_table_fits_at_the_default_panel
     assert "width:100%" in table and "table-layout:fixed" in table
     rows = table.split("<tr")[1:]
     assert all(row.count("<td") + row.count("<th") <= 3 for row in rows)
-    assert table.count("view_0") == 12 * len(wide["iterations"][3]["candidates"])  # every view's cost is there
+    assert table.count(">view_0") == 12 * len(wide["iterations"][3]["candidates"])  # every view's cost is there
 
 
 def test_window_corners_lie_on_the_plane_and_project_back(noisy_run):

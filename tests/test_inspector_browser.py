@@ -119,3 +119,31 @@ def test_a_saved_trace_replays_in_the_rerun_web_viewer_with_the_probe_layout(bro
     assert {"cost · pixel 40_30", "candidates on the pixel's ray", "window in each source image"} <= set(titles)
     with WebViewer(path) as viewer:
         assert _shot(browser_context, viewer).std() > 10
+
+
+def test_at_the_default_panel_width_figures_are_shown_at_their_size_and_the_table_fits(browser_context,
+                                                                                      inspector_app):
+    """The trace figure and the window thumbnails are drawn for the default panel: chromium shows them at (about)
+    the width they were drawn for, so their text stays the size it was set (11 px, not 6); the candidate table
+    needs no horizontal scrolling."""
+    from workbench.trace.figures import PANEL_PX, PIXEL_RATIO
+
+    page = _open(browser_context, inspector_app)
+    try:
+        inspector = inspector_app.inspector
+        inspector.pixel.value = (40, 30)
+        page.get_by_role("button", name="Inspect pixel").click()
+        wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+        page.get_by_text("winner in bold").first.wait_for()
+        page.wait_for_timeout(1000)
+        shown = page.locator("img").evaluate_all(
+            "images => images.filter(i => i.naturalWidth > 0 && i.offsetParent !== null)"
+            ".map(i => [i.naturalWidth, i.clientWidth])")
+        figure = [c for n, c in shown if n == PIXEL_RATIO * PANEL_PX]
+        assert figure and abs(figure[0] - PANEL_PX) <= 0.1 * PANEL_PX, shown
+        table = page.locator("table").filter(has_text="origin").first
+        fits = table.evaluate("t => [t.scrollWidth, t.parentElement.clientWidth, t.closest('div').scrollWidth,"
+                              " t.closest('div').clientWidth]")
+        assert fits[0] <= fits[1] + 1 and fits[2] <= fits[3] + 1, fits
+    finally:
+        page.close()

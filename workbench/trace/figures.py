@@ -29,10 +29,11 @@ ORIGIN_COLOURS = {"current": (120, 120, 120), "upsampled": (150, 110, 60), "patt
                   "perturbation": (230, 140, 30), "random": (200, 60, 200), "combination": (40, 180, 170),
                   "restorer": (150, 110, 60)}
 WITHIN = 0.01  # the "within 1 %" band of the depth plot (relative to the GT depth)
-# The inspector shows its figures at the width of viser's default control panel (20 em of 16 px, less the
-# folder's padding): drawn for that width in CSS pixels, text is as large on screen as it is set here (1 pt =
-# 100/72 CSS px), and PIXEL_RATIO image pixels per CSS pixel keep it sharp on high-density screens.
-PANEL_PX = 288
+# The inspector shows its figures at the width of an image in viser 1.1's default control panel (20 em of 16 px
+# less the folder's padding: 281 CSS px in chromium): drawn for that width in CSS pixels, text is as large on
+# screen as it is set here (1 pt = 100/72 CSS px), and PIXEL_RATIO image pixels per CSS pixel keep it sharp on
+# high-density screens.
+PANEL_PX = 280
 PIXEL_RATIO = 2
 FONT_PT = 8.0  # the smallest text of a figure: 11 CSS px
 TITLE_CHARS = 40  # a title line that fits PANEL_PX at FONT_PT
@@ -151,7 +152,7 @@ def trace_plot(trace: dict, entry: int | None = None, title: str = "", size: tup
                     ax.text(i, 0.02, "n/e", ha="center", fontsize=small, color="#777777")
             ax.set_xticks(np.arange(len(costs)), labels, fontsize=small, rotation=40, ha="right")
             ax.set_ylim(0, 2)
-            ax.set_title(f"winner's view costs ({winner['origin']}, {iteration_label(step)})\ngreen: selected",
+            ax.set_title(f"winner's view costs · {iteration_label(step)}\n{winner['origin']} · green: selected",
                          fontsize=small)
     ax.set_ylabel("view cost", fontsize=small)
     ax.tick_params(labelsize=small)
@@ -197,7 +198,7 @@ def candidate_table_html(trace: dict, entry: int) -> str:
             name = names[j] if j < len(names) else str(j)
             shade = "#bfe6c8" if name in selected else "#eeeeee"
             chips.append(f"<span title='{html.escape(str(name))}' style='{chip};background:{shade}'>"
-                         f"{html.escape(_short(name, 6))} {'·' if cost is None else f'{float(cost):.2f}'}</span>")
+                         f"{html.escape(_short(name, 8))} {'·' if cost is None else f'{float(cost):.2f}'}</span>")
         weight = "font-weight:bold;background:#fff3d6;" if k == step.get("winner") else ""
         rows.append(f"<tr style='{weight}border-top:1px solid #bbb'><td>{html.escape(str(cand['origin']))}</td>"
                     f"<td>{_fmt(cand['depth'])}</td><td>{_fmt(cand['cost'], 3)}</td></tr>"

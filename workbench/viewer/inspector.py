@@ -398,7 +398,7 @@ class InspectorPanel:
         return window_thumbnails(images, cameras, [names[k] for k in keep], x, y, float(after["depth"] or 0),
                                  after.get("normal"), half, set(winner.get("selected_views") or []),
                                  [costs[k - 1] for k in keep[1:]] if costs else None,
-                                 columns=PANEL_PX // THUMB)  # as wide as the panel: shown at its own size
+                                 columns=round(PANEL_PX / THUMB))  # about the panel's width: shown at its size
 
     def save_rrd(self) -> Path | None:
         """The shown trace (and its view's depth and GT error maps) as OUT/exports/probe_<view>_<x>_<y>.rrd."""
