@@ -27,6 +27,14 @@ def _open(context, inspector_app):
     return page
 
 
+def _inspect_typed(page, inspector, x: int, y: int) -> None:
+    """Type pixel (x, y), press Inspect pixel and wait until the browser shows its trace."""
+    inspector.pixel.value = (x, y)
+    page.get_by_role("button", name="Inspect pixel").click()
+    wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+    page.get_by_text(f"pixel ({x}, {y}) of view 0").first.wait_for()
+
+
 def _look_through_view(page, inspector_app):
     camera = inspector_app.session.scene.views[inspector_app.selected_view].camera
     client = next(iter(inspector_app.server.get_clients().values()))
@@ -72,10 +80,7 @@ def test_region_rerun_in_the_browser_changes_the_maps_and_the_trace(browser_cont
     page = _open(browser_context, inspector_app)
     try:
         inspector = inspector_app.inspector
-        inspector.pixel.value = (40, 30)
-        page.get_by_role("button", name="Inspect pixel").click()
-        wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
-        page.get_by_text("pixel (40, 30) of view 0").first.wait_for()
+        _inspect_typed(page, inspector, 40, 30)
         before = inspector.trace
         page.get_by_text("Re-run region", exact=True).first.click()  # the folder opens
         page.get_by_role("button", name="Re-run region").click()
@@ -130,10 +135,7 @@ def test_at_the_default_panel_width_figures_are_shown_at_their_size_and_the_tabl
 
     page = _open(browser_context, inspector_app)
     try:
-        inspector = inspector_app.inspector
-        inspector.pixel.value = (40, 30)
-        page.get_by_role("button", name="Inspect pixel").click()
-        wait_for(lambda: inspector.trace is not None and inspector.wait_idle(1))
+        _inspect_typed(page, inspector_app.inspector, 40, 30)
         page.get_by_text("winner in bold").first.wait_for()
         page.wait_for_timeout(1000)
         shown = page.locator("img").evaluate_all(
