@@ -32,7 +32,8 @@ MAP_LABELS = {"depth": "depth (m)", "normal": "normal", "cost": "cost", "selecte
               "error": "error vs GT", "counter": "counter", "confidence": "confidence", "label": "GT labels",
               "refined_depth": "refined depth (m)"}
 STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT",
-                "confidence_auc": "confidence ROC-AUC", "confidence_kept_pct": "confidence >= tau %"}
+                "confidence_auc": "confidence ROC-AUC", "confidence_kept_pct": "confidence >= tau %",
+                "pixel_scale": "full-res px per map px"}
 PIPELINES = ("vanilla", "fast", "full")
 SCRUB_TIMELINE = "view_iteration"  # one view's iterations (workbench/rerun/stream.py); older recordings: "iteration"
 

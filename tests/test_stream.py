@@ -117,6 +117,9 @@ def test_one_view_scrubs_on_its_own_timeline_with_gt_error_at_every_level(tmp_pa
     assert table["view_iteration"].to_pylist() == [0, 1, 2, 3]
     assert table["iteration"].to_pylist() == [0, 2, 4, 6]  # the global step interleaves the views
     assert table["pass"].to_pylist() == [0, 0, 1, 1]  # level 1's pass, then level 0's
+    # a hover's position times pixel_scale is the full-resolution pixel the viewer's inspector takes
+    scale = store.reader(index="view_iteration", contents=f"/stats/{base}/pixel_scale").to_arrow_table()
+    assert [row[0] for row in scale[f"/stats/{base}/pixel_scale:Scalars:scalars"].to_pylist()] == [2, 2, 1, 1]
     error = store.reader(index="view_iteration", contents=f"/maps/{base}/error").to_arrow_table()
     assert error.num_rows == 4  # the coarse level too
     fmt = error[f"/maps/{base}/error:SegmentationImage:format"][0].as_py()[0]
@@ -219,4 +222,4 @@ def test_depth_hover_reads_metres_in_a_few_digits_and_the_legend_says_what_posit
     view = entity_name(3, "img/3.png")
     assert map_panel(Contents([view]), view, "depth").name == "003 · depth (m)"
     legend = legend_markdown()
-    assert "Hover position" in legend and "2^L full-resolution pixels" in legend and "depth in metres" in legend
+    assert "Hover position" in legend and "stats/<view>/pixel_scale" in legend and "depth in metres" in legend

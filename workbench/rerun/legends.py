@@ -147,10 +147,10 @@ LEGENDS: dict[str, str] = {
 #: What a hover's *Position* counts. Rerun reads it off the logged image and no transform changes that, so the
 #: coarse levels are logged at their own size (a quarter of the bytes of an upsampled copy) and this says how to
 #: get to the full-resolution pixels the viser inspector takes.
-HOVER_POSITION = ("**Hover position** — *Position* is a pixel of the map as logged: at pyramid level L (the "
-                  "*level* scalar) it is 2^L full-resolution pixels across, and a recording that bounds the map size "
-                  "(about this recording says so) shrinks it by the full width ÷ the map's width. Multiply by that "
-                  "factor for the full-resolution pixel the viewer's inspector takes.")
+HOVER_POSITION = ("**Hover position** — *Position* is a pixel of the map as logged: at pyramid level L it is 2^L "
+                  "full-resolution pixels across, and a recording that bounds the map size shrinks it further. "
+                  "Multiply by the view's *full-res px per map px* scalar (stats/<view>/pixel_scale) for the "
+                  "full-resolution pixel the viewer's inspector takes.")
 
 
 def legend_markdown(kinds: list[str] | None = None) -> str:

@@ -17,7 +17,7 @@ from workbench.rerun.recording import Recording
 from workbench.rerun.stream import RerunStream, StreamOptions, entity_name
 
 ITERATION_MAPS = ("depth", "normal", "cost", "selected_count", "counter")
-ITERATION_STATS = ("mean_cost", "changed_pct", "seconds", "level", "pass")
+ITERATION_STATS = ("mean_cost", "changed_pct", "seconds", "level", "pass", "pixel_scale")
 LIVE_CONFIDENCE_STATS = ("confidence_kept_pct", "confidence_seconds")  # and confidence_auc with GT
 
 

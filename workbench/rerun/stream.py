@@ -16,6 +16,7 @@ Entity tree (one per recording; the same code writes to a live viewer or an ``.r
     maps/<view>/confidence          DeepC confidence (fast/full pipelines; every k-th iteration likewise)
     maps/<view>/label               GT inlier/outlier labels of the depth the confidence scored, when GT exists
     stats/<view>/{mean_cost,changed_pct,within_1pct,seconds,level,pass}   scalars
+    stats/<view>/pixel_scale        full-resolution pixels per pixel of the logged maps (hover positions × it)
     stats/<view>/{confidence_kept_pct,confidence_auc,confidence_seconds}  scalars of the k-th iterations' scoring
     legend, legend/<kind>           markdown: colour scale, unit and 'no data' of every map (workbench.rerun.legends)
     world/fused/<pipeline>          fused cloud, when a fusion stage reports one (thinned to at most
@@ -264,7 +265,7 @@ class RerunStream(NullObserver):
         rec = self.rec
         self._set_time(*times)
         self._last_time[view] = times
-        name, _camera, _rgb, sources = self.views[view]
+        name, camera, _rgb, sources = self.views[view]
         base = entity_name(view, name)
         small = self.options.max_size or 0
         dmin, dmax = self._depth_range[view]
@@ -290,6 +291,8 @@ class RerunStream(NullObserver):
             rec.log(f"{stats}/skipped_pct", rr.Scalars(100.0 * event.pixels_skipped / max(
                 event.pixels_skipped + event.pixel_updates, 1)))
         rec.log(f"{stats}/level", rr.Scalars(event.level))
+        # a hover's Position counts the logged map's pixels: this turns it into the inspector's full-resolution ones
+        rec.log(f"{stats}/pixel_scale", rr.Scalars(camera.width / subsample(depth, small).shape[1]))
         rec.log(f"{stats}/pass", rr.Scalars(event.pass_index))
         gt = self._gt_at(view, depth.shape)
         if gt is not None:
