@@ -323,5 +323,6 @@ def test_one_view_is_one_view_and_the_error_colour_names_its_unit(tiny):
         assert "· 1 view ·" in viewer._panel[0].content and "0 of 1 view done" in viewer.progress.content
         # "error" is the depth error in % of the GT depth here, the distance to GT points in cm in the tuning viewer
         assert viewer.color_mode.value == "depth error (%)" and "% of the GT depth" in viewer.legend.content
+        assert viewer.live_point_size.label == "Point size (× pixel)"  # relative to a thinned pixel's footprint
     finally:
         viewer.stop()

@@ -161,7 +161,7 @@ class LiveViewer(NullObserver):
                                            hint=f"depth: each point's depth; {DEPTH_ERROR}: |z - z_gt| / z_gt at the "
                                                 "level's resolution (with GT depth); confidence: once known")
         self.legend = gui.add_html(self._legend())
-        self.live_point_size = gui.add_slider("Point size", min=0.25, max=4.0, step=0.25, initial_value=1.0,
+        self.live_point_size = gui.add_slider("Point size (× pixel)", min=0.25, max=4.0, step=0.25, initial_value=1.0,
                                               hint="× the footprint of one thinned pixel at its level (the "
                                                    "clouds are thinned: a point stands for step × step pixels)")
         self._panel += [self.progress, self.color_mode, self.legend, self.live_point_size]
