@@ -223,8 +223,8 @@ def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.showwarning = _warning_line
-    # lazy: pycolmap (and here on purpose: its glog installs a SIGTERM handler that aborts; ours must come after)
-    import pycolmap  # noqa: F401
+    # pycolmap, where a command needs it, is imported by engine.io.colmap_model.import_pycolmap, which keeps this
+    # handler (its glog installs one that aborts)
     signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args.handler(args) or 0)
