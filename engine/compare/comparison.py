@@ -1,0 +1,154 @@
+"""Two runs of one scene compared view by view and overall (``deepc compare``).
+
+Views are matched by image name (:func:`engine.compare.sources.match_names`); each view's two depth maps and its GT
+depth are brought to the pair's common working size (the smaller of the two maps; ``engine.core.resample``, which
+never averages across a depth edge) and compared pixel by pixel (:mod:`engine.compare.pixels`). Where both runs
+have a fused cloud and the scene has GT points, both clouds are scored as ``deepc eval`` scores them (ETH3D's
+accuracy, completeness and F1 at every tolerance, ``engine.evaluation``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.compare.pixels import TOLERANCE, PixelCounts, compare_pixels
+from engine.compare.sources import SourceRun, match_names
+from engine.core.errors import DeepCError
+from engine.core.resample import resample_depth
+from engine.evaluation import EvaluationOptions, evaluate_file
+from engine.io.dense import read_depth_map
+from engine.scene import Scene, SceneOptions, load_scene
+
+
+@dataclasses.dataclass
+class ViewComparison:
+    """One view: its name, the common size (width, height) in pixels, whether it has GT depth, the counts and
+    the (H, W) bool maps of :data:`engine.compare.pixels.MAP_KINDS`."""
+
+    index: int
+    name: str
+    size: tuple[int, int]
+    has_gt: bool
+    counts: PixelCounts
+    maps: dict[str, np.ndarray]
+
+    @property
+    def difference(self) -> float:
+        """Percent of the counted pixels where the runs differ (:meth:`PixelCounts.shares`), 0 when none counted."""
+        value = self.counts.shares()["difference"]
+        return 0.0 if math.isnan(value) else value
+
+
+@dataclasses.dataclass
+class Comparison:
+    """Runs A and B compared on ``scene``.
+
+    Attributes:
+        views: the views both runs have, in scene order; only_a, only_b: scene views only one run has a map of.
+        total: the counts of every compared view together.
+        fused: "a" / "b" -> the ``eval`` block (tolerances, accuracy, completeness, f1 in percent) of the run's
+            fused cloud, or None; fused_notes: why a cloud was not scored.
+    """
+
+    a: SourceRun
+    b: SourceRun
+    scene: Scene
+    tolerance: float
+    views: list[ViewComparison]
+    only_a: list[str]
+    only_b: list[str]
+    total: PixelCounts
+    fused: dict[str, dict[str, list[float]] | None]
+    fused_notes: list[str]
+
+    def most_different(self, count: int) -> list[ViewComparison]:
+        """The ``count`` views where the runs differ most, most first."""
+        return sorted(self.views, key=lambda v: -v.difference)[:count]
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (no maps)."""
+
+        def run(r: SourceRun) -> dict[str, Any]:
+            return {"path": str(r.path), "kind": r.kind, "description": r.description,
+                    "fused": None if r.fused is None else str(r.fused)}
+
+        return {"scene": self.scene.name, "scene_path": str(self.scene.root), "tolerance": self.tolerance,
+                "a": run(self.a), "b": run(self.b), "only_a": self.only_a, "only_b": self.only_b,
+                "overall": {**dataclasses.asdict(self.total), **self.total.shares()},
+                "views": [{"view": v.name, "size": list(v.size), "has_gt": v.has_gt,
+                           **dataclasses.asdict(v.counts), **v.counts.shares()} for v in self.views],
+                "fused": self.fused, "fused_notes": self.fused_notes}
+
+
+def reference_scene(a: SourceRun, b: SourceRun, scene_root: str | Path | None = None) -> Scene:
+    """The scene both runs are of: ``scene_root`` if given, else a deepc run's scene, else a foreign run's folder
+    when it holds a COLMAP scene; loaded with a deepc run's scene options (the defaults otherwise)."""
+    ours = [r for r in (a, b) if r.kind == "deepc"]
+    options = SceneOptions.from_dict(ours[0].scene_options) if ours else SceneOptions()
+    root = scene_root or next((r.scene_root for r in (*ours, a, b) if r.scene_root is not None), None)
+    if root is None:
+        raise DeepCError(f"neither {a.path} nor {b.path} names its scene: give --scene SCENE (the COLMAP workspace "
+                         "the runs were made from)")
+    return load_scene(root, options)
+
+
+def common_size(size_a: tuple[int, int], size_b: tuple[int, int], name: str) -> tuple[int, int]:
+    """The smaller of two (width, height) sizes of one image; sizes of other shapes are a :class:`DeepCError`."""
+    (wa, ha), (wb, hb) = size_a, size_b
+    if abs(wa * hb - wb * ha) > max(wa, wb, ha, hb):  # the same aspect ratio, up to a pixel of rounding
+        raise DeepCError(f"view {name}: depth maps of {wa}x{ha} and {wb}x{hb} pixels are not of the same image")
+    return size_a if wa * ha <= wb * hb else size_b
+
+
+def _gt_at(scene: Scene, index: int, size: tuple[int, int]) -> np.ndarray | None:
+    """(H, W) GT depth of view ``index`` resampled from its file to ``size`` (one resampling), or None."""
+    path = scene.gt_depth_paths[index]
+    return None if path is None else resample_depth(read_depth_map(path), size)
+
+
+def fused_scores(a: SourceRun, b: SourceRun, scene: Scene, options: EvaluationOptions | None = None
+                 ) -> tuple[dict[str, dict[str, list[float]] | None], list[str]]:
+    """The ``eval`` block of each run's fused cloud against the scene's GT points ("a" / "b" -> block or None) and
+    a note for each run not scored."""
+    scores: dict[str, dict[str, list[float]] | None] = {"a": None, "b": None}
+    notes: list[str] = []
+    if not scene.has_gt_points:
+        return scores, [f"scene {scene.name} has no GT points: fused clouds not scored"]
+    runs = [(key, run) for key, run in (("a", a), ("b", b)) if run.fused is not None]
+    notes += [f"{key.upper()} ({run.path}) has no fused cloud" for key, run in (("a", a), ("b", b))
+              if run.fused is None]
+    gt_views = (scene.gt_views() or None) if runs else None  # the unobserved-space rule, as `deepc eval` applies it
+    for key, run in runs:
+        scores[key] = evaluate_file(run.fused, scene.gt_points_path, options or EvaluationOptions(), gt_views).to_dict()
+    return scores, notes
+
+
+def compare_runs(a: SourceRun, b: SourceRun, scene: Scene, tolerance: float = TOLERANCE,
+                 evaluate_fused: bool = True, options: EvaluationOptions | None = None) -> Comparison:
+    """Compare runs ``a`` and ``b`` of ``scene`` (:mod:`engine.compare.pixels` per view, then the fused clouds)."""
+    names = [v.name for v in scene.views]
+    keys_a, keys_b = match_names(list(a.keys), names), match_names(list(b.keys), names)
+    views: list[ViewComparison] = []
+    total = PixelCounts()
+    for v in scene.views:
+        if v.name not in keys_a or v.name not in keys_b:
+            continue
+        ka, kb = keys_a[v.name], keys_b[v.name]
+        size = common_size(a.sizes[ka], b.sizes[kb], v.name)
+        da, db = resample_depth(a.depth(ka), size), resample_depth(b.depth(kb), size)
+        gt = _gt_at(scene, v.index, size)
+        counts, maps = compare_pixels(da, db, gt, tolerance)
+        views.append(ViewComparison(v.index, v.name, size, gt is not None, counts, maps))
+        total = total + counts
+    if not views:
+        raise DeepCError(f"{a.path} and {b.path} have no view of scene {scene.name} in common (views are matched by "
+                         "image name)")
+    only_a = [n for n in names if n in keys_a and n not in keys_b]
+    only_b = [n for n in names if n in keys_b and n not in keys_a]
+    fused, notes = fused_scores(a, b, scene, options) if evaluate_fused else ({"a": None, "b": None}, [])
+    return Comparison(a, b, scene, tolerance, views, only_a, only_b, total, fused, notes)
