@@ -10,23 +10,25 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.compare.dmap import HAS_CONF, HAS_DEPTH, HAS_NORMAL, HAS_VIEWS, HEADER, MAGIC
 from engine.io.dense import write_dense_map
+
+#: DensifyPointCloud's header: "DR", flags (1 depth, 2 normal, 4 confidence, 8 views), padding, image width and
+#: height, depth-map width and height, depth min and max (written here from the format, not from our reader)
+DMAP_HEADER = struct.Struct("<2sBB4I2f")
 
 
 def encode_dmap(image_name: str, depth: np.ndarray, *, image_size: tuple[int, int] | None = None,
                 normal: np.ndarray | None = None, confidence: np.ndarray | None = None,
                 views: np.ndarray | None = None, view_ids: tuple[int, ...] = (0, 1),
                 depth_range: tuple[float, float] = (0.1, 100.0)) -> bytes:
-    """The bytes of a float32 ``.dmap`` (DensifyPointCloud's layout) of (H, W) ``depth``; camera K = identity-ish,
-    R = I, C = 0 (a comparison reads depth only)."""
+    """The bytes of a float32 ``.dmap`` (DensifyPointCloud's layout) of (H, W) ``depth`` with the optional (H, W, 3)
+    normals, (H, W) confidence and (H, W, 4) views maps; a plain K at the map's size, R = I, C = 0."""
     height, width = depth.shape
-    flags = HAS_DEPTH | (HAS_NORMAL if normal is not None else 0) | (HAS_CONF if confidence is not None else 0) | (
-        HAS_VIEWS if views is not None else 0)
+    flags = 1 + sum(bit for bit, array in ((2, normal), (4, confidence), (8, views)) if array is not None)
     image_w, image_h = image_size or (width, height)
     name = image_name.encode("utf-8")
     K = np.array([[width, 0, width / 2], [0, width, height / 2], [0, 0, 1]], "<f8")
-    parts = [HEADER.pack(MAGIC, flags, 0, image_w, image_h, width, height, *depth_range),
+    parts = [DMAP_HEADER.pack(b"DR", flags, 0, image_w, image_h, width, height, *depth_range),
              struct.pack("<H", len(name)), name, struct.pack("<I", len(view_ids)),
              np.asarray(view_ids, "<u4").tobytes(), K.tobytes(), np.eye(3, dtype="<f8").tobytes(),
              np.zeros(3, "<f8").tobytes(), np.asarray(depth, "<f4").tobytes()]

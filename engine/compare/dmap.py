@@ -113,8 +113,10 @@ def _quantized(data: bytes, path: Path) -> bool:
 def decode_dmap(data: bytes, path: str | Path = "<bytes>") -> DepthData:
     """Parse the bytes of a .dmap; any defect is a one-line :class:`DeepCError` naming ``path``."""
     path = Path(path)
-    if len(data) < HEADER.size or data[:2] != MAGIC:
+    if data[:2] != MAGIC:
         raise DeepCError("not an OpenMVS depth map: no 'DR' header", path)
+    if len(data) < HEADER.size:
+        raise DeepCError(f"truncated OpenMVS depth map: {len(data)} bytes, shorter than its header", path)
     quantized = _quantized(data, path)
     header = HEADER_QUANTIZED if quantized else HEADER
     _, flags, exponent, image_w, image_h, width, height, d_min, d_max, *rest = header.unpack_from(data)
