@@ -83,9 +83,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise DeepCError(f"option --tolerance={args.tolerance:g}: a percentage above 0 and below 100")
     if args.views < 0:
         raise DeepCError(f"option --views={args.views}: a number of views, 0 or more")
-    # lazy: the scene, the run readers and the evaluation stay off `deepc`'s start-up
-    from engine.compare.comparison import compare_runs, reference_scene
-    from engine.compare.sources import open_run
+    from engine.compare.comparison import compare_runs, reference_scene  # lazy: scenes, evaluation
+    from engine.compare.sources import open_run  # lazy: the run readers (engine.run)
 
     a, b = open_run(args.run_a, args.maps), open_run(args.run_b, args.maps)
     scene = reference_scene(a, b, args.scene)
