@@ -56,9 +56,9 @@ def test_a_run_compared_with_itself_agrees_everywhere(runs, tmp_path):
     summary = json.loads((tmp_path / "report" / "compare.json").read_text())
     overall = summary["overall"]
     assert overall["gt"] > 0 and overall["no_gt"] > 0
-    assert overall["a_right"] == overall["b_right"] > 0
+    assert overall["a_right"] == overall["b_right"] > 0 and overall["a_right_pct"] == overall["b_right_pct"] > 50
     assert overall["a_right_b_wrong"] == overall["b_right_a_wrong"] == overall["disagree"] == 0
-    assert overall["difference"] == 0
+    assert overall["difference_pct"] == overall["disagree_pct"] == 0
     assert "all views" in result.stdout and "5 views compared" in result.stdout
     for view in summary["views"]:
         pixels = np.asarray(Image.open(tmp_path / "report" / "maps" / map_file(view["view"], "a_right_b_wrong")))

@@ -71,7 +71,8 @@ class Comparison:
         return sorted(self.views, key=lambda v: -v.difference)[:count]
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready summary (no maps)."""
+        """A JSON-ready summary (no maps): per view and ``overall``, the :class:`PixelCounts` and their shares in
+        percent (``a_right_pct``, ..., ``disagree_pct``, ``difference_pct``)."""
 
         def run(r: SourceRun) -> dict[str, Any]:
             return {"path": str(r.path), "kind": r.kind, "description": r.description,
@@ -79,10 +80,15 @@ class Comparison:
 
         return {"scene": self.scene.name, "scene_path": str(self.scene.root), "tolerance": self.tolerance,
                 "a": run(self.a), "b": run(self.b), "only_a": self.only_a, "only_b": self.only_b,
-                "overall": {**dataclasses.asdict(self.total), **self.total.shares()},
-                "views": [{"view": v.name, "size": list(v.size), "has_gt": v.has_gt,
-                           **dataclasses.asdict(v.counts), **v.counts.shares()} for v in self.views],
+                "overall": _counts_dict(self.total),
+                "views": [{"view": v.name, "size": list(v.size), "has_gt": v.has_gt, **_counts_dict(v.counts)}
+                          for v in self.views],
                 "fused": self.fused, "fused_notes": self.fused_notes}
+
+
+def _counts_dict(counts: PixelCounts) -> dict[str, Any]:
+    """Counts under their names, shares (percent) under ``<name>_pct``."""
+    return {**dataclasses.asdict(counts), **{f"{k}_pct": v for k, v in counts.shares().items()}}
 
 
 def reference_scene(a: SourceRun, b: SourceRun, scene_root: str | Path | None = None) -> Scene:
