@@ -142,9 +142,13 @@ def _bad_folders(root: Path, our_run: Path, gt: dict) -> dict[str, tuple[Path, s
     partial = root / "partial"
     shutil.copytree(our_run, partial)
     (partial / "stereo" / "depth_maps" / f"{names[3]}.bin").unlink()
+    unfinished = root / "unfinished"
+    shutil.copytree(our_run, unfinished)
+    (unfinished / "metrics.json").unlink()
     return {"empty": (empty, "not a deepc run"), "no_maps": (no_maps, "without depth maps"),
             "bad_bin": (bad_bin, f"{names[2]}.geometric.bin: truncated"), "cut": (cut, "depth0001.dmap: truncated"),
-            "partial": (partial, "partial run"), "missing": (root / "nowhere", "no such folder")}
+            "partial": (partial, "partial run"), "unfinished": (unfinished, "unfinished deepc run"),
+            "missing": (root / "nowhere", "no such folder")}
 
 
 def test_bad_or_partial_folders_are_one_line_and_exit_2(tmp_path, tiny, our_run):

@@ -115,6 +115,9 @@ def _colmap_run(path: Path) -> SourceRun:
     for kind in reversed(COLMAP_TYPES):  # geometric overrides photometric
         for file in folder.rglob(f"*.{kind}.bin"):
             keys[file.relative_to(folder).as_posix()[:-len(f".{kind}.bin")]] = str(file)
+    if not keys and any(folder.glob("*.bin")):  # our layout, stereo/depth_maps/<image>.bin, without metrics.json
+        raise DeepCError("no metrics.json: an unfinished deepc run? (COLMAP's depth maps end in .geometric.bin or "
+                         ".photometric.bin)", path)
     if not keys:
         raise DeepCError("a COLMAP workspace without depth maps (no *.geometric.bin or *.photometric.bin)", folder)
     sizes = {}
