@@ -54,11 +54,14 @@ def write_openmvs_run(scene_dir: Path, out: Path, depth_of: Callable[[str], np.n
 
 
 def write_colmap_run(scene_dir: Path, out: Path, depth_of: Callable[[str], np.ndarray], names: list[str],
-                     kind: str = "geometric") -> Path:
+                     kind: str = "geometric", normal_of: Callable[[str], np.ndarray] | None = None) -> Path:
     """A COLMAP dense workspace at ``out``: the scene's ``sparse/`` and ``images/`` and
-    ``stereo/depth_maps/<name>.<kind>.bin`` holding ``depth_of(name)`` for ``names``."""
+    ``stereo/depth_maps/<name>.<kind>.bin`` holding ``depth_of(name)`` for ``names`` (and
+    ``stereo/normal_maps/<name>.<kind>.bin`` holding ``normal_of(name)`` when given)."""
     shutil.copytree(scene_dir / "sparse", out / "sparse")
     shutil.copytree(scene_dir / "images", out / "images")
     for name in names:
         write_dense_map(out / "stereo" / "depth_maps" / f"{name}.{kind}.bin", np.asarray(depth_of(name), np.float32))
+        if normal_of is not None:
+            write_dense_map(out / "stereo" / "normal_maps" / f"{name}.{kind}.bin", normal_of(name))
     return out

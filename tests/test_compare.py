@@ -13,10 +13,14 @@ from PIL import Image
 from test_cli import _one_line_error, deepc
 
 from engine.compare.comparison import compare_runs, reference_scene
+from engine.compare.our_fusion import fuse_run
 from engine.compare.sources import open_run
 from engine.io.ply import read_points, write_ply
 from engine.run.folder import read_map, write_map
+from engine.scene import load_scene
 from support.fake_run import make_fake_run
+from support.foreign_runs import write_colmap_run
+from support.gt_normals import depth_normals
 from workbench.compare.report import COLOURS, map_file
 
 TINY = SAMPLES / "tiny"
@@ -125,6 +129,23 @@ def test_both_fused_clouds_are_scored(runs, tmp_path):
     assert fa["tolerances"] == fb["tolerances"] and len(fa["f1"]) > 3
     assert fa["f1"][0] > 90 and fb["f1"][0] < fa["f1"][0] - 10  # 3 cm off fails the 1 cm tolerance
     assert fb["f1"][-1] > 90  # and passes the largest
+
+
+def test_our_fusion_scores_both_runs_maps_through_one_fusion(tmp_path):
+    scene = load_scene(TINY)
+    gt = {v.name: scene.gt_depth(v.index) for v in scene.views}
+    normal = {v.name: depth_normals(v.camera, gt[v.name]) for v in scene.views}
+    names = list(gt)
+    with_normals = write_colmap_run(TINY, tmp_path / "n", lambda n: np.where(normal[n].any(axis=2), gt[n], 0),
+                                    names, normal_of=lambda n: normal[n])
+    without = write_colmap_run(TINY, tmp_path / "d", lambda n: gt[n], names)
+    a, b = open_run(with_normals), open_run(without)
+    comparison = compare_runs(a, b, scene, evaluate_fused=False, fuse_ours=True)
+    assert comparison.ours_fused["a"]["f1"][2] > 80  # GT maps fused: near complete and accurate at 5 cm
+    assert comparison.ours_fused["b"] is None
+    assert any("B's maps not fused by ours" in n and "normal map" in n for n in comparison.fused_notes)
+    cloud = fuse_run(a, scene)
+    assert len(cloud) > 1000 and (cloud.num_views >= 2).all()
 
 
 def test_bad_arguments_are_one_line_and_exit_2(runs, tmp_path):

@@ -4,7 +4,8 @@ Views are matched by image name (:func:`engine.compare.sources.match_names`); ea
 depth are brought to the pair's common working size (the smaller of the two maps; ``engine.core.resample``, which
 never averages across a depth edge) and compared pixel by pixel (:mod:`engine.compare.pixels`). Where both runs
 have a fused cloud and the scene has GT points, both clouds are scored as ``deepc eval`` scores them (ETH3D's
-accuracy, completeness and F1 at every tolerance, ``engine.evaluation``).
+accuracy, completeness and F1 at every tolerance, ``engine.evaluation``); when asked, so are both runs' maps fused
+by our fusion (:mod:`engine.compare.our_fusion`).
 """
 
 from __future__ import annotations
@@ -16,12 +17,14 @@ from typing import Any
 
 import numpy as np
 
+from engine.compare.our_fusion import fuse_run
 from engine.compare.pixels import TOLERANCE, PixelCounts, compare_pixels
 from engine.compare.sources import SourceRun, match_names
 from engine.core.errors import DeepCError
 from engine.core.resample import resample_depth
-from engine.evaluation import EvaluationOptions, evaluate_file
+from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.io.dense import read_depth_map
+from engine.io.ply import read_points
 from engine.scene import Scene, SceneOptions, load_scene
 
 
@@ -53,6 +56,7 @@ class Comparison:
         total: the counts of every compared view together.
         fused: "a" / "b" -> the ``eval`` block (tolerances, accuracy, completeness, f1 in percent) of the run's
             fused cloud, or None; fused_notes: why a cloud was not scored.
+        ours_fused: the same for each run's maps fused by our fusion (:mod:`engine.compare.our_fusion`), when asked.
     """
 
     a: SourceRun
@@ -65,6 +69,8 @@ class Comparison:
     total: PixelCounts
     fused: dict[str, dict[str, list[float]] | None]
     fused_notes: list[str]
+    ours_fused: dict[str, dict[str, list[float]] | None] = dataclasses.field(
+        default_factory=lambda: {"a": None, "b": None})
 
     def most_different(self, count: int) -> list[ViewComparison]:
         """The ``count`` views where the runs differ most, most first."""
@@ -83,7 +89,7 @@ class Comparison:
                 "overall": _counts_dict(self.total),
                 "views": [{"view": v.name, "size": list(v.size), "has_gt": v.has_gt, **_counts_dict(v.counts)}
                           for v in self.views],
-                "fused": self.fused, "fused_notes": self.fused_notes}
+                "fused": self.fused, "fused_notes": self.fused_notes, "ours_fused": self.ours_fused}
 
 
 def _counts_dict(counts: PixelCounts) -> dict[str, Any]:
@@ -117,26 +123,50 @@ def _gt_at(scene: Scene, index: int, size: tuple[int, int]) -> np.ndarray | None
     return None if path is None else resample_depth(read_depth_map(path), size)
 
 
+def score_clouds(clouds: dict[str, Path | np.ndarray], scene: Scene, options: EvaluationOptions | None = None
+                 ) -> dict[str, dict[str, list[float]]]:
+    """The ``eval`` block of each cloud (a PLY, or (N, 3) points) against the scene's GT points, with its GT depth
+    maps for the unobserved-space rule, as ``deepc eval`` scores a cloud; the GT is indexed once for all."""
+    if not clouds:
+        return {}
+    gt = PointIndex(read_points(scene.gt_points_path))
+    gt_views = scene.gt_views() or None
+    return {key: evaluate_points(read_points(c) if isinstance(c, Path) else c, gt, options or EvaluationOptions(),
+                                 gt_views).to_dict() for key, c in clouds.items()}
+
+
 def fused_scores(a: SourceRun, b: SourceRun, scene: Scene, options: EvaluationOptions | None = None
                  ) -> tuple[dict[str, dict[str, list[float]] | None], list[str]]:
-    """The ``eval`` block of each run's fused cloud against the scene's GT points ("a" / "b" -> block or None) and
-    a note for each run not scored."""
-    scores: dict[str, dict[str, list[float]] | None] = {"a": None, "b": None}
-    notes: list[str] = []
+    """The ``eval`` block of each run's own fused cloud ("a" / "b" -> block or None) and a note for each run not
+    scored."""
     if not scene.has_gt_points:
-        return scores, [f"scene {scene.name} has no GT points: fused clouds not scored"]
-    runs = [(key, run) for key, run in (("a", a), ("b", b)) if run.fused is not None]
-    notes += [f"{key.upper()} ({run.path}) has no fused cloud" for key, run in (("a", a), ("b", b))
-              if run.fused is None]
-    gt_views = (scene.gt_views() or None) if runs else None  # the unobserved-space rule, as `deepc eval` applies it
-    for key, run in runs:
-        scores[key] = evaluate_file(run.fused, scene.gt_points_path, options or EvaluationOptions(), gt_views).to_dict()
-    return scores, notes
+        return {"a": None, "b": None}, [f"scene {scene.name} has no GT points: fused clouds not scored"]
+    runs = {"a": a, "b": b}
+    notes = [f"{key.upper()} ({run.path}) has no fused cloud" for key, run in runs.items() if run.fused is None]
+    scores = score_clouds({key: run.fused for key, run in runs.items() if run.fused is not None}, scene, options)
+    return {key: scores.get(key) for key in runs}, notes
+
+
+def ours_fused_scores(a: SourceRun, b: SourceRun, scene: Scene, options: EvaluationOptions | None = None
+                      ) -> tuple[dict[str, dict[str, list[float]] | None], list[str]]:
+    """The ``eval`` block of each run's maps fused by our fusion, and a note for each run that could not be."""
+    if not scene.has_gt_points:
+        return {"a": None, "b": None}, []
+    clouds, notes = {}, []
+    for key, run in (("a", a), ("b", b)):
+        try:
+            clouds[key] = fuse_run(run, scene).xyz
+        except DeepCError as exc:
+            notes.append(f"{key.upper()}'s maps not fused by ours: {exc}")
+    scores = score_clouds(clouds, scene, options)
+    return {key: scores.get(key) for key in ("a", "b")}, notes
 
 
 def compare_runs(a: SourceRun, b: SourceRun, scene: Scene, tolerance: float = TOLERANCE,
-                 evaluate_fused: bool = True, options: EvaluationOptions | None = None) -> Comparison:
-    """Compare runs ``a`` and ``b`` of ``scene`` (:mod:`engine.compare.pixels` per view, then the fused clouds)."""
+                 evaluate_fused: bool = True, options: EvaluationOptions | None = None,
+                 fuse_ours: bool = False) -> Comparison:
+    """Compare runs ``a`` and ``b`` of ``scene`` (:mod:`engine.compare.pixels` per view), then score their fused
+    clouds (``evaluate_fused``) and their maps fused by our fusion (``fuse_ours``)."""
     names = [v.name for v in scene.views]
     keys_a, keys_b = match_names(list(a.keys), names), match_names(list(b.keys), names)
     views: list[ViewComparison] = []
@@ -157,4 +187,5 @@ def compare_runs(a: SourceRun, b: SourceRun, scene: Scene, tolerance: float = TO
     only_a = [n for n in names if n in keys_a and n not in keys_b]
     only_b = [n for n in names if n in keys_b and n not in keys_a]
     fused, notes = fused_scores(a, b, scene, options) if evaluate_fused else ({"a": None, "b": None}, [])
-    return Comparison(a, b, scene, tolerance, views, only_a, only_b, total, fused, notes)
+    ours, ours_notes = ours_fused_scores(a, b, scene, options) if fuse_ours else ({"a": None, "b": None}, [])
+    return Comparison(a, b, scene, tolerance, views, only_a, only_b, total, fused, notes + ours_notes, ours)

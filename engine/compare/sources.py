@@ -24,7 +24,7 @@ import numpy as np
 
 from engine.compare.dmap import read_dmap
 from engine.core.errors import DeepCError
-from engine.io.dense import read_dense_map_header, read_depth_map
+from engine.io.dense import read_dense_map_header, read_depth_map, read_normal_map
 from engine.run.folder import map_path, read_map, read_run_metrics, run_scene
 from engine.run.fused_maps import FusionRule, fused_view, read_run_view
 
@@ -47,6 +47,8 @@ class SourceRun:
         scene_root: a folder :func:`engine.scene.load_scene` reads for this run (None: the run names no scene).
         scene_options: the scene options the run used (deepc runs), else empty.
         read: key -> (H, W) float32 depth, camera-frame z in scene units, 0 = none.
+        read_normal: key -> (H, W, 3) float32 camera-frame unit normals facing the camera (0 = none); a
+            :class:`DeepCError` when the run has none.
     """
 
     path: Path
@@ -58,10 +60,15 @@ class SourceRun:
     scene_root: Path | None
     scene_options: dict = dataclasses.field(default_factory=dict)
     read: Callable[[str], np.ndarray] = dataclasses.field(repr=False, default=lambda key: np.zeros((0, 0)))
+    read_normal: Callable[[str], np.ndarray] = dataclasses.field(repr=False, default=lambda key: np.zeros((0, 0)))
 
     def depth(self, name: str) -> np.ndarray:
         """(H, W) float32 depth of the image stored as ``name`` (a key of :attr:`keys`), 0 = none."""
         return self.read(self.keys[name])
+
+    def normal(self, name: str) -> np.ndarray:
+        """(H, W, 3) float32 camera-frame normals of the image stored as ``name``, at its depth map's size."""
+        return self.read_normal(self.keys[name])
 
 
 def open_run(path: str | Path, maps: str = "fused") -> SourceRun:
@@ -93,16 +100,17 @@ def _deepc_run(path: Path, maps: str) -> SourceRun:
                          f"({missing[0]}, ...)", path / "stereo" / "depth_maps")
     rule = FusionRule.from_saved(metrics.options, metrics.pipeline)
 
-    def read(name: str) -> np.ndarray:
+    def read_maps(name: str, kind: str) -> np.ndarray:
         if maps == "raw":
-            return read_map(path, "depth", name)
-        return fused_view(scene, index[name], rule, read_run_view(path, name, rule.kinds())).depth
+            return read_map(path, kind, name)
+        return getattr(fused_view(scene, index[name], rule, read_run_view(path, name, rule.kinds())), kind)
 
     sizes = {v.name: v.camera.size for v in scene.views}
     fused = path / "fused.ply"
     return SourceRun(path, "deepc", f"deepc {metrics.pipeline}, {'fused' if maps == 'fused' else 'PatchMatch'} maps",
                      {n: n for n in index}, sizes, fused if fused.is_file() else None, Path(metrics.scene_path),
-                     metrics.scene_options(), read)
+                     metrics.scene_options(), lambda name: read_maps(name, "depth"),
+                     lambda name: read_maps(name, "normal"))
 
 
 def _scene_folder(path: Path) -> Path | None:
@@ -129,7 +137,24 @@ def _colmap_run(path: Path) -> SourceRun:
     types = sorted({Path(f).suffixes[-2][1:] for f in keys.values()})
     fused = path / "fused.ply"
     return SourceRun(path, "colmap", f"COLMAP {'+'.join(types)}", keys, sizes, fused if fused.is_file() else None,
-                     _scene_folder(path), {}, lambda file: read_depth_map(file, allow_nonfinite=True))
+                     _scene_folder(path), {}, lambda file: read_depth_map(file, allow_nonfinite=True),
+                     lambda file: _colmap_normal(path, Path(file)))
+
+
+def _colmap_normal(path: Path, depth_file: Path) -> np.ndarray:
+    """The normal map beside a COLMAP depth map (``stereo/normal_maps/``, the same name and type)."""
+    normal_file = path / "stereo" / "normal_maps" / depth_file.relative_to(path / COLMAP_DEPTH)
+    if not normal_file.is_file():
+        raise DeepCError("no normal map beside the depth map (stereo/normal_maps/): our fusion needs one",
+                         normal_file)
+    return read_normal_map(normal_file)
+
+
+def _dmap_normal(file: str) -> np.ndarray:
+    normal = read_dmap(file).normal
+    if normal is None:
+        raise DeepCError("the depth map has no (float32) normal map: our fusion needs one", file)
+    return np.where(np.isfinite(normal), normal, np.float32(0)).astype(np.float32)
 
 
 def _openmvs_run(path: Path) -> SourceRun:
@@ -143,7 +168,7 @@ def _openmvs_run(path: Path) -> SourceRun:
         keys[name], sizes[name] = str(file), data.depth_size
     dense = sorted(path.glob("*_dense.ply")) or sorted(path.glob("fused.ply"))
     return SourceRun(path, "openmvs", "OpenMVS", keys, sizes, dense[0] if dense else None, _scene_folder(path), {},
-                     lambda file: read_dmap(file).depth)
+                     lambda file: read_dmap(file).depth, _dmap_normal)
 
 
 def match_names(stored: list[str], view_names: list[str]) -> dict[str, str]:

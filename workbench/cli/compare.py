@@ -4,7 +4,8 @@ A run is a deepc run folder, a COLMAP dense workspace or an OpenMVS densify fold
 Prints, per view and over all views, the share of the GT pixels each run has within 1 % of GT, the four cases
 (A right and B wrong, B right and A wrong, both right, both wrong), and where GT is missing the share of the
 pixels both runs cover where they disagree by more than 1 %; then both fused clouds' accuracy, completeness and
-F1 at every tolerance where the scene has GT points. ``--report DIR`` also writes ``report.html``,
+F1 at every tolerance where the scene has GT points (``--fuse``: also each run's maps fused by our fusion, so
+both are scored through one fusion). ``--report DIR`` also writes ``report.html``,
 ``compare.json`` and the maps (``workbench.compare.report``).
 """
 
@@ -37,6 +38,20 @@ def _row(label: str, counts: PixelCounts, width: int) -> str:
     return f"{label:<{width}} " + " ".join(cells)
 
 
+def _f1_lines(title: str, blocks: dict) -> list[str]:
+    """F1 of A and B per tolerance and the change, under ``title`` (no lines when neither was scored)."""
+    a, b = blocks["a"], blocks["b"]
+    if not a and not b:
+        return []
+    lines = [f"{title + ' tolerance':>22} {'A F1 %':>8} {'B F1 %':>8} {'B - A':>7}"]
+    for i, t in enumerate((a or b)["tolerances"]):
+        fa, fb = (None if x is None else x["f1"][i] for x in (a, b))
+        change = f"{fb - fa:+7.2f}" if fa is not None and fb is not None else f"{'-':>7}"
+        lines.append(f"{t:>22g} {'-' if fa is None else f'{fa:.2f}':>8} {'-' if fb is None else f'{fb:.2f}':>8} "
+                     f"{change}")
+    return lines
+
+
 def format_comparison(c: Comparison) -> str:
     """The terminal table of a comparison."""
     width = max(len("all views"), *(len(v.name) for v in c.views))
@@ -47,14 +62,7 @@ def format_comparison(c: Comparison) -> str:
     lines.append(f"{'view':<{width}} " + " ".join(title for _, title, _ in COLUMNS))
     lines += [_row(v.name, v.counts, width) for v in c.views]
     lines.append(_row("all views", c.total, width))
-    a, b = c.fused["a"], c.fused["b"]
-    if a or b:
-        lines.append(f"{'fused tolerance':>15} {'A F1 %':>8} {'B F1 %':>8} {'B - A':>7}")
-        for i, t in enumerate((a or b)["tolerances"]):
-            fa, fb = (None if x is None else x["f1"][i] for x in (a, b))
-            change = f"{fb - fa:+7.2f}" if fa is not None and fb is not None else f"{'-':>7}"
-            lines.append(f"{t:>15g} {'-' if fa is None else f'{fa:.2f}':>8} {'-' if fb is None else f'{fb:.2f}':>8} "
-                         f"{change}")
+    lines += _f1_lines("fused", c.fused) + _f1_lines("our fusion", c.ours_fused)
     lines += [f"note: {n}" for n in c.fused_notes]
     return "\n".join(lines)
 
@@ -75,6 +83,9 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=4, metavar="N",
                         help="views whose maps the report shows, those where the runs differ most (default: 4)")
     parser.add_argument("--no-fused", action="store_true", help="do not score the runs' fused clouds")
+    parser.add_argument("--fuse", action="store_true",
+                        help="also fuse each run's depth and normal maps with our fusion (default options) and "
+                             "score both clouds: one fusion for both runs' maps")
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -88,7 +99,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     a, b = open_run(args.run_a, args.maps), open_run(args.run_b, args.maps)
     scene = reference_scene(a, b, args.scene)
-    comparison = compare_runs(a, b, scene, args.tolerance / 100, evaluate_fused=not args.no_fused)
+    comparison = compare_runs(a, b, scene, args.tolerance / 100, evaluate_fused=not args.no_fused,
+                              fuse_ours=args.fuse)
     print(format_comparison(comparison))
     if args.report:
         from workbench.compare.report import write_report  # lazy: matplotlib (the F1 plot)

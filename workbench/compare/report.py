@@ -3,8 +3,8 @@
 Each map PNG is the view's image, greyed and dimmed, with the pixels of one case coloured (:data:`COLOURS`): "A
 right, B wrong", "B right, A wrong", "both wrong" (where GT exists) and "disagree" (where it does not), at the
 pair's common size. The page (the style of ``deepc regress``'s report) has the runs, the overall and per-view
-shares, both fused clouds' F1 against tolerance, and the maps of the views where the runs differ most. Every file
-is written under a temporary name and renamed.
+shares, both fused clouds' F1 against tolerance (and their maps' under our fusion, when asked), and the maps of
+the views where the runs differ most. Every file is written under a temporary name and renamed.
 """
 
 from __future__ import annotations
@@ -86,14 +86,14 @@ def _shares_table(views: list[ViewComparison], total: PixelCounts) -> str:
     return "<table>" + "".join(rows) + "</table>"
 
 
-def _fused_table(fused: dict[str, dict[str, list[float]] | None]) -> str:
+def _fused_table(fused: dict[str, dict[str, list[float]] | None], title: str) -> str:
     a, b = fused.get("a"), fused.get("b")
     if a is None and b is None:
         return ""
     tolerances = (a or b)["tolerances"]
     head = ("<tr><th>tolerance</th><th>A accuracy %</th><th>A completeness %</th><th>A F1 %</th>"
             "<th>B accuracy %</th><th>B completeness %</th><th>B F1 %</th><th>F1 B − A</th></tr>")
-    rows = [head]
+    rows = [f"<caption class=l>{_e(title)}</caption>", head]
     for i, t in enumerate(tolerances):
         cells = []
         for block in (a, b):
@@ -124,7 +124,9 @@ def render_report(comparison: Comparison, shown: int = 4) -> str:
     tol = f"{100 * c.tolerance:g} %"
     only = "".join(f"<p class=note>Views with a map in {k} only: {_e(', '.join(names))}</p>"
                    for k, names in (("A", c.only_a), ("B", c.only_b)) if names)
-    plot = eval_figure({"A": c.fused["a"], "B": c.fused["b"]}) if any(c.fused.values()) else None
+    curves = {"A": c.fused["a"], "B": c.fused["b"], "A, our fusion": c.ours_fused["a"],
+              "B, our fusion": c.ours_fused["b"]}
+    plot = eval_figure(curves) if any(curves.values()) else None
     body = [f"<h1>deepc compare: scene {_e(c.scene.name)}</h1>",
             "<ul>" + _run_line("A", c.a) + _run_line("B", c.b) + "</ul>",
             f"<p>{len(c.views)} views compared, each at the smaller of its two maps' sizes. Where GT depth exists a "
@@ -132,7 +134,9 @@ def render_report(comparison: Comparison, shown: int = 4) -> str:
             f"not, the runs disagree when both have a depth and they differ by more than {tol}.</p>", only,
             "<h2>Shares per view</h2>", _shares_table(c.views, c.total),
             "<h2>Fused clouds</h2>",
-            _fused_table(c.fused) + "".join(f"<p class=muted>{_e(n)}</p>" for n in c.fused_notes),
+            _fused_table(c.fused, "each run's own fused cloud")
+            + _fused_table(c.ours_fused, "each run's maps fused by our fusion (default options)")
+            + "".join(f"<p class=muted>{_e(n)}</p>" for n in c.fused_notes),
             f"<div class=plots><img alt='F1 against tolerance' src='{plot}'></div>" if plot else "",
             f"<h2>Where they differ most ({min(shown, len(c.views))} of {len(c.views)} views)</h2>",
             _maps_table(c.most_different(shown))]
