@@ -1,4 +1,5 @@
-"""The ``deepc`` command line: one subcommand per module (run, mesh, probe, info, eval, view, replay, regress, train).
+"""The ``deepc`` command line: one subcommand per module (run, mesh, probe, info, eval, compare, view, replay, regress,
+train).
 
 Every user-facing problem ends in one line on stderr and exit status 2; success is 0 and, for
 ``regress``, "a quality metric changed beyond its tolerance" (either way) is 1.
@@ -18,6 +19,7 @@ from engine.core.errors import DeepCError
 from engine.core.interrupt import EXIT_INTERRUPTED, deferred_interrupts
 from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions
+from workbench.cli.compare import add_compare_arguments
 from workbench.cli.probe import add_probe_arguments
 from workbench.flags.help_options import HelpOptionsAction
 from workbench.flags.options import add_options_flags
@@ -40,6 +42,12 @@ def _eval(args: argparse.Namespace) -> int:
     from workbench.cli.eval import cmd_eval  # lazy: the evaluation
 
     return cmd_eval(args)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from workbench.cli.compare import cmd_compare  # lazy: the evaluation and the run readers
+
+    return cmd_compare(args)
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -143,6 +151,13 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--tolerances", default="0.01,0.02,0.05,0.1,0.2,0.5", help="comma-separated, model units")
     ev.add_argument("--json", metavar="OUT.json", help="also write the table as JSON")
     ev.set_defaults(handler=_eval)
+
+    compare = sub.add_parser("compare", help="two runs of one scene pixel by pixel: ours, COLMAP's or OpenMVS's",
+                             description="Compare two runs (deepc run folders, COLMAP dense workspaces or OpenMVS "
+                                         "densify folders) view by view: who is right where GT exists, where they "
+                                         "disagree where it does not, and their fused clouds' F1.")
+    add_compare_arguments(compare)
+    compare.set_defaults(handler=_compare)
 
     view = sub.add_parser("view", help="the live-tuning browser viewer (viser)")
     view.add_argument("target", metavar="OUT_OR_SCENE")
