@@ -46,8 +46,8 @@ class CounterOptions(Options):
 
 
 @njit(cache=True, parallel=True)
-def counter_kernel(Z, Nrm, src, stride, plane, geo, centers, sdepth, kinv, wgt, wa, mu_a, var_a, ox, oy, wset, ns,
-                   min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
+def counter_kernel(Z, Nrm, src, stride, plane, geo, centers, sdepth, kinv, img, offs, sig, mode, mu_a, var_a, ox, oy,
+                   wset, ns, min_var, reproj_px, max_cost, cos_tri_max, check_facing, rel_depth, cap, out):
     """Fill ``out`` (H, W) uint8 with the number of consistent source views (module doc)."""
     h, w = Z.shape
     n_views = geo.shape[0]
@@ -65,7 +65,7 @@ def counter_kernel(Z, Nrm, src, stride, plane, geo, centers, sdepth, kinv, wgt, 
             m0, m1, m2, ok = plane_vector(kinv, rp, z, nx, ny, nz)
             if not ok:
                 continue
-            n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
+            n = load_window(win, img, offs, sig, mode, ox, oy, wset, ns, x, y)
             px = z * rp[0]
             py = z * rp[1]
             pz = z * rp[2]
@@ -111,7 +111,7 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
     if len(views) != len(maps):
         raise ValueError(f"{len(views)} views but {len(maps)} maps")
     out = []
-    pool = BufferPool()  # one view's window terms (113 MB at 768x512), reused by the next view of the same size
+    pool = BufferPool()  # one view's window moments, reused by the next view of the same size
     for i, v in enumerate(views):
         check_interrupt()  # between kernels (engine/core/interrupt.py)
         m = maps[i]
@@ -129,8 +129,8 @@ def compute_counter_maps(views: list[PatchMatchView], maps: list[ViewMaps], opti
                             fine_window_region(m.depth, m.normal, v.camera, ncc_options), pool)
         counter_kernel(np.ascontiguousarray(m.depth, np.float32), np.ascontiguousarray(m.normal, np.float32),
                        ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.centers,
-                       ctx.sdepth, ctx.kinv, ctx.wgt, ctx.wa, ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy,
-                       ctx.wset, ctx.ns, float(ncc_options.min_var), float(options.reproj_px),
+                       ctx.sdepth, ctx.kinv, ctx.image, ctx.offs_sets, ctx.sigmas, ctx.weighting, ctx.mu_a, ctx.var_a,
+                       ctx.ox, ctx.oy, ctx.wset, ctx.ns, float(ncc_options.min_var), float(options.reproj_px),
                        1.0 - float(options.ncc_min),
                        math.cos(math.radians(options.tri_angle_min_deg)), bool(options.check_facing),
                        float(options.rel_depth or 0.0), int(options.cap), counter)

@@ -353,6 +353,25 @@ def confidence_weights_target(tmp: Path) -> FuzzTarget:
     return FuzzTarget("confidence_weights", tmp, ["weights.pt"], lambda root: load_weights(root / "weights.pt"))
 
 
+def dmap_target(tmp: Path) -> FuzzTarget:
+    """OpenMVS depth-data files (``engine.compare.dmap``): one with every map, one with depth alone."""
+    from engine.compare.dmap import read_dmap
+    from support.foreign_runs import encode_dmap
+
+    rng = np.random.default_rng(2)
+    depth = rng.uniform(1, 5, (6, 8)).astype(np.float32)
+    full = encode_dmap("../images/a.png", depth, normal=rng.normal(size=(6, 8, 3)),
+                       confidence=rng.uniform(0, 1, (6, 8)), views=rng.integers(0, 9, (6, 8, 4)), view_ids=(0, 3, 4))
+    (tmp / "depth0000.dmap").write_bytes(full)
+    (tmp / "depth0001.dmap").write_bytes(encode_dmap("b.png", depth))
+
+    def read(root: Path) -> None:
+        for name in ("depth0000.dmap", "depth0001.dmap"):
+            read_dmap(root / name)
+
+    return FuzzTarget("openmvs_dmap", tmp, ["depth0000.dmap", "depth0001.dmap"], read)
+
+
 TARGETS: dict[str, Callable[[Path], FuzzTarget]] = {
     "dense_bin": dense_target,
     "ply": ply_target,
@@ -362,4 +381,5 @@ TARGETS: dict[str, Callable[[Path], FuzzTarget]] = {
     "images": images_target,
     "regress_suite": regress_suite_target,
     "confidence_weights": confidence_weights_target,
+    "openmvs_dmap": dmap_target,
 }

@@ -17,7 +17,7 @@ from support.fuzzing import TARGETS, FuzzCounts, check_input, damaged_inputs
 
 # examples per target in CI: the COLMAP targets load a scene per example (~0.1 s)
 EXAMPLES = {"dense_bin": 150, "ply": 150, "colmap_text": 60, "colmap_binary": 60, "eth3d_mlp": 100, "images": 100,
-            "regress_suite": 100, "confidence_weights": 150}
+            "regress_suite": 100, "confidence_weights": 150, "openmvs_dmap": 150}
 
 
 @pytest.fixture(scope="module")

@@ -81,8 +81,10 @@ def test_ncc_cost_matches_reference(step: int) -> None:
         H = np.eye(3) + rng.normal(0, [[0.05, 0.05, 2], [0.05, 0.05, 2], [1e-3, 1e-3, 0.05]])
         H32 = H.astype(np.float32)
         x, y = int(rng.integers(0, 24)), int(rng.integers(0, 20))
-        n = load_window(WIN, wgt, wa, ox[None], oy[None], np.zeros((20, 24), np.uint8), np.array([len(ox)]), x, y)
+        n = load_window(WIN, ref_img, offs[None], np.array([[5.0, 0.2]]), 0, ox[None], oy[None],
+                        np.zeros((20, 24), np.uint8), np.array([len(ox)]), x, y)
         assert n == len(ox)
+        np.testing.assert_array_equal(WIN[0, :n], wgt[y, x])  # the weights the moments were computed with
         got = ncc_cost(stack.ravel(), 0, stack.shape[2], 26, 18, WIN, n, mu[y, x], var[y, x], x, y, *H32.ravel(),
                        np.float32(1e-5), SIDX)
         want = ref.ncc_cost_ref(ref_img, src_img, H32.astype(np.float64), x, y, offs)
@@ -145,7 +147,8 @@ def test_window_choice_matches_reference(weighting: str, ratio: float) -> None:
     codes[10:] = FINE_CREASE
     ctx = build_context(img, a, [img], [b], opts, fine_allowed=codes)
     n_std, n_fine = len(opts.window_offsets()) ** 2, len(opts.fine_window_offsets()) ** 2
-    assert ctx.ns.tolist() == [n_std, n_fine] and ctx.wgt.shape[2] == max(n_std, n_fine)
+    wgt = ctx.window_weights()[0]
+    assert ctx.ns.tolist() == [n_std, n_fine] and wgt.shape[2] == max(n_std, n_fine)
     fine_offs = window_offsets_2d(opts.fine_window_offsets())
     sigma_c = opts.sigma_color if weighting == "colmap" else opts.acmm_sigma_color
     fine_c = opts.fine_sigma_color if weighting == "colmap" else sigma_c
@@ -172,14 +175,15 @@ def test_window_choice_matches_reference(weighting: str, ratio: float) -> None:
             ox, oy = ctx.offsets_at(x, y)
             np.testing.assert_array_equal(np.stack([ox, oy], 1), offsets)
             wts, vals = ref.bilateral_weights_ref(img, x, y, offsets, weighting, sigma_s, sc)
-            np.testing.assert_allclose(ctx.wgt[y, x, : len(offsets)], wts, rtol=1e-4, atol=1e-7)
-            assert np.all(ctx.wgt[y, x, len(offsets):] == 0)
+            np.testing.assert_allclose(wgt[y, x, : len(offsets)], wts, rtol=1e-4, atol=1e-7)
+            assert np.all(wgt[y, x, len(offsets):] == 0)
             assert ctx.mu_a[y, x] == pytest.approx((wts * vals).sum(), abs=1e-5)
     assert 0.2 < n_fine_px / 480 < 0.7
     off = build_context(img, a, [img], [b], PatchMatchOptions(ncc_weighting=weighting, fine_window=0))
     assert not off.wset.any() and off.ns.tolist() == [n_std]
-    np.testing.assert_array_equal(off.wgt, bilateral_moments(img, window_offsets_2d(opts.window_offsets()),
-                                                             weighting, opts.sigma_spatial, sigma_c)[0])
+    std_offs = window_offsets_2d(opts.window_offsets())
+    std_wgt = bilateral_moments(img, std_offs, weighting, opts.sigma_spatial, sigma_c)[0]
+    np.testing.assert_array_equal(off.window_weights()[0], std_wgt)
 
 
 def _variance(wts: np.ndarray, vals: np.ndarray) -> float:
@@ -321,16 +325,17 @@ def test_window_choice_respects_the_allowed_region() -> None:
     np.testing.assert_array_equal(ctx.wset, free.wset * allowed)
     assert ctx.wset.any() and (free.wset & ~allowed).any()
     std = build_context(img, a, [img], [b], PatchMatchOptions(fine_window=0))
+    wgt, free_wgt, std_wgt = ctx.window_weights()[0], free.window_weights()[0], std.window_weights()[0]
     for y in range(20):
         for x in range(24):
             offsets = ref.window_choice_ref(img.astype(np.float64), x, y, opts, int(allowed[y, x]))[0]
             assert len(offsets) == ctx.ns[ctx.wset[y, x]]
-            src = free if ctx.wset[y, x] else std
-            np.testing.assert_array_equal(ctx.wgt[y, x, : len(offsets)], src.wgt[y, x, : len(offsets)])
+            src, src_wgt = (free, free_wgt) if ctx.wset[y, x] else (std, std_wgt)
+            np.testing.assert_array_equal(wgt[y, x, : len(offsets)], src_wgt[y, x, : len(offsets)])
             assert ctx.mu_a[y, x] == src.mu_a[y, x]
     nowhere = build_context(img, a, [img], [b], opts, fine_allowed=np.zeros((20, 24), bool))
     assert nowhere.ns.tolist() == std.ns.tolist() and not nowhere.wset.any()  # e.g. a random-start pass
-    np.testing.assert_array_equal(nowhere.wgt, std.wgt)
+    np.testing.assert_array_equal(nowhere.window_weights()[0], std_wgt)
 
 
 def test_reprojection_error_matches_reference() -> None:

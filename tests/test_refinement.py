@@ -4,12 +4,16 @@ recovery of a piece-wise planar scene, and the behaviour on bad input."""
 from __future__ import annotations
 
 import math
+import os
+import signal
 
 import numpy as np
 import pytest
 import torch
 
+from engine.core.blocks import MIN_ROWS, RowPacer
 from engine.core.errors import DeepCError, OptionsError
+from engine.core.interrupt import deferred_interrupts
 from engine.refinement import (
     NoDataError,
     RefinementOptions,
@@ -80,6 +84,44 @@ def test_graph_matches_definition():
     # Empty slots point to the pixel itself with weight 0 (a corner pixel of a 2x2 image has 3 candidates).
     small = similarity_graph(rng.random((2, 2)), 3, 3, 0.07, 3.0, 5)
     assert np.all(small.neighbors[:, 3:] == np.arange(4)[:, None]) and np.all(small.weights[:, 3:] == 0)
+
+
+class StopAfterFirstBlock(RowPacer):
+    """The real row pacer, with a SIGTERM sent to this process when the first block returns (what Ctrl-C during
+    a long graph build does); records the blocks that ran."""
+
+    def __init__(self):
+        super().__init__()
+        self.done: list[tuple[int, int]] = []
+
+    def run(self, kind: str, height: int, width: int, call) -> None:
+        def then_stop(start: int, stop: int) -> None:
+            call(start, stop)
+            self.done.append((start, stop))
+            if len(self.done) == 1:
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        super().run(kind, height, width, then_stop)
+
+
+def test_graph_is_the_same_for_any_row_blocks_and_a_stop_request_ends_it_between_blocks():
+    """The similarity graph built in one call, in uneven fixed blocks and in the paced blocks of a real run is the
+    same bit for bit; a stop request (SIGTERM inside deferred_interrupts) during a block ends the build when that
+    block returns, before the next one starts."""
+    from test_patchmatch_kernels import FixedBlocks
+
+    gray = np.random.default_rng(4).random((31, 23))
+    args = (5, 3, 0.2, 1.5, 6)
+    whole = similarity_graph(gray, *args, pacer=None)
+    assert (whole.weights.sum(1) > 0).all()  # every pixel has neighbours: the blocks all wrote
+    for pacer in (FixedBlocks(1, 2, 9, 29, 30), FixedBlocks(16), RowPacer(target_s=1e-6)):
+        graph = similarity_graph(gray, *args, pacer=pacer)
+        assert graph.neighbors.tobytes() == whole.neighbors.tobytes()
+        assert graph.weights.tobytes() == whole.weights.tobytes()
+    stopper = StopAfterFirstBlock()
+    with pytest.raises(KeyboardInterrupt), deferred_interrupts():
+        similarity_graph(gray, *args, pacer=stopper)
+    assert stopper.done == [(0, MIN_ROWS)]  # the first block, and no other after the request
 
 
 def _energy_by_loops(d, u, dbar, fid, graph, lam_d, lam, gamma):

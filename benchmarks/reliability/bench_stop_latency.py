@@ -8,7 +8,7 @@ takes. Each stage runs on the scene's ground-truth depth as its maps (PatchMatch
 finest level, from random hypotheses, one iteration; counter maps and refinement on the first ``--views`` views,
 fusion on all), with every long call wrapped to time each of its calls: PatchMatch's context (window terms, whole
 view), initial-cost and half-step row blocks, the counter-map kernel, the fusion kernel (between two chunks of its
-output) and the refinement's similarity graph and primal-dual steps.
+output), the refinement's similarity-graph row blocks and its primal-dual steps.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def main() -> None:
     pm_kernels.half_step_kernel = timed("patchmatch half-step block", pm_kernels.half_step_kernel)
     consistency.counter_kernel = timed("counter map kernel", consistency.counter_kernel)
     fusion_cached.fuse_kernel = timed("fusion kernel", fusion_cached.fuse_kernel)
-    ref_graph._graph_kernel = timed("refinement graph", ref_graph._graph_kernel)
+    ref_graph._graph_kernel = timed("refinement graph block", ref_graph._graph_kernel)
     ref_pd.dual_step = timed("refinement dual step", ref_pd.dual_step)
     ref_pd.primal_step = timed("refinement primal step", ref_pd.primal_step)
 

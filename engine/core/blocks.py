@@ -4,7 +4,8 @@ A numba call cannot be interrupted: a signal's request (``engine.core.interrupt`
 half-step of PatchMatch over a whole 1251×703 view took minutes on a loaded machine. :class:`RowPacer` runs such a
 kernel over row blocks sized from the time per pixel it measured (about ``BLOCK_SECONDS`` each) and calls
 ``check_interrupt`` between them. Only the time of a call depends on the blocks: the kernels that take a block must
-give every pixel the same result however the rows are split (``engine.patchmatch.kernels``).
+give every pixel the same result however the rows are split (``engine.patchmatch.kernels``,
+``engine.refinement.graph``).
 """
 
 from __future__ import annotations

@@ -10,7 +10,8 @@ fusion kernel when a SIGTERM landed during it). An exception raised between two 
 
 So inside :func:`deferred_interrupts` the handlers only record the signal, and the engine's long loops
 call :func:`check_interrupt` after each kernel (every PatchMatch iteration, view, tile, solver
-iteration, stage; long PatchMatch kernels run as row blocks of a fraction of a second, ``engine.core.blocks``),
+iteration, stage; long PatchMatch kernels and the refinement's similarity graph run as row blocks of a fraction
+of a second, ``engine.core.blocks``),
 which raises KeyboardInterrupt there. Outside that block, or when no signal came, :func:`check_interrupt` costs
 one list test. A second signal while a stop is pending (or under way) ends the process at once: one line on
 stderr, exit 130, nothing more written (files are written atomically, so what is on disk is whole: the last

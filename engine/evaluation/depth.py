@@ -67,11 +67,22 @@ DEPTH_KEYS = ("abs_rel", "within_1pct", "within_5pct", "valid_fraction")
 
 def relative_errors(depth: np.ndarray, gt_depth: np.ndarray) -> tuple[int, np.ndarray]:
     """(pixels with GT, |z - z*| / z* in float64 where both exist), exactly as :func:`depth_metrics` forms them."""
+    has_gt, rel = relative_error_map(depth, gt_depth)
+    return int(has_gt.sum()), rel[~np.isnan(rel)]
+
+
+def relative_error_map(depth: np.ndarray, gt_depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, as :func:`relative_errors` forms them: ((H, W) bool "has GT", (H, W) float64 |z - z*| / z*,
+    NaN where the estimate or the GT is missing). A pixel is within 1 % when its value is below 0.01."""
     depth = np.asarray(depth, np.float64)
     gt = np.asarray(gt_depth, np.float64)
+    if depth.shape != gt.shape:
+        raise ValueError(f"depth {depth.shape} and GT {gt.shape} differ in shape")
     has_gt = np.isfinite(gt) & (gt > 0)
     both = has_gt & np.isfinite(depth) & (depth > 0)
-    return int(has_gt.sum()), np.abs(depth[both] - gt[both]) / gt[both]
+    rel = np.full(depth.shape, np.nan)
+    rel[both] = np.abs(depth[both] - gt[both]) / gt[both]
+    return has_gt, rel
 
 
 def pooled_depth_metrics(names: Sequence[str], depth_of: Callable[[int], np.ndarray],

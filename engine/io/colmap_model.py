@@ -1,26 +1,26 @@
-"""COLMAP sparse models, read through pycolmap (binary or text, in ``sparse/`` or ``sparse/0/``).
+"""COLMAP sparse models (binary or text, in ``sparse/`` or ``sparse/0/``), checked and flattened.
 
-The model is flattened into :class:`SparseModel`: plain numpy arrays for cameras, poses, 3-D
-points and their tracks, so that the rest of the engine never touches pycolmap objects.
+The files are read with numpy (``engine.io.colmap_files``; pycolmap only for a model with a multi-sensor rig) into
+:class:`SparseModel`: plain numpy arrays for cameras, poses, 3-D points and their tracks.
 Cameras that are not PINHOLE / SIMPLE_PINHOLE are undistorted into a cache by
 ``engine.io.undistort``.
 """
 
 from __future__ import annotations
 
-import array
 import dataclasses
 import os
-import struct
+import signal
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
 from engine.core.errors import DeepCError
+from engine.io.colmap_files import MAX_IMAGE_SIDE, ModelFiles, read_model_files
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _MODEL_FILES = ("cameras", "images", "points3D")
-_MAX_IMAGE_SIDE = 1 << 20
 
 
 @dataclasses.dataclass(eq=False)
@@ -97,15 +97,95 @@ def _model_file(folder: Path, name: str) -> Path | None:
 
 
 def read_sparse_model(model_dir: str | Path) -> SparseModel:
-    """Read a COLMAP model folder through pycolmap; errors name the folder and the problem."""
-    import pycolmap  # lazy: pycolmap
-
+    """Read and check a COLMAP model folder; errors name the file and the problem."""
     model_dir = Path(model_dir)
-    for name in _BINARY_CHECKS:  # pycolmap would report an unreadable file as a malformed model
+    for name in ("cameras", "images", "points3D", "rigs", "frames"):
         for path in (model_dir / f"{name}.bin", model_dir / f"{name}.txt"):
             if path.is_file() and not os.access(path, os.R_OK):
                 raise DeepCError("cannot read: permission denied", path)
-    check_binary_model(model_dir)
+    files = read_model_files(model_dir)
+    if files is None:
+        files = _read_with_pycolmap(model_dir)
+
+    cameras = {}
+    for camera_id, model, width, height, params in files.cameras:
+        sized = 0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE
+        if not (np.isfinite(params).all() and sized):
+            raise DeepCError(f"camera {camera_id} has non-finite parameters or size {width}x{height}", model_dir)
+        cameras[camera_id] = SparseCamera(camera_id, model, int(width), int(height), params)
+        if model in PINHOLE_MODELS and min(cameras[camera_id].pinhole()[:2]) <= 0:
+            raise DeepCError(f"camera {camera_id} has a focal length <= 0", model_dir)
+    images = []
+    for image_id, name, camera_id, qvec, tvec in sorted(files.images, key=lambda im: im[0]):
+        if qvec.shape == (3, 3):  # pycolmap's matrix
+            R = qvec
+        else:
+            # COLMAP uses a unit quaternion from the file as it is (so do we: the same matrix to the last bit)
+            with np.errstate(over="ignore"):  # an absurd quaternion fails the pose check below
+                norm = float(np.linalg.norm(qvec))
+            R = _rotation(qvec if abs(norm - 1) < 1e-9 else qvec / norm) if norm > 0 else np.full((3, 3), np.nan)
+        t = np.asarray(tvec, np.float64)
+        if not (np.isfinite(R).all() and np.isfinite(t).all() and abs(np.linalg.det(R) - 1) < 1e-3):
+            raise DeepCError(f"image {name} has a non-finite or degenerate pose", model_dir)
+        if camera_id not in cameras:
+            raise DeepCError(f"image {name} refers to camera {camera_id}, which the model does not have", model_dir)
+        images.append(SparseImage(image_id, name, camera_id, R, t))
+    if not images:
+        raise DeepCError("the COLMAP model has no registered images", model_dir)
+
+    order = np.argsort(files.point_ids, kind="stable")
+    points = files.xyz[order]
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    # observations of registered images only, in point order (points sorted by id, as pycolmap's map iterates)
+    ids = np.array([im.image_id for im in images], np.int64)
+    position = np.searchsorted(ids, files.track_image)
+    known = position < len(ids)
+    known[known] = ids[position[known]] == files.track_image[known]
+    track_point = rank[files.track_point[known]]
+    track_image = position[known]
+    by_point = np.argsort(track_point, kind="stable")
+    finite = np.isfinite(points).all(axis=1) & (np.abs(points) < 1e30).all(axis=1)
+    if not finite.all():
+        raise DeepCError(f"{int((~finite).sum())} 3-D points have non-finite or absurd coordinates", model_dir)
+    return SparseModel(model_dir, cameras, images, points, track_point[by_point].astype(np.int64),
+                       track_image[by_point].astype(np.int64))
+
+
+def _rotation(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (w, x, y, z), COLMAP's order, with Eigen's sums and products (the
+    matrix COLMAP and pycolmap make, bit for bit)."""
+    w, x, y, z = q
+    tx, ty, tz = 2 * x, 2 * y, 2 * z
+    twx, twy, twz = tx * w, ty * w, tz * w
+    txx, txy, txz = tx * x, ty * x, tz * x
+    tyy, tyz, tzz = ty * y, tz * y, tz * z
+    return np.array([[1 - (tyy + tzz), txy - twz, txz + twy],
+                     [txy + twz, 1 - (txx + tzz), tyz - twx],
+                     [txz - twy, tyz + twx, 1 - (txx + tyy)]])
+
+
+def import_pycolmap() -> ModuleType:
+    """pycolmap (55 MiB resident, so imported only where needed), keeping this process's SIGTERM handler: its glog
+    installs one that aborts the process."""
+    try:
+        handler = signal.getsignal(signal.SIGTERM)
+    except ValueError:
+        handler = None
+    import pycolmap  # lazy: pycolmap (55 MiB), only where a command needs it
+
+    if handler is not None:
+        try:
+            signal.signal(signal.SIGTERM, handler)
+        except ValueError:  # not the main thread: nothing of ours to keep
+            pass
+    return pycolmap
+
+
+def _read_with_pycolmap(model_dir: Path) -> ModelFiles:
+    """A model with a multi-sensor rig: pycolmap composes each image's pose from its frame and rig."""
+    pycolmap = import_pycolmap()
+
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as exc:  # pycolmap maps C++ failures to assorted Python exception types
@@ -113,186 +193,19 @@ def read_sparse_model(model_dir: str | Path) -> SparseModel:
         if "]" in reason[:60]:
             reason = reason.split("]", 1)[1].strip()
         raise DeepCError(f"malformed COLMAP model ({reason[:200]})", model_dir) from None
-
-    cameras = {}
-    for camera_id, cam in rec.cameras.items():
-        params = np.array(cam.params, np.float64)
-        sized = 0 < cam.width <= _MAX_IMAGE_SIDE and 0 < cam.height <= _MAX_IMAGE_SIDE
-        if not (np.isfinite(params).all() and sized):
-            raise DeepCError(f"camera {camera_id} has non-finite parameters or size {cam.width}x{cam.height}",
-                             model_dir)
-        cameras[camera_id] = SparseCamera(camera_id, cam.model.name, int(cam.width), int(cam.height), params)
-        if cam.model.name in PINHOLE_MODELS and min(cameras[camera_id].pinhole()[:2]) <= 0:
-            raise DeepCError(f"camera {camera_id} has a focal length <= 0", model_dir)
+    cameras = [(camera_id, cam.model.name, int(cam.width), int(cam.height), np.array(cam.params, np.float64))
+               for camera_id, cam in rec.cameras.items()]
     images = []
-    for image_id in sorted(rec.images):
-        im = rec.images[image_id]
-        if not im.has_pose:
-            continue
-        pose = im.cam_from_world()
-        R, t = np.array(pose.rotation.matrix()), np.array(pose.translation)
-        if not (np.isfinite(R).all() and np.isfinite(t).all() and abs(np.linalg.det(R) - 1) < 1e-3):
-            raise DeepCError(f"image {im.name} has a non-finite or degenerate pose", model_dir)
-        images.append(SparseImage(image_id, im.name, im.camera_id, R, t))
-    if not images:
-        raise DeepCError("the COLMAP model has no registered images", model_dir)
-    image_index = {im.image_id: i for i, im in enumerate(images)}
-
-    point_ids = sorted(rec.points3D)
-    points = np.zeros((len(point_ids), 3))
-    # 8 bytes an observation (lists of ints: ~70, 50 MB at 400 views of a street sequence)
-    track_point, track_image = array.array("q"), array.array("q")
-    for index, point_id in enumerate(point_ids):
-        point = rec.points3D[point_id]
-        points[index] = point.xyz
-        for element in point.track.elements:
-            if element.image_id in image_index:
-                track_point.append(index)
-                track_image.append(image_index[element.image_id])
-    del rec  # pycolmap's copy of the model (its 2-D points too) goes before the arrays are made
-    finite = np.isfinite(points).all(axis=1) & (np.abs(points) < 1e30).all(axis=1)
-    if not finite.all():
-        raise DeepCError(f"{int((~finite).sum())} 3-D points have non-finite or absurd coordinates", model_dir)
-    return SparseModel(model_dir, cameras, images, points,
-                       np.frombuffer(track_point, np.int64).copy(), np.frombuffer(track_image, np.int64).copy())
-
-
-# ---- structural check of binary models -----------------------------------------------------------
-# COLMAP's binary reader trusts every count it reads: a corrupt count makes it loop over a
-# truncated stream for hours or allocate without bound (found by fuzzing). So the byte layout of
-# each .bin file (src/colmap/scene/reconstruction_io_binary.cc) is walked here first, every count
-# checked against the bytes that remain, before pycolmap sees the model.
-
-# COLMAP camera model id -> number of parameters (src/colmap/sensor/models.h)
-_CAMERA_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 16, 12: 4, 13: 5,
-                  14: 3, 15: 4, 16: 6, 17: 2}
-_MAX_NAME = 4096
-
-
-class _BinaryCursor:
-    """Reads little-endian values from a model file; any overrun is a :class:`DeepCError` naming it."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        try:
-            self.data = path.read_bytes()
-        except OSError as exc:
-            raise DeepCError(f"cannot read: {exc.strerror or exc}", path) from exc
-        self.pos = 0
-
-    def need(self, size: int, what: str) -> None:
-        if size < 0 or self.pos + size > len(self.data):
-            raise DeepCError(f"truncated or corrupt COLMAP binary model: {what} needs {size} bytes at offset "
-                             f"{self.pos}, {len(self.data) - self.pos} left", self.path)
-
-    def unpack(self, fmt: str, what: str) -> tuple:
-        size = struct.calcsize("<" + fmt)
-        self.need(size, what)
-        values = struct.unpack_from("<" + fmt, self.data, self.pos)
-        self.pos += size
-        return values
-
-    def count(self, fmt: str, item_size: int, what: str) -> int:
-        """A count, checked against the bytes left at ``item_size`` bytes (at least) per item."""
-        (n,) = self.unpack(fmt, what)
-        left = len(self.data) - self.pos
-        if n < 0 or n * item_size > left:
-            raise DeepCError(f"corrupt COLMAP binary model: {what} is {n}, but only {left} bytes follow", self.path)
-        return n
-
-    def floats(self, n: int, what: str) -> np.ndarray:
-        self.need(8 * n, what)
-        values = np.frombuffer(self.data, "<f8", n, self.pos)
-        self.pos += 8 * n
-        if not np.isfinite(values).all():
-            raise DeepCError(f"corrupt COLMAP binary model: non-finite {what}", self.path)
-        return values
-
-    def skip(self, size: int, what: str) -> None:
-        self.need(size, what)
-        self.pos += size
-
-    def name(self) -> str:
-        end = self.data.find(b"\0", self.pos, self.pos + _MAX_NAME)
-        if end < 0:
-            raise DeepCError(f"corrupt COLMAP binary model: image name at offset {self.pos} is not terminated",
-                             self.path)
-        raw = self.data[self.pos:end]
-        self.pos = end + 1
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise DeepCError(f"corrupt COLMAP binary model: image name {raw[:40]!r} is not UTF-8", self.path) from None
-
-    def done(self) -> None:
-        if self.pos != len(self.data):
-            raise DeepCError(f"corrupt COLMAP binary model: {len(self.data) - self.pos} unexpected bytes at the end",
-                             self.path)
-
-
-def _check_cameras_bin(cur: _BinaryCursor) -> None:
-    for _ in range(cur.count("Q", 24, "number of cameras")):
-        camera_id, model_id, width, height = cur.unpack("IiQQ", "camera")
-        if model_id not in _CAMERA_PARAMS:
-            raise DeepCError(f"corrupt COLMAP binary model: camera {camera_id} has unknown model id {model_id}",
-                             cur.path)
-        if not (0 < width <= _MAX_IMAGE_SIDE and 0 < height <= _MAX_IMAGE_SIDE):
-            raise DeepCError(f"corrupt COLMAP binary model: camera {camera_id} is {width}x{height}", cur.path)
-        cur.floats(_CAMERA_PARAMS[model_id], f"parameters of camera {camera_id}")
-
-
-def _check_images_bin(cur: _BinaryCursor) -> None:
-    for _ in range(cur.count("Q", 69, "number of images")):
-        (image_id,) = cur.unpack("I", "image id")
-        cur.floats(7, f"pose of image {image_id}")
-        cur.unpack("I", f"camera id of image {image_id}")
-        cur.name()
-        n_points = cur.count("Q", 24, f"number of 2-D points of image {image_id}")
-        cur.skip(24 * n_points, f"2-D points of image {image_id}")
-
-
-def _check_points3d_bin(cur: _BinaryCursor) -> None:
-    for _ in range(cur.count("Q", 51, "number of 3-D points")):
-        (point_id,) = cur.unpack("Q", "3-D point id")
-        cur.floats(3, f"position of 3-D point {point_id}")
-        cur.skip(3 + 8, f"colour and error of 3-D point {point_id}")
-        track = cur.count("Q", 8, f"track length of 3-D point {point_id}")
-        cur.skip(8 * track, f"track of 3-D point {point_id}")
-
-
-def _check_rigs_bin(cur: _BinaryCursor) -> None:
-    for _ in range(cur.count("Q", 8, "number of rigs")):
-        rig_id, n_sensors = cur.unpack("Ii", "rig")
-        if n_sensors < 0 or n_sensors * 8 > len(cur.data) - cur.pos:
-            raise DeepCError(f"corrupt COLMAP binary model: rig {rig_id} has {n_sensors} sensors", cur.path)
-        if n_sensors > 0:
-            cur.skip(8, f"reference sensor of rig {rig_id}")
-        for _ in range(max(n_sensors - 1, 0)):
-            cur.skip(8, f"sensor of rig {rig_id}")
-            (has_pose,) = cur.unpack("B", f"sensor pose flag of rig {rig_id}")
-            if has_pose:
-                cur.floats(7, f"sensor pose of rig {rig_id}")
-
-
-def _check_frames_bin(cur: _BinaryCursor) -> None:
-    for _ in range(cur.count("Q", 68, "number of frames")):
-        frame_id, _rig_id = cur.unpack("II", "frame")
-        cur.floats(7, f"pose of frame {frame_id}")
-        n_data = cur.count("I", 16, f"number of data ids of frame {frame_id}")
-        cur.skip(16 * n_data, f"data ids of frame {frame_id}")
-
-
-_BINARY_CHECKS = {"cameras": _check_cameras_bin, "images": _check_images_bin, "points3D": _check_points3d_bin,
-                  "rigs": _check_rigs_bin, "frames": _check_frames_bin}
-
-
-def check_binary_model(model_dir: Path) -> None:
-    """Walk the byte layout of every ``.bin`` file of a COLMAP model; raises :class:`DeepCError` on a defect."""
-    if not all((model_dir / f"{name}.bin").is_file() for name in _MODEL_FILES):
-        return  # pycolmap reads the text model then
-    for name, check_file in _BINARY_CHECKS.items():
-        path = model_dir / f"{name}.bin"
-        if path.is_file():
-            cursor = _BinaryCursor(path)
-            check_file(cursor)
-            cursor.done()
+    for image_id, im in rec.images.items():
+        if im.has_pose:
+            pose = im.cam_from_world()
+            images.append((image_id, im.name, im.camera_id, np.array(pose.rotation.matrix()),
+                           np.array(pose.translation)))
+    ids = np.array(sorted(rec.points3D), np.int64)
+    xyz = np.array([rec.points3D[i].xyz for i in ids], np.float64).reshape(-1, 3)
+    track_point, track_image = [], []
+    for index, point_id in enumerate(ids):
+        for element in rec.points3D[int(point_id)].track.elements:
+            track_point.append(index)
+            track_image.append(element.image_id)
+    return ModelFiles(cameras, images, ids, xyz, np.array(track_point, np.int64), np.array(track_image, np.int64))

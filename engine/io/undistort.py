@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.core.errors import DeepCError
-from engine.io.colmap_model import SparseCamera
+from engine.io.colmap_model import SparseCamera, import_pycolmap
 
 TEMP_PREFIX = ".undistort-"
 OWNER_FILE = "owner.json"
@@ -47,7 +47,7 @@ _GLOG_PREFIX = re.compile(r"^(?:[IWEF]\d{8} [\d:.]+ +\d+ [\w.]+:\d+\] )?(?:\w+: 
 
 def undistorted_camera(camera: SparseCamera, max_image_size: int = 0) -> SparseCamera:
     """The PINHOLE camera pycolmap's undistorter gives ``camera`` (at most ``max_image_size`` px; 0 = any size)."""
-    import pycolmap  # lazy: pycolmap
+    pycolmap = import_pycolmap()
 
     options = pycolmap.UndistortCameraOptions(max_image_size=max_image_size if max_image_size > 0 else -1)
     source = pycolmap.Camera(model=camera.model, width=camera.width, height=camera.height,
@@ -261,7 +261,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Child: ``python -m engine.io.undistort OUT MODEL_DIR IMAGE_DIR MAX_IMAGE_SIZE PARENT_PID``."""
     out, model_dir, image_dir, max_size, parent = list(sys.argv[1:] if argv is None else argv)
     _die_with_parent(int(parent))
-    import pycolmap  # lazy: pycolmap
+    pycolmap = import_pycolmap()
 
     options = pycolmap.UndistortCameraOptions(max_image_size=int(max_size) if int(max_size) > 0 else -1)
     pycolmap.undistort_images(out, model_dir, image_dir, undistort_options=options)

@@ -16,10 +16,12 @@ from engine.patchmatch.ncc import (
     FINE_CREASE,
     FINE_EDGE,
     FINE_OFF,
+    WEIGHTING_CODES,
     load_window,
     pad_sources,
     window_offsets_2d,
     window_terms,
+    window_weight_maps,
 )
 from engine.patchmatch.options import PatchMatchOptions
 from engine.patchmatch.records import ReferenceWindows, SourceImages
@@ -32,17 +34,18 @@ class ViewContext:
     Every pixel matches with one of up to two windows (the window set ``wset`` (H, W) u8 picks it: 0 = the
     standard window, 1 = the fine window, see ``PatchMatchOptions.fine_window``); window set s has
     ``ns[s]`` samples with offsets ``ox[s, :ns[s]]``, ``oy[s, :ns[s]]``.
-    Shapes: kinv (9,); wgt, wa (H, W, S) f32 (S = max(ns), a pixel's weights in its first ns entries, zeros
-    after); mu_a, var_a (H, W) f32; offs (S0, 2) i32 the standard window's offsets; wset (H, W) u8;
-    ns (n_sets,) i64; ox, oy (n_sets, S) f32;
+    Shapes: kinv (9,); image (H, W) f32 the reference image (a pixel's weights are computed from it when a kernel
+    visits it: ``ncc.load_window``); mu_a, var_a (H, W) f32; offs (S0, 2) i32 the standard window's offsets;
+    wset (H, W) u8; ns (n_sets,) i64; offs_sets (n_sets, S, 2) i32 and ox, oy (n_sets, S) f32 each set's offsets
+    (S = max(ns)); sigmas (n_sets, 2) f64 each set's spatial and colour sigma; weighting the ``ncc.WEIGHTING_CODES``
+    code;
     src (N, Hm+1, Wm+1) f32 and its ravel ``flat``; geo (N, GEO_COLS) f64 the ref->source matrices A, b,
     B, c and source sizes packed for the kernels (``geometry.pack_geometry``); centers (N, 3) f64;
     sdepth (N, Hm, Wm) f32 source depth maps (zeros of shape (N, 1, 1) when not needed).
     """
 
     kinv: np.ndarray
-    wgt: np.ndarray
-    wa: np.ndarray
+    image: np.ndarray
     mu_a: np.ndarray
     var_a: np.ndarray
     offs: np.ndarray
@@ -55,6 +58,9 @@ class ViewContext:
     wset: np.ndarray
     ns: np.ndarray
     geo: np.ndarray
+    offs_sets: np.ndarray
+    sigmas: np.ndarray
+    weighting: int
 
     def offsets_at(self, x: int, y: int) -> tuple[np.ndarray, np.ndarray]:
         """The (S,) f32 offsets ``ox``, ``oy`` that reference pixel (x, y) matches with."""
@@ -64,12 +70,18 @@ class ViewContext:
 
     def window_at(self, x: int, y: int, win: np.ndarray) -> int:
         """Load pixel (x, y)'s window into ``win`` (``ncc.ncc_work``); returns its number of samples."""
-        return int(load_window(win, self.wgt, self.wa, self.ox, self.oy, self.wset, self.ns, x, y))
+        return int(load_window(win, self.image, self.offs_sets, self.sigmas, self.weighting, self.ox, self.oy,
+                               self.wset, self.ns, x, y))
+
+    def window_weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W, S) f32 maps of every pixel's bilateral weights and w·a, as the kernels compute them (for tests
+        and inspection: ``ncc.window_weight_maps``)."""
+        return window_weight_maps(self.image, self.offs_sets, self.ns, self.sigmas, self.weighting, self.wset)
 
     def release(self, pool: BufferPool) -> None:
         """Hand the large reference-side arrays to ``pool`` (the context is unusable afterwards)."""
-        pool.give(self.wgt, self.wa, self.mu_a, self.var_a)
-        self.wgt = self.wa = self.mu_a = self.var_a = None
+        pool.give(self.mu_a, self.var_a)
+        self.mu_a = self.var_a = None
 
     def samples_per_cost(self) -> np.ndarray:
         """(H, W) i64 weighted samples one photometric cost takes at each pixel."""
@@ -77,8 +89,8 @@ class ViewContext:
 
     def reference_windows(self) -> ReferenceWindows:
         """The reference-side arrays as the kernels take them (no copies)."""
-        return ReferenceWindows(self.kinv, self.wgt, self.wa, self.mu_a, self.var_a, self.ox, self.oy, self.wset,
-                                self.ns)
+        return ReferenceWindows(self.kinv, self.image, self.offs_sets, self.sigmas, self.weighting, self.mu_a,
+                                self.var_a, self.ox, self.oy, self.wset, self.ns)
 
     def source_images(self) -> SourceImages:
         """The source-side arrays as the kernels take them (no copies)."""
@@ -110,8 +122,9 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
     ``fine_allowed`` (H, W) bool or uint8 region codes (``fine_window_region``) restricts the fine window to
     those pixels (None = no restriction); the
     window terms' arrays come from ``pool`` when given (see :meth:`ViewContext.release`)."""
-    wgt, wa, mu_a, var_a, wset, offs_sets = reference_terms(ref_img, options, fine_allowed,
-                                                            np.empty if pool is None else pool.take)
+    ref_img = np.ascontiguousarray(ref_img, dtype=np.float32)
+    mu_a, var_a, wset, offs_sets, sigmas = reference_terms(ref_img, options, fine_allowed,
+                                                           np.empty if pool is None else pool.take)
     offs = offs_sets[0]
     src, sizes = pad_sources(src_imgs)
     geo = relative_geometry(ref_cam, src_cams)
@@ -121,20 +134,20 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
         sdepth = np.zeros((len(src_imgs), src.shape[1] - 1, src.shape[2] - 1), np.float32)
         for j, d in enumerate(src_depths):
             sdepth[j, : d.shape[0], : d.shape[1]] = d
-    s_max = wgt.shape[2]
+    s_max = max(len(o) for o in offs_sets)
     ns = np.array([len(o) for o in offs_sets], np.int64)
-    ox = np.zeros((len(offs_sets), s_max), np.float32)
-    oy = np.zeros((len(offs_sets), s_max), np.float32)
+    packed = np.zeros((len(offs_sets), s_max, 2), np.int32)
     for i, o in enumerate(offs_sets):
-        ox[i, : len(o)] = o[:, 0]
-        oy[i, : len(o)] = o[:, 1]
-    return ViewContext(geo["kinv"], wgt, wa, mu_a, var_a, offs, src, geo["centers"], sdepth, ox, oy, src.reshape(-1),
-                       wset, ns, pack_geometry(geo, sizes))
+        packed[i, : len(o)] = o
+    ox = packed[:, :, 0].astype(np.float32)
+    oy = packed[:, :, 1].astype(np.float32)
+    return ViewContext(geo["kinv"], ref_img, mu_a, var_a, offs, src, geo["centers"], sdepth, ox, oy, src.reshape(-1),
+                       wset, ns, pack_geometry(geo, sizes), packed, sigmas, WEIGHTING_CODES[options.ncc_weighting])
 
 
 def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None,
                     alloc: Callable[..., np.ndarray] = np.empty
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Reference-side NCC terms with the per-pixel window choice.
 
     A pixel takes the fine window when the intensity variance under the fine window's spatial weights
@@ -145,17 +158,20 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     ``fine_crease_min_var_ratio`` times the standard window's: on piecewise-constant texture the sharp colour
     weight keeps little more than the centre's colour and the small window is nearly flat, while the large
     one still sees the pattern.
-    Returns wgt, wa (H, W, S) f32, mu_a, var_a (H, W) f32, wset (H, W) u8 and the offset sets.
+    Returns mu_a, var_a (H, W) f32, wset (H, W) u8, the offset sets and their (spatial, colour) sigmas
+    (n_sets, 2) f64.
     """
     offs = window_offsets_2d(options.window_offsets())
     sigma_c = weighting_sigma(options)
     use_fine = bool(options.fine_window) and (fine_allowed is None or bool(fine_allowed.any()))
     offs_f = window_offsets_2d(options.fine_window_offsets()) if use_fine else np.zeros((0, 2), np.int32)
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
-    wgt, wa, mu_a, var_a, wset = window_terms(ref_img, offs, offs_f, options.ncc_weighting, options.sigma_spatial,
-                                              sigma_c, options.fine_sigma_spatial, fine_c, options.fine_min_var,
-                                              fine_allowed, alloc, options.fine_crease_min_var_ratio)
-    return wgt, wa, mu_a, var_a, wset, [offs, offs_f] if use_fine else [offs]
+    mu_a, var_a, wset = window_terms(ref_img, offs, offs_f, options.ncc_weighting, options.sigma_spatial, sigma_c,
+                                     options.fine_sigma_spatial, fine_c, options.fine_min_var, fine_allowed, alloc,
+                                     options.fine_crease_min_var_ratio)
+    sigmas = [(options.sigma_spatial, sigma_c), (options.fine_sigma_spatial, fine_c)]
+    n_sets = 2 if use_fine else 1
+    return mu_a, var_a, wset, [offs, offs_f][:n_sets], np.array(sigmas[:n_sets], np.float64)
 
 
 def fine_window_region(depth: np.ndarray, normal: np.ndarray, camera: Camera, options: PatchMatchOptions,

@@ -9,7 +9,7 @@ half-step uses the stream ``combine(key, y * W + x)``, so results do not depend 
 
 The kernels take named records (``records.py``): the hypothesis maps, the cost caches, the reference
 view's matching windows, the source images and the iteration's parameters. The small functions they call
-take the records' arrays one by one (``geometry.relative_geometry`` and ``ncc.bilateral_moments`` define
+take the records' arrays one by one (``geometry.relative_geometry`` and ``ncc.load_window`` define
 them): src (N·(Hm+1)·(Wm+1),) f32 raveled padded source images, stride = Wm+1, plane = (Hm+1)(Wm+1), geo
 (N, GEO_COLS) f64 packed geometry and sizes (``geometry.pack_geometry``), sdepth (N, Hm, Wm) f32 source
 depths (geometric passes), kinv (9,) the inverse intrinsics; win (WORK_ROWS, work_width(S)) f32 and sidx
@@ -366,7 +366,8 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
     # the records' fields as locals: the loops below read exactly what they read as separate arguments
     Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
     P = view_costs
-    kinv, wgt, wa, mu_a, var_a = ref.kinv, ref.weights, ref.weighted, ref.mean, ref.variance
+    kinv, img, offs, sig, mode = ref.kinv, ref.image, ref.offsets, ref.sigmas, ref.weighting
+    mu_a, var_a = ref.mean, ref.variance
     ox, oy, wset, ns = ref.offset_x, ref.offset_y, ref.window_set, ref.n_samples
     src, stride, plane, geo, sdepth = sources.pixels, sources.stride, sources.plane, sources.geometry, sources.depth
     h, w = Z.shape
@@ -386,7 +387,7 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
             reuse = have_known and known_wset[y, x] == wset[y, x]
             z = Z[y, x]
             rp = ray(kinv, x, y)
-            n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
+            n = load_window(win, img, offs, sig, mode, ox, oy, wset, ns, x, y)
             nx = Nrm[y, x, 0]
             ny = Nrm[y, x, 1]
             nz = Nrm[y, x, 2]
@@ -467,7 +468,8 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
     Z, Nrm, C, Sel = maps.depth, maps.normal, maps.cost, maps.selected_views
     P, VER, rows = caches.view_costs, caches.versions, caches.rows
     RS, RT, RC, RN = caches.row_samples, caches.row_stamps, caches.row_costs, caches.row_count
-    kinv, wgt, wa, mu_a, var_a = ref.kinv, ref.weights, ref.weighted, ref.mean, ref.variance
+    kinv, img, offs, sig, mode = ref.kinv, ref.image, ref.offsets, ref.sigmas, ref.weighting
+    mu_a, var_a = ref.mean, ref.variance
     ox, oy, wset, ns = ref.offset_x, ref.offset_y, ref.window_set, ref.n_samples
     src, stride, plane, geo, sdepth = sources.pixels, sources.stride, sources.plane, sources.geometry, sources.depth
     pat, region = pattern.offsets, pattern.regions
@@ -530,7 +532,7 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
                 CH[y, x] = 0
             n_px += 1
             rp = ray(kinv, x, y)
-            n = load_window(win, wgt, wa, ox, oy, wset, ns, x, y)
+            n = load_window(win, img, offs, sig, mode, ox, oy, wset, ns, x, y)
             mu = mu_a[y, x]
             var = var_a[y, x]
             n_cand = gather_candidates(x, y, Z, Nrm, C, pat, region, n_regions, kinv, zmin, zmax, plane_prop, k_up,

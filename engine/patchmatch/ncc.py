@@ -1,8 +1,10 @@
 """Bilaterally weighted NCC (Schönberger et al. 2016 COLMAP; Xu & Tao 2019 ACMM).
 
-The weights depend only on the reference image, so they are computed once per reference view and
-level (:func:`bilateral_moments`): normalised weights w (H, W, S), the products w·a, and the window
-mean μ_a and variance v_a. A cost evaluation then only samples the source image:
+The weights depend only on the reference image. The window mean μ_a and variance v_a and the choice of
+window are computed once per reference view and level (:func:`window_terms`); the normalised weights w and the
+products w·a of a pixel are computed again each time a kernel visits the pixel (:func:`load_window`, by the same
+function, so they are the same values): storing them took 2·S floats a pixel (113 MB at 768x512) for about 2 %
+of a pixel update's time. A cost evaluation then only samples the source image:
 μ_b = Σ w b, v_b = Σ w b² - μ_b², cov = Σ (w a) b - μ_a μ_b, cost = clamp(1 - cov/√(v_a v_b), 0, 2),
 and 2 when either variance is below ``min_var`` or the warped centre is behind or outside the source.
 
@@ -67,21 +69,21 @@ def _pixel_moments(img, x, y, offs, n_off, mode, sigma_s, sigma_c, wrow, warow):
 
 @njit(cache=True, parallel=True, fastmath=True)
 def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, sigma_c_f, min_var_f, min_ratio_f,
-                         allowed, wgt, wa, mu_a, var_a, wset):
+                         allowed, mu_a, var_a, wset):
     """Per pixel: the fine window where ``allowed`` (code > FINE_OFF) and its variance test (fine offsets,
     sigma_s_f, the standard sigma_c) reaches ``min_var_f`` and, at FINE_CREASE with ``min_ratio_f`` > 0, its
     variance under its own weights reaches ``min_ratio_f`` times the standard window's; else the standard
-    window; unused entries are 0."""
+    window. Writes the chosen window's weighted mean and variance and the choice (1 = fine)."""
     h, w = img.shape
     n_std = offs.shape[0]
     n_fine = offs_f.shape[0]
-    s_max = wgt.shape[2]
+    s_max = max(n_std, n_fine)
     for y in prange(h):
+        wrow = np.empty(s_max, np.float32)  # the weights and w·a: scratch here, recomputed by load_window
+        warow = np.empty(s_max, np.float32)
         for x in range(w):
-            wrow = wgt[y, x]
-            warow = wa[y, x]
             fine = False
-            done = False  # the chosen window's weights and moments are already in wrow / m, v
+            done = False  # the chosen window's moments are already in m, v
             m = v = 0.0
             if n_fine > 0 and allowed[y, x] != FINE_OFF:
                 v_test = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c, wrow, warow)[1]
@@ -94,21 +96,32 @@ def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, s
             if fine:
                 if not done:
                     m, v = _pixel_moments(img, x, y, offs_f, n_fine, mode, sigma_s_f, sigma_c_f, wrow, warow)
-                n = n_fine
             else:
                 m, v = _pixel_moments(img, x, y, offs, n_std, mode, sigma_s, sigma_c, wrow, warow)
-                n = n_std
-            for k in range(n, s_max):
-                wrow[k] = 0.0
-                warow[k] = 0.0
             mu_a[y, x] = m
             var_a[y, x] = v
             wset[y, x] = 1 if fine else 0
 
 
+@njit(cache=True, parallel=True, fastmath=True)
+def _weights_kernel(img, offs, n_samples, mode, sigmas, wset, wgt, wa):
+    """Every pixel's weights and w·a as :func:`load_window` computes them, into (H, W, S) arrays (zero past the
+    pixel's window)."""
+    h, w = img.shape
+    for y in prange(h):
+        for x in range(w):
+            s = wset[y, x]
+            n = n_samples[s]
+            _pixel_moments(img, x, y, offs[s], n, mode, sigmas[s, 0], sigmas[s, 1], wgt[y, x], wa[y, x])
+            for k in range(n, wgt.shape[2]):
+                wgt[y, x, k] = 0.0
+                wa[y, x, k] = 0.0
+
+
 def bilateral_moments(img: np.ndarray, offs: np.ndarray, weighting: str, sigma_s: float,
                       sigma_c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Reference-side NCC terms of one image.
+    """Reference-side NCC terms of one image with one window, as whole maps (for tests and inspection; the
+    kernels compute a pixel's weights when they visit it).
 
     Args:
         img: (H, W) float32 grey image in [0, 1].
@@ -119,27 +132,40 @@ def bilateral_moments(img: np.ndarray, offs: np.ndarray, weighting: str, sigma_s
         mu_a (H, W) float32 weighted mean, var_a (H, W) float32 weighted variance. Reference pixels
         outside the image are clamped to the border.
     """
-    wgt, wa, mu_a, var_a, _ = window_terms(img, offs, np.zeros((0, 2), np.int32), weighting, sigma_s, sigma_c,
-                                           sigma_s, sigma_c, 0.0, None)
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    mu_a, var_a, wset = window_terms(img, offs, np.zeros((0, 2), np.int32), weighting, sigma_s, sigma_c,
+                                     sigma_s, sigma_c, 0.0, None)
+    wgt, wa = window_weight_maps(img, np.ascontiguousarray(offs, np.int32)[None], np.array([offs.shape[0]]),
+                                 np.array([[sigma_s, sigma_c]], np.float64), WEIGHTING_CODES[weighting], wset)
     return wgt, wa, mu_a, var_a
+
+
+def window_weight_maps(img: np.ndarray, offsets: np.ndarray, n_samples: np.ndarray, sigmas: np.ndarray,
+                       weighting: int, wset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pixel's bilateral weights w and w·a as :func:`load_window` computes them, as (H, W, S) f32 maps
+    (zeros past the pixel's window): for tests and inspection, the kernels never hold them. ``offsets``
+    (n_sets, S, 2) i32, ``n_samples`` (n_sets,), ``sigmas`` (n_sets, 2) f64, ``weighting`` a WEIGHTING_CODES code,
+    ``wset`` (H, W) u8 each pixel's window set."""
+    h, w = img.shape
+    wgt = np.empty((h, w, offsets.shape[1]), np.float32)
+    wa = np.empty_like(wgt)
+    _weights_kernel(np.ascontiguousarray(img, np.float32), offsets, np.asarray(n_samples, np.int64), int(weighting),
+                    sigmas, wset, wgt, wa)
+    return wgt, wa
 
 
 def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weighting: str, sigma_s: float,
                  sigma_c: float, sigma_s_fine: float, sigma_c_fine: float, min_var_fine: float,
                  allowed: np.ndarray | None, alloc: Callable[..., np.ndarray] = np.empty, min_ratio_fine: float = 0.0
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference-side NCC terms with a per-pixel choice between two windows (see
-    ``context.reference_terms``): wgt, wa (H, W, max(S, S_fine)) f32 (zero past the pixel's window),
-    mu_a, var_a (H, W) f32 and wset (H, W) u8 (1 = fine). ``offs_fine`` (0, 2) disables the fine
-    window; ``allowed`` (H, W) bool, uint8 codes (FINE_OFF, FINE_EDGE, FINE_CREASE: subject to
-    ``min_ratio_fine`` too, its variance under its own weights must reach that fraction of the standard
-    window's) or None (everywhere, FINE_EDGE). ``alloc(shape, dtype)`` gives the output arrays (``np.empty`` or a
-    ``buffers.BufferPool``'s take)."""
+    ``context.reference_terms``): mu_a, var_a (H, W) f32 the chosen window's weighted mean and variance and
+    wset (H, W) u8 (1 = fine). ``offs_fine`` (0, 2) disables the fine window; ``allowed`` (H, W) bool, uint8
+    codes (FINE_OFF, FINE_EDGE, FINE_CREASE: subject to ``min_ratio_fine`` too, its variance under its own weights
+    must reach that fraction of the standard window's) or None (everywhere, FINE_EDGE). ``alloc(shape, dtype)``
+    gives the output arrays (``np.empty`` or a ``buffers.BufferPool``'s take)."""
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
-    s = max(offs.shape[0], offs_fine.shape[0])
-    wgt = alloc((h, w, s), np.float32)
-    wa = alloc((h, w, s), np.float32)
     mu_a = alloc((h, w), np.float32)
     var_a = alloc((h, w), np.float32)
     wset = np.empty((h, w), np.uint8)
@@ -148,8 +174,8 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     _window_terms_kernel(img, offs, np.ascontiguousarray(offs_fine, dtype=np.int32), WEIGHTING_CODES[weighting],
                          float(sigma_s), float(sigma_c), float(sigma_s_fine), float(sigma_c_fine),
                          np.float32(min_var_fine), np.float32(min_ratio_fine),
-                         np.ascontiguousarray(allowed, dtype=np.uint8), wgt, wa, mu_a, var_a, wset)
-    return wgt, wa, mu_a, var_a, wset
+                         np.ascontiguousarray(allowed, dtype=np.uint8), mu_a, var_a, wset)
+    return mu_a, var_a, wset
 
 
 def pad_sources(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -194,21 +220,21 @@ def ncc_work(n_samples):
 
 
 @njit(cache=True, inline="always")
-def load_window(win, wgt, wa, ox, oy, wset, ns, x, y):
-    """Copy reference pixel (x, y)'s window into rows 0-3 of ``win``: weights w, weighted centred
-    intensities w·a (``wgt``, ``wa`` (H, W, S) f32) and the offsets of its window set (``ox``, ``oy``
-    (n_sets, S) f32, ``wset`` (H, W) u8, ``ns`` (n_sets,) i64), and zeros up to ``work_width(n)`` in
-    rows 0-3 and 6.
-    Returns the number of samples n.
+def load_window(win, img, offs, sigmas, mode, ox, oy, wset, ns, x, y):
+    """Put reference pixel (x, y)'s window into rows 0-3 of ``win``: its bilateral weights w and weighted
+    intensities w·a, computed here from the reference image ``img`` (H, W) f32 by the function that computed its
+    moments (:func:`window_terms`), and the offsets of its window set; zeros up to ``work_width(n)`` in rows 0-3
+    and 6. Window set s (``wset`` (H, W) u8) has ``ns[s]`` samples at ``offs[s]`` (n_sets, S, 2) i32 (as floats in
+    ``ox``, ``oy`` (n_sets, S) f32), spatial and colour sigmas ``sigmas[s]`` (n_sets, 2) f64 and the weighting
+    ``mode`` (WEIGHTING_CODES). Returns the number of samples n.
 
     One copy per pixel, so that the cost functions take one array instead of four views (numba passes
     each array as 7-11 machine words and counts references to views: per NCC window that was 10-20 %
     of the time)."""
     s = wset[y, x]
     n = ns[s]
+    _pixel_moments(img, x, y, offs[s], n, mode, sigmas[s, 0], sigmas[s, 1], win[0], win[1])
     for k in range(n):
-        win[0, k] = wgt[y, x, k]
-        win[1, k] = wa[y, x, k]
         win[2, k] = ox[s, k]
         win[3, k] = oy[s, k]
     # zero weights, offsets and blended values up to the next whole vector: ncc_cost's vector loops run

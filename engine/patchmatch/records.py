@@ -148,8 +148,10 @@ class ReferenceWindows(NamedTuple):
     each pixel's window set (``context.ViewContext``); S = the larger window's sample count."""
 
     kinv: np.ndarray  # (9,) f64 inverse intrinsics K⁻¹, row-major (pixel index -> ray)
-    weights: np.ndarray  # (H, W, S) f32 bilateral weights w of the pixel's window, zeros past its samples
-    weighted: np.ndarray  # (H, W, S) f32 weighted centred intensities w·a
+    image: np.ndarray  # (H, W) f32 the reference image (a pixel's weights are computed from it: ncc.load_window)
+    offsets: np.ndarray  # (n_sets, S, 2) i32 sample offsets (dx, dy) of each window set
+    sigmas: np.ndarray  # (n_sets, 2) f64 spatial (px) and colour sigma of each window set's bilateral weights
+    weighting: int  # ncc.WEIGHTING_CODES: 0 COLMAP's squared Gaussians, 1 ACMM's
     mean: np.ndarray  # (H, W) f32 weighted mean intensity μ_a
     variance: np.ndarray  # (H, W) f32 weighted intensity variance v_a
     offset_x: np.ndarray  # (n_sets, S) f32 sample offsets of each window set (pixels)

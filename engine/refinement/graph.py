@@ -5,6 +5,11 @@ Their patch dissimilarity on the grey image (``patch`` x ``patch``, replicate pa
 spatial distance give ŵ_ij = exp(-PD_ij / (2 σ_I²) - |x_i - x_j|² / (2 σ_x²)); candidates outside the
 image get 0. The ``degree`` largest ŵ are kept and normalised to sum 1 per pixel. The graph is
 directed. Empty slots (weight 0) point to i itself, so they contribute nothing to any term.
+
+The kernel runs over blocks of rows (``engine.core.blocks.RowPacer``, about half a second each) with a stop request
+(Ctrl-C, ``engine.core.interrupt``) honoured between them: one call per scale took up to 4.8 s on fountain_p11 at
+768×512 on the loaded machine (docs/reliability.md). Every pixel's neighbours and weights depend only on the grey
+image, so the graph is the same bit for bit however the rows are split.
 """
 
 from __future__ import annotations
@@ -13,6 +18,10 @@ import dataclasses
 
 import numba
 import numpy as np
+
+from engine.core.blocks import RowPacer
+
+PACER = RowPacer()  # the row blocks of this process's graph builds (only their time depends on it)
 
 
 @dataclasses.dataclass(eq=False)
@@ -58,11 +67,13 @@ def window_offsets(window: int) -> np.ndarray:
 
 
 @numba.njit(parallel=True, cache=True)
-def _graph_kernel(gray, offsets, patch_radius, inv_2si2, inv_2sx2, neighbors, weights):
+def _graph_kernel(gray, offsets, patch_radius, inv_2si2, inv_2sx2, row_start, row_stop, neighbors, weights):
+    """Neighbours and weights of the pixels of rows [row_start, row_stop) (each pixel independent of the others)."""
     h, w = gray.shape
     n_cand = offsets.shape[0]
     k_max = neighbors.shape[1]
-    for i in numba.prange(h * w):
+    for p in numba.prange((row_stop - row_start) * w):
+        i = row_start * w + p
         r, c = i // w, i % w
         top_w = np.zeros(k_max)
         top_j = np.full(k_max, i, np.int64)
@@ -104,15 +115,23 @@ def _graph_kernel(gray, offsets, patch_radius, inv_2si2, inv_2sx2, neighbors, we
 
 
 def similarity_graph(gray: np.ndarray, window: int = 9, patch: int = 3, sigma_int: float = 0.07,
-                     sigma_spa: float = 3.0, degree: int = 20) -> SimilarityGraph:
-    """Build the graph of Rossi et al. 2020 from an (H, W) grey image in [0, 1] (numba kernel)."""
+                     sigma_spa: float = 3.0, degree: int = 20, pacer: RowPacer | None = PACER) -> SimilarityGraph:
+    """Build the graph of Rossi et al. 2020 from an (H, W) grey image in [0, 1] (numba kernel).
+
+    ``pacer``: the blocks of rows the kernel runs over, with a stop request honoured between two of them (raised
+    there as KeyboardInterrupt, the graph then unfinished); None: one call over the whole image.
+    """
     gray = np.ascontiguousarray(gray, np.float64)
     h, w = gray.shape
     offs = window_offsets(window).astype(np.int64)
     k = min(degree, len(offs))
     neighbors = np.empty((h * w, k), np.int32)
     weights = np.empty((h * w, k), np.float32)
-    _graph_kernel(gray, offs, patch // 2, 1.0 / (2 * sigma_int ** 2), 1.0 / (2 * sigma_spa ** 2), neighbors, weights)
+    terms = (gray, offs, patch // 2, 1.0 / (2 * sigma_int ** 2), 1.0 / (2 * sigma_spa ** 2))
+    if pacer is None:
+        _graph_kernel(*terms, 0, h, neighbors, weights)
+    else:
+        pacer.run("similarity graph", h, w, lambda start, stop: _graph_kernel(*terms, start, stop, neighbors, weights))
     return SimilarityGraph(h, w, neighbors, weights)
 
 

@@ -7,8 +7,8 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
   PatchMatch takes (4 B/px), and decoding the largest original image (uint8 RGB + two float32 copies);
 - PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
-  and for the view being processed its context (2·S window weights, moments, padded source images and
-  source depths: 4·(2·S + 2 + 2·sources) B/px) and its cost caches (``ViewState.prepare_caches``: float32 costs
+  and for the view being processed its context (window moments and choice, padded source images and
+  source depths: 4·(2 + 2·sources) + 1 B/px) and its cost caches (``ViewState.prepare_caches``: float32 costs
   of the stored hypotheses, stamps and flags, 4·sources + 5 B/px, and the candidate rows);
 - after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px); fusion's copy of every view in its
   slots (23 B/px: depth, normal, colour, confidence) and one output chunk with its PLY records (the cloud is
@@ -134,12 +134,12 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     largest = max(pixels)
     original_largest = max(w * h for w, h in (v.original_size for v in scene.views))
     sources = max((len(v.source_views) for v in scene.views), default=0)
-    # window samples per pixel: the square of the 1-D offsets, the larger of the two windows (ncc.window_offsets_2d)
-    offsets = max(len(pm.window_offsets()), len(pm.fine_window_offsets())) ** 2
 
     cached = sum(sorted(pixels, reverse=True)[:_MAX_CACHED_VIEWS])
     inputs = 12 * cached + 4 * total + 27 * original_largest
-    per_view_context = 4 * (2 * offsets + 2 + 2 * sources) * largest
+    # the window's mean and variance, its choice, padded source images and source depths (the weights themselves
+    # are computed per pixel visit: ncc.load_window)
+    per_view_context = (4 * (2 + 2 * sources) + 1) * largest
     patchmatch = (4 * 4 // 3 + 24 + 4 + 6) * total + per_view_context + 3 * 24 * largest
     # the view being processed keeps per-pass cost caches (ViewState.prepare_caches): current
     # hypothesis costs (float32 per source), change stamps, active-set flags and, below ROW_CACHE_MAX_BYTES,

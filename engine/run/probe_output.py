@@ -23,7 +23,7 @@ from engine.patchmatch.context import build_context, fine_window_region
 from engine.patchmatch.geometry import plane_vector, ray, reprojection
 from engine.patchmatch.kernels import photometric_cost
 from engine.patchmatch.multiscale import PatchMatchView
-from engine.patchmatch.ncc import load_window, ncc_work
+from engine.patchmatch.ncc import ncc_work
 from engine.patchmatch.options import PatchMatchOptions
 
 PROBES_DIR = "probes"
@@ -79,7 +79,7 @@ def counter_verdicts(views: list[PatchMatchView], index: int, depths: list[np.nd
         if not ok:
             out.append({name: {"verdict": "none"} for name in names})
             continue
-        n = load_window(win, ctx.wgt, ctx.wa, ctx.ox, ctx.oy, ctx.wset, ctx.ns, x, y)
+        n = ctx.window_at(x, y, win)
         p = np.array([z * rp[0], z * rp[1], z * rp[2]])
         for j, name in enumerate(names):
             err, zr = reprojection(ctx.geo, j, ctx.sdepth, x, y, z)

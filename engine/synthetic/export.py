@@ -16,22 +16,27 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pycolmap
 from PIL import Image
 
 from engine.core.camera import Camera
 from engine.io.atomic import atomic_write_text
+from engine.io.colmap_model import import_pycolmap
 from engine.io.dense import write_dense_map
 from engine.io.ply import write_ply
 from engine.synthetic.render import render_scene
 from engine.synthetic.scene import SceneData, SceneRecipe
 
+if TYPE_CHECKING:
+    import pycolmap
+
 
 def build_reconstruction(data: SceneData) -> pycolmap.Reconstruction:
     """The COLMAP model of ``data``: PINHOLE cameras (shared when intrinsics agree), GT poses,
     sparse points with their tracks. Image ids are view index + 1, in view order."""
+    pycolmap = import_pycolmap()
     rec = pycolmap.Reconstruction()
     camera_ids: dict[tuple, int] = {}
     view_camera = []

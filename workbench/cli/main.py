@@ -1,4 +1,5 @@
-"""The ``deepc`` command line: one subcommand per module (run, mesh, probe, info, eval, view, replay, regress, train).
+"""The ``deepc`` command line: one subcommand per module (run, mesh, probe, info, eval, compare, view, replay, regress,
+train).
 
 Every user-facing problem ends in one line on stderr and exit status 2; success is 0 and, for
 ``regress``, "a quality metric changed beyond its tolerance" (either way) is 1.
@@ -18,6 +19,7 @@ from engine.core.errors import DeepCError
 from engine.core.interrupt import EXIT_INTERRUPTED, deferred_interrupts
 from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions
+from workbench.cli.compare import add_compare_arguments
 from workbench.cli.probe import add_probe_arguments
 from workbench.flags.help_options import HelpOptionsAction
 from workbench.flags.options import add_options_flags
@@ -40,6 +42,12 @@ def _eval(args: argparse.Namespace) -> int:
     from workbench.cli.eval import cmd_eval  # lazy: the evaluation
 
     return cmd_eval(args)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from workbench.cli.compare import cmd_compare  # lazy: the evaluation and the run readers
+
+    return cmd_compare(args)
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -144,6 +152,13 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--json", metavar="OUT.json", help="also write the table as JSON")
     ev.set_defaults(handler=_eval)
 
+    compare = sub.add_parser("compare", help="two runs of one scene pixel by pixel: ours, COLMAP's or OpenMVS's",
+                             description="Compare two runs (deepc run folders, COLMAP dense workspaces or OpenMVS "
+                                         "densify folders) view by view: who is right where GT exists, where they "
+                                         "disagree where it does not, and their fused clouds' F1.")
+    add_compare_arguments(compare)
+    compare.set_defaults(handler=_compare)
+
     view = sub.add_parser("view", help="the live-tuning browser viewer (viser)")
     view.add_argument("target", metavar="OUT_OR_SCENE")
     view.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)")
@@ -223,8 +238,8 @@ def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.showwarning = _warning_line
-    # lazy: pycolmap (and here on purpose: its glog installs a SIGTERM handler that aborts; ours must come after)
-    import pycolmap  # noqa: F401
+    # pycolmap, where a command needs it, is imported by engine.io.colmap_model.import_pycolmap, which keeps this
+    # handler (its glog installs one that aborts)
     signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args.handler(args) or 0)

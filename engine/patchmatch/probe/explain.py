@@ -63,8 +63,8 @@ class _Pixel:
     def __init__(self, ref: ReferenceWindows, sources: SourceImages, params: KernelParams, x: int, y: int):
         self.ref, self.sources, self.params, self.x, self.y = ref, sources, params, x, y
         self.win, self.sidx = ncc_work(ref.offset_x.shape[1])
-        self.n = load_window(self.win, ref.weights, ref.weighted, ref.offset_x, ref.offset_y, ref.window_set,
-                             ref.n_samples, x, y)
+        self.n = load_window(self.win, ref.image, ref.offsets, ref.sigmas, ref.weighting, ref.offset_x, ref.offset_y,
+                             ref.window_set, ref.n_samples, x, y)
         self.mu = ref.mean[y, x]
         self.var = ref.variance[y, x]
         self.rp = ray(ref.kinv, x, y)

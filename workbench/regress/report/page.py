@@ -39,7 +39,8 @@ from workbench.regress.report.figures import error_histogram_figure, eval_figure
 from workbench.regress.running import RunResult
 from workbench.regress.suite import Suite
 
-_CSS = """
+#: the style sheet of the HTML reports (this one and `deepc compare`'s)
+CSS = """
 body { font: 14px/1.4 system-ui, sans-serif; margin: 24px; color: #222; max-width: 1400px; }
 h1 { font-size: 22px; } h2 { font-size: 18px; border-bottom: 1px solid #ccc; margin-top: 32px; }
 h3 { font-size: 16px; margin-top: 24px; }
@@ -241,7 +242,7 @@ def render_report(suite: Suite, results: list[RunResult], env: dict[str, Any], b
         body += [run_section(r, a, report_dir) for r, a in items]
     body += ["<h2>Environment</h2>", _environment_table(env)]
     return ("<!doctype html>\n<html lang=en><head><meta charset='utf-8'>"
-            f"<title>deepc regress: {_e(suite.name)}</title><style>{_CSS}</style></head><body>\n"
+            f"<title>deepc regress: {_e(suite.name)}</title><style>{CSS}</style></head><body>\n"
             + "\n".join(body) + "\n</body></html>\n")
 
 
