@@ -1,7 +1,7 @@
 """What a named panel of the rerun web viewer shows, read from a screenshot (for the replay browser tests).
 
 egui draws the whole viewer into one canvas, so there is no DOM to query: a panel is found from the blueprint the
-viewer was given and the screenshot. The blueprint gives where the panel named ``003 · depth`` lies as fractions of
+viewer was given and the screenshot. The blueprint gives where the panel named ``003 · depth (m)`` lies as fractions of
 the panel area (egui_tiles' shares, a grid of ⌈√n⌉ columns, a tab container showing its active tab); the screenshot
 gives the panel area (between the top bar's and the time panel's separator lines) and the exact panel, the nearest
 of rerun's 1-px separator lines (light theme) on each side of that point. Then:

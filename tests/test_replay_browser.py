@@ -192,7 +192,7 @@ def test_recording_replays_in_the_web_viewer(browser_context, recording):
     with WebViewer(recording, layout="iterations") as viewer:
         assert viewer.url.startswith("http://127.0.0.1:")
         _panels_show(browser_context, viewer, recording, "iterations", None, {
-            "000 · depth": _shows_map("turbo"), "000 · cost": _shows_map("magma"),
+            "000 · depth (m)": _shows_map("turbo"), "000 · cost": _shows_map("magma"),
             "000 · counter: not recorded": explanation_problem})
     assert viewer.proc.poll() is not None  # the server is gone
 

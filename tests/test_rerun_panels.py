@@ -34,10 +34,10 @@ def _page(width: int = 1000, height: int = 700, top: int = 35, bottom: int = 550
 
 def test_a_panel_is_found_where_the_layout_puts_it_and_its_pixels_read():
     blueprint = LAYOUTS["iterations"](Contents([VIEW]), VIEW)
-    place = layout_fractions(blueprint)["000 · depth"]
+    place = layout_fractions(blueprint)["000 · depth (m)"]
     assert (place.x0, place.y0, place.x1, place.y1) == pytest.approx((0, 0, 0.2, 0.375))
     page = _page()
-    depth = find_panel(page, blueprint, "000 · depth")
+    depth = find_panel(page, blueprint, "000 · depth (m)")
     cost = find_panel(page, blueprint, "000 · cost")
     assert (depth.x0, depth.y0, depth.x1, depth.y1) == (0, 36, 199, 228)
     assert (cost.x0, cost.y0, cost.x1, cost.y1) == (400, 36, 599, 228)
