@@ -13,6 +13,8 @@ its source) with the standard 36-sample window everywhere. Measured, best of 3:
   seconds x this clock.
 - ``ncc``: ``ncc.ncc_cost`` as the kernels call it (``photometric_cost``), every pixel of ``--rows`` rows against
   every source: cycles per weighted sample and per window.
+- ``window_weights``: ``ncc.load_window`` alone per pixel (a pixel's bilateral weights are computed each time a kernel
+  visits it rather than stored: 2·S floats a pixel).
 - ``floor_gather``: a plain loop that only gathers the same four texels per sample (their indices and bilinear
   fractions precomputed and streamed in), blends them and accumulates the three weighted sums: the memory and
   load-port floor of the sampling.
@@ -55,7 +57,7 @@ from support.pm_synthetic import make_scene
 # Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?"
 # may be absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
 SCHEMA = {"size": list, "sources": int, "rows": int, "threads": int, "clock": dict, "ncc": dict,
-          "floor_gather": dict, "floor_project": dict, "half_step": dict, "bounds": dict}
+          "window_weights": dict, "floor_gather": dict, "floor_project": dict, "half_step": dict, "bounds": dict}
 
 FADD_LATENCY = 3  # cycles of a dependent float64 addition (AMD Zen 2-4, Intel Skylake-X and later)
 
@@ -101,6 +103,18 @@ def _ncc_rows(src, stride, plane, geo, kinv, img, offs, sig, mode, mu_a, var_a, 
                                                      m0, m1, m2, min_var, sidx)
                 samples += n
     return samples
+
+
+@njit(cache=True, fastmath=True)
+def _load_windows(img, offs, sig, mode, ox, oy, wset, ns, y0, y1, w):
+    """Only ``load_window`` for every pixel of rows [y0, y1): a pixel's weights, computed where a kernel visits it."""
+    win, _ = ncc_work(ox.shape[1])
+    acc = np.float32(0)
+    for y in range(y0, y1):
+        for x in range(w):
+            load_window(win, img, offs, sig, mode, ox, oy, wset, ns, x, y)
+            acc += win[0, 0]
+    return acc
 
 
 @njit(cache=True, fastmath=True)
@@ -214,6 +228,9 @@ def measure(width: int, height: int, n_src: int, rows: int, iterations: int) -> 
                      "samples_per_window": samples / windows}
 
     n_px = rows * width
+    seconds = _best(lambda: _load_windows(ctx.image, ctx.offs_sets, ctx.sigmas, ctx.weighting, ctx.ox, ctx.oy,
+                                          ctx.wset, ctx.ns, y0, y1, width))
+    result["window_weights"] = {"pixels": n_px, "seconds": seconds, "cycles_per_pixel": seconds * hz / n_px}
     idx = np.empty((n_px, n_src, n), np.int32)
     fu = np.empty((n_px, n_src, n), np.float32)
     fv = np.empty((n_px, n_src, n), np.float32)
@@ -277,6 +294,7 @@ def measure(width: int, height: int, n_src: int, rows: int, iterations: int) -> 
         "kernel_over_floor": ncc["cycles_per_sample"] / (result["floor_gather"]["cycles_per_sample"]
                                                          + result["floor_project"]["cycles_per_sample"]),
         "window_share_of_update": sample_share,
+        "window_weights_share_of_update": result["window_weights"]["cycles_per_pixel"] / (secs * hz / px),
         "update_cycles_at_floor": (wins / px) * ncc["samples_per_window"] * (
             result["floor_gather"]["cycles_per_sample"] + result["floor_project"]["cycles_per_sample"]),
     }
@@ -301,6 +319,9 @@ def summary(result: dict) -> list[dict]:
         {"measure": "half-step: cycles per window (all included)", "value": hs["cycles_per_window"], "unit": "cycles"},
         {"measure": "share of an update's cycles spent in its windows", "value": 100 * b["window_share_of_update"],
          "unit": "%"},
+        {"measure": "a pixel's window weights, computed per visit",
+         "value": result["window_weights"]["cycles_per_pixel"], "unit": "cycles"},
+        {"measure": "their share of a pixel update", "value": 100 * b["window_weights_share_of_update"], "unit": "%"},
         {"measure": "pixel update at the floor (its windows' samples only)", "value": b["update_cycles_at_floor"],
          "unit": "cycles"},
     ]

@@ -129,8 +129,11 @@ class PatchMatchCheckpoint:
         """(level, pass) of the latest pass that every view completed, or None."""
         return self.completed[-1] if self.completed else None
 
-    def load(self, level: int, pass_index: int, view: int, shape: tuple[int, int]) -> dict[str, np.ndarray] | None:
-        """The saved state {Z, N, C, S} of ``view`` after pass ``pass_index`` of ``level``, verified; or None."""
+    def load(self, level: int, pass_index: int, view: int, shape: tuple[int, int],
+             reuse: bool = True) -> dict[str, np.ndarray] | None:
+        """The saved state {Z, N, C, S} of ``view`` after pass ``pass_index`` of ``level``, verified; or None.
+        ``reuse``: counted in ``stats.reused`` (False: a state this run saved and reads back, see
+        ``engine.patchmatch.multiscale``)."""
         name = self.file_name(level, pass_index, view)
         expected = self.entries.get(name)
         if expected is None:
@@ -150,7 +153,7 @@ class PatchMatchCheckpoint:
         except Exception as exc:  # noqa: BLE001  (np.load raises assorted types on a damaged archive)
             self._reject(name, str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}")
             return None
-        self.stats.reused += 1
+        self.stats.reused += int(reuse)
         return state
 
     def _reject(self, name: str, reason: str) -> None:

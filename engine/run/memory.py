@@ -5,7 +5,8 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
 
 - inputs: RGB float32 cache of every view (12 B/px, at most 64 views cached), the grey images
   PatchMatch takes (4 B/px), and decoding the largest original image (uint8 RGB + two float32 copies);
-- PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's state Z, N, C, S (24 B/px),
+- PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's depth (4 B/px; a view's normal, cost and
+  selected views, 20 B/px, are parked in the checkpoint between its passes: ``engine.patchmatch.multiscale``),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (window moments and choice, padded source images and
   source depths: 4·(2 + 2·sources) + 1 B/px) and its cost caches (``ViewState.prepare_caches``: float32 costs
@@ -140,7 +141,7 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     # the window's mean and variance, its choice, padded source images and source depths (the weights themselves
     # are computed per pixel visit: ncc.load_window)
     per_view_context = (4 * (2 + 2 * sources) + 1) * largest
-    patchmatch = (4 * 4 // 3 + 24 + 4 + 6) * total + per_view_context + 3 * 24 * largest
+    patchmatch = (4 * 4 // 3 + 4 + 4 + 6) * total + per_view_context + (3 * 24 + 20) * largest
     # the view being processed keeps per-pass cost caches (ViewState.prepare_caches): current
     # hypothesis costs (float32 per source), change stamps, active-set flags and, below ROW_CACHE_MAX_BYTES,
     # the candidate rows
