@@ -144,6 +144,11 @@ class Scene:
         """(H, W, 3) float32 RGB in [0, 1] at the working resolution (read-only, cached)."""
         return _as_image(self._image(i))
 
+    def forget_images(self) -> None:
+        """Empty the image cache (12 B a pixel of every view decoded at another size): a run's later stages read
+        an image again from its file if they need it."""
+        self._image.cache_clear()
+
     def subset(self, indices: list[int]) -> SceneViews:
         """The views ``indices`` alone, with their images: what a per-view task needs (a few kB pickled)."""
         return SceneViews(self.image_root, {j: self.views[j] for j in indices})

@@ -225,6 +225,7 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
         fusion_views = views_from_scene(scene, depths, normals, fusion_confidence, options.fusion.check_num_images)
         cloud = fuse_views_to_ply(out_dir / "fused.ply", fusion_views, options.fusion)  # the cloud stays on disk
         del fusion_views
+        scene.forget_images()  # fusion took the colours; the evaluation needs no image (52 MB at fountain_p11 768)
         release_free_memory()  # fusion's packed maps (engine/core/heap_trim.py)
     seconds["fusion"] = time.perf_counter() - t
     if notify:
