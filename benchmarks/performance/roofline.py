@@ -12,7 +12,8 @@ its source) with the standard 36-sample window everywhere. Measured, best of 3:
   the chain; 3 cycles each on AMD Zen 2-4 and Intel since Skylake-X: the assumption is recorded). Cycles below are
   seconds x this clock.
 - ``ncc``: ``ncc.ncc_cost`` as the kernels call it (``photometric_cost``), every pixel of ``--rows`` rows against
-  every source: cycles per weighted sample and per window.
+  every source: cycles per weighted sample and per window, less the pixels' ``window_weights`` (loaded once per
+  pixel for its N windows here, once per pixel update for ~57 windows in a half-step).
 - ``window_weights``: ``ncc.load_window`` alone per pixel (a pixel's bilateral weights are computed each time a kernel
   visits it rather than stored: 2·S floats a pixel).
 - ``floor_gather``: a plain loop that only gathers the same four texels per sample (their indices and bilinear
@@ -220,17 +221,18 @@ def measure(width: int, height: int, n_src: int, rows: int, iterations: int) -> 
     out = np.empty((rows, width, n_src), np.float32)
     args = (ctx.flat, ctx.stride, ctx.plane, ctx.geo, ctx.kinv, ctx.image, ctx.offs_sets, ctx.sigmas, ctx.weighting,
             ctx.mu_a, ctx.var_a, ctx.ox, ctx.oy, ctx.wset, ctx.ns, depth, nrm, y0, y1, np.float32(opts.min_var), out)
+    n_px = rows * width
+    weights_seconds = _best(lambda: _load_windows(ctx.image, ctx.offs_sets, ctx.sigmas, ctx.weighting, ctx.ox,
+                                                  ctx.oy, ctx.wset, ctx.ns, y0, y1, width))
+    result["window_weights"] = {"pixels": n_px, "seconds": weights_seconds,
+                                "cycles_per_pixel": weights_seconds * hz / n_px}
     samples = _ncc_rows(*args)
-    seconds = _best(lambda: _ncc_rows(*args))
+    with_weights = _best(lambda: _ncc_rows(*args))
+    seconds = with_weights - weights_seconds  # the windows alone: each pixel's weights are loaded once for N windows
     windows = rows * width * n_src
-    result["ncc"] = {"samples": samples, "windows": windows, "seconds": seconds,
+    result["ncc"] = {"samples": samples, "windows": windows, "seconds": seconds, "seconds_with_weights": with_weights,
                      "cycles_per_sample": seconds * hz / samples, "cycles_per_window": seconds * hz / windows,
                      "samples_per_window": samples / windows}
-
-    n_px = rows * width
-    seconds = _best(lambda: _load_windows(ctx.image, ctx.offs_sets, ctx.sigmas, ctx.weighting, ctx.ox, ctx.oy,
-                                          ctx.wset, ctx.ns, y0, y1, width))
-    result["window_weights"] = {"pixels": n_px, "seconds": seconds, "cycles_per_pixel": seconds * hz / n_px}
     idx = np.empty((n_px, n_src, n), np.int32)
     fu = np.empty((n_px, n_src, n), np.float32)
     fv = np.empty((n_px, n_src, n), np.float32)
