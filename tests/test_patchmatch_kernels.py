@@ -983,3 +983,30 @@ def test_active_set_is_deterministic_whatever_the_thread_count() -> None:
     for a, b in zip(maps[0].maps(), maps[1].maps(), strict=True):
         assert a.tobytes() == b.tobytes()
     assert skipped > 0.2 * size
+
+
+def test_window_terms_are_the_same_in_any_row_blocks_and_a_stop_request_ends_them_between_blocks() -> None:
+    """The window moments and choices of a view built in one call and in blocks of rows are the same bit for bit;
+    a stop request during a block (SIGTERM inside deferred_interrupts) ends the build when that block returns."""
+    from test_refinement import StopAfterFirstBlock
+
+    from engine.core.blocks import MIN_ROWS, RowPacer
+    from engine.core.interrupt import deferred_interrupts
+    from engine.patchmatch.ncc import window_terms
+
+    rng = np.random.default_rng(3)
+    img = _checker_texture(_mixed_texture(_smooth_noise(rng, 70, 40)))
+    codes = np.full(img.shape, FINE_EDGE, np.uint8)
+    codes[35:] = FINE_CREASE
+    args = (img, window_offsets_2d(list(range(-5, 6, 2))), window_offsets_2d(list(range(-2, 3))), "colmap", 5.0,
+            0.2, 1.5, 0.05, 1e-3, codes)
+    whole = window_terms(*args, min_ratio_fine=0.1, pacer=None)
+    assert whole[2].any() and not whole[2].all()  # both windows occur
+    for pacer in (FixedBlocks(1, 2, 9, 29, 30), FixedBlocks(16), RowPacer(target_s=1e-6)):
+        parts = window_terms(*args, min_ratio_fine=0.1, pacer=pacer)
+        for a, b in zip(whole, parts, strict=True):
+            assert a.tobytes() == b.tobytes()
+    stopper = StopAfterFirstBlock()
+    with pytest.raises(KeyboardInterrupt), deferred_interrupts():
+        window_terms(*args, min_ratio_fine=0.1, pacer=stopper)
+    assert stopper.done == [(0, MIN_ROWS)]
