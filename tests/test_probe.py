@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from engine.core.errors import DeepCError
+from engine.io.packing import pack_float32, unpack_float32
 from engine.patchmatch import PatchMatchOptions, run_patchmatch
 from engine.patchmatch.multiscale import replay_view
 from engine.patchmatch.probe.pixel_probe import MAX_PROBE_PIXELS, PixelProbe, level_pixel
 from engine.run.folder import read_map
-from engine.run.pass_history import HISTORY_DIR, PassHistory, pack_depth, unpack_depth
+from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.run.probe import probe_run, rerun_region
 from engine.run.probe_output import probe_path
@@ -150,8 +151,8 @@ def test_pack_depth_is_lossless():
     depth = rng.uniform(1, 9, (37, 53)).astype(np.float32)
     depth[::3] = 0.0
     depth[0, :4] = [np.float32(1e-30), np.float32(3.4e38), -0.0, np.float32(2.5)]
-    packed, shape = pack_depth(depth)
-    assert np.array_equal(unpack_depth(packed, shape).view(np.uint32), depth.view(np.uint32))
+    packed, shape = pack_float32(depth)
+    assert np.array_equal(unpack_float32(packed, shape).view(np.uint32), depth.view(np.uint32))
 
 
 def test_replay_of_one_view_gives_the_runs_maps(small_scene, tmp_path):

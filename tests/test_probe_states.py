@@ -17,7 +17,7 @@ from engine.patchmatch.probe.pixel_probe import PixelProbe
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, run_pipeline
 from engine.run.probe import forget_replays, probe_run
-from engine.run.probe_states import STATES_DIR, StateStore, ViewStates
+from engine.run.probe_states import PARTS_DIR, STATES_DIR, RunStates, StateStore, ViewStates
 from engine.scene import load_scene
 from support.pm_synthetic import make_scene
 
@@ -118,12 +118,46 @@ def test_store_round_trip_staleness_and_lru(tmp_path):
 TINY = REPO / "sample_scenes" / "tiny"
 
 
+def test_the_run_keeps_every_views_states_so_a_first_probe_replays_no_view_whole(tmp_path, monkeypatch):
+    """deepc run with its history records each view's pass-start states as PatchMatch makes them: the first
+    probe of a view, in a fresh process, traces from them (no whole replay) and gives the whole replay's JSON."""
+    import engine.run.probe as probe_module
+
+    out = tmp_path / "run"
+    options = PipelineOptions(patchmatch=PatchMatchOptions(levels=2, geom_passes=1, converge_ratio=0.3))
+    run_pipeline(load_scene(TINY), out, options, history=PassHistory(out / HISTORY_DIR))
+    states = out / HISTORY_DIR / STATES_DIR
+    assert sorted(p.name for p in states.glob("view*.npz")) == [f"view{i}.npz" for i in range(5)]
+    assert not (states / PARTS_DIR).exists()
+    forget_replays()
+    whole_replays = []
+    replay = probe_module.replay_view
+    monkeypatch.setattr(probe_module, "replay_view", lambda *a, **k: whole_replays.append(a) or replay(*a, **k))
+    first = probe_run(out, 2, [(100, 80), (3, 117)])
+    assert whole_replays == []
+    assert _dump(first) == _dump(probe_run(out, 2, [(100, 80), (3, 117)], stored_states=False))
+    assert len(whole_replays) == 1
+
+
+def test_views_whose_states_would_pass_the_cap_are_not_recorded(tmp_path):
+    views, _ = make_scene(128, 96, n_views=3)
+    history = PassHistory(tmp_path / HISTORY_DIR)
+    history.states = RunStates(StateStore(tmp_path / HISTORY_DIR / STATES_DIR, cap_bytes=600_000))
+    run_patchmatch(views, OPTS, history=history)  # a view's states: 0.52 MB by the estimate (0.7 x 16 B)
+    assert history.states.recording == {0}
+    stored = history.states.finish(lambda i: f"key{i}")
+    assert stored == [0] and history.states.store.load(0, "key0") is not None
+    assert not (tmp_path / HISTORY_DIR / STATES_DIR / PARTS_DIR).exists()
+
+
 def test_probe_run_from_kept_states_equals_a_whole_replay(tmp_path):
-    """probe_run: the first probe of a view replays it whole and keeps its states on disk; another pixel, in
-    a fresh process's memory, is traced from them, with the same JSON as a whole replay of it."""
+    """probe_run: a probe of a view of a run made without states replays it whole and keeps its states on disk;
+    another pixel, in a fresh process's memory, is traced from them, with the same JSON as a whole replay of it."""
     out = tmp_path / "run"
     options = PipelineOptions(patchmatch=PatchMatchOptions(levels=2, geom_passes=1))
     run_pipeline(load_scene(TINY), out, options, history=PassHistory(out / HISTORY_DIR))
+    for p in (out / HISTORY_DIR / STATES_DIR).glob("view*.npz"):
+        p.unlink()  # as a run made before the run recorded them
     probe_run(out, 1, [(10, 12)])
     assert (out / HISTORY_DIR / STATES_DIR / "view1.npz").is_file()
     forget_replays()  # as a new process: only the disk store

@@ -1,15 +1,16 @@
-"""The pixel inspector's latencies on a finished run: the first pixel of a view, a second pixel of the same view
-(from the pass-start states the first one kept, ``engine/run/probe_states.py``), that pixel again from the disk
-store alone (as a new process would), and a region re-run, before and after the kept states.
+"""The pixel inspector's latencies on a finished run: the first pixel of a view, a second pixel of the same view,
+that pixel again from the disk store alone (as a new process would), and a region re-run, three ways.
 
     nice -n 19 .venv/bin/python benchmarks/performance/inspector_latency.py sample_scenes/fountain_p11
         [--max-image-size 384] [--schedule acmm] [--run OUT] [--view 0] [--box 96]
 
-A vanilla run of SCENE with its pass history (or the finished run ``--run``); "before": every probe replays the
-view whole (``probe_run(stored_states=False)``); "after": the first probe of a view keeps its pass-start states in
-``OUT/history/states/``, later ones trace from them. The second pixel's trace must be the same JSON both ways. One
-probe of another view first compiles and loads everything (not timed). Wall and CPU seconds (all threads: the
-steadier measure on a shared machine). Writes ``inspector_latency_<scene><size>.json``.
+A vanilla run of SCENE with its pass history (or the finished run ``--run``). "whole replay": every probe replays
+the view whole (``probe_run(stored_states=False)``); "kept by the first probe": the run's recorded states removed,
+the first probe of a view replays it whole and keeps its pass-start states in ``OUT/history/states/``, later ones
+trace from them; "recorded by the run": the states ``deepc run`` recorded (``engine/run/probe_states.py``), so the
+first probe traces from them too. The second pixel's trace must be the same JSON every way. One probe of another
+view first compiles and loads everything (not timed). Wall and CPU seconds (all threads: the steadier measure on
+a shared machine). Writes ``inspector_latency_<scene><size>.json``.
 """
 
 from __future__ import annotations
@@ -36,13 +37,15 @@ SCHEMA = {"scene": str, "size": list, "schedule": str, "view": int, "first": lis
 
 
 def summary(result: dict) -> list[dict]:
-    """One row per variant (before / after the kept states): seconds of the first and second pixel and the region."""
+    """One row per variant (where the pass-start states come from): seconds of the first and second pixel and the
+    region."""
     return [{"scene": f"{result['scene']} {result['size'][0]}x{result['size'][1]} {result['schedule']}", **row}
             for row in result["latency"]]
 
 
 def latency(run: Path, view: int, box_side: int) -> dict:
-    """The inspector's latencies on the finished run ``run``, before and after the kept states (module doc)."""
+    """The inspector's latencies on the finished run ``run``, by where the pass-start states come from (module
+    doc)."""
     camera = patchmatch_views(run_scene(run))[view].camera
     width, height = camera.width, camera.height
     first, second = (width // 3, height // 2), (2 * width // 3, height // 3)
@@ -59,10 +62,19 @@ def latency(run: Path, view: int, box_side: int) -> dict:
         row[f"{name} s"], row[f"{name} CPU s"] = time.perf_counter() - t0, time.process_time() - c0
         return out
 
-    for variant in ("before", "after"):
+    states = run / HISTORY_DIR / STATES_DIR
+    recorded = run / HISTORY_DIR / "states_recorded_by_the_run"
+    shutil.rmtree(recorded, ignore_errors=True)
+    if states.is_dir():
+        shutil.copytree(states, recorded)
+    for variant in ("whole replay", "kept by the first probe", "recorded by the run"):
         forget_replays()
-        shutil.rmtree(run / HISTORY_DIR / STATES_DIR, ignore_errors=True)
-        keep = variant == "after"
+        shutil.rmtree(states, ignore_errors=True)
+        if variant == "recorded by the run":
+            if not recorded.is_dir():
+                continue  # a run made before runs recorded their states
+            shutil.copytree(recorded, states)
+        keep = variant != "whole replay"
         row: dict = {"variant": variant}
         timed(row, "first pixel", probe_run, run, view, [first], stored_states=keep)
         traces[variant] = timed(row, "second pixel", probe_run, run, view, [second], stored_states=keep)
@@ -70,11 +82,12 @@ def latency(run: Path, view: int, box_side: int) -> dict:
             forget_replays()  # as a new process: the states from disk
             again = timed(row, "second from disk", probe_run, run, view, [second])
             assert json.dumps(again, sort_keys=True) == json.dumps(traces[variant], sort_keys=True)
-            row["states MB"] = StateStore(run / HISTORY_DIR / STATES_DIR).size_bytes() / 2**20
+            row["states MB"] = StateStore(states).size_bytes() / 2**20
         timed(row, "region P1", rerun_region, run, view, box, pass_index=1)
         print(row, flush=True)
         rows.append(row)
-    identical = json.dumps(traces["before"], sort_keys=True) == json.dumps(traces["after"], sort_keys=True)
+    shutil.rmtree(recorded, ignore_errors=True)
+    identical = len({json.dumps(t, sort_keys=True) for t in traces.values()}) == 1
     return {"view": view, "first": list(first), "second": list(second), "box": list(box), "latency": rows,
             "identical_traces": identical}
 

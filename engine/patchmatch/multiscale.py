@@ -237,6 +237,13 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     resume = _resume_states(checkpoint, images, n_levels)
     pool = BufferPool()  # the large per-pass arrays, reused from view to view (buffers.py)
     parked: dict[int, tuple[int, int]] = {}  # view -> the (level, pass) whose checkpoint holds its parked maps
+    # every view's pass-start states for the probe (engine.run.probe_states.RunStates); a resumed run's earlier
+    # passes are gone, so it records none
+    record = getattr(history, "states", None) if resume is None else None
+    if record is not None:
+        record.begin([[images[i][lv].shape for lv in range(n_levels)] if active[i] else None for i in range(n_views)],
+                     1 + options.geom_passes)
+        on_iter = _recording_iterations(on_iter, record)
     for level in range(n_levels - 1, -1, -1):
         coarsest = level == n_levels - 1
         pool.clear()  # a new level's arrays have other shapes
@@ -282,10 +289,14 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                     states[i] = ViewState.from_checkpoint(saved)
                     step += n_iter if active[i] else 0
                 elif active[i]:
+                    if record is not None:
+                        record.state(i, level, pass_index, states[i].depth, states[i].normal)
                     step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, detail,
                                           options, on_iter, step, done, random_start=coarsest and pass_index == 0,
                                           pool=pool, on_stage=on_stage,
                                           probe=_pass_probe(probe, i, states[i], level, pass_index, detail))
+                if record is not None and active[i] and pass_index == options.geom_passes:
+                    record.state(i, level, "end", states[i].depth, states[i].normal)
                 if checkpoint is not None and saved is None:
                     checkpoint.save(level, pass_index, i, states[i].checkpoint_arrays())
                 if checkpoint is not None and active[i]:
@@ -303,6 +314,16 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n_views)
     return out
+
+
+def _recording_iterations(on_iter: Callable | None, record: Any) -> Callable:
+    """``on_iter`` that also tells ``record`` how many iterations each view's pass ran (a converged pass ends
+    early, and a probe must replay it as long)."""
+    def on_iteration(event: IterationEvent) -> None:
+        record.ran(event.view, event.level, event.pass_index, event.iteration + 1)
+        if on_iter is not None:
+            on_iter(event)
+    return on_iteration
 
 
 def level_start_state(i: int, v: PatchMatchView, prev: ViewState | None, image: np.ndarray, cam: Camera, level: int,

@@ -4,7 +4,7 @@ A view's PatchMatch is a deterministic function of its images, its cameras, the 
 passes, the depth maps of its source views after the previous pass (random numbers are keyed by seed, view,
 level, pass, iteration and colour: ``patchmatch/rng.py``). The history keeps exactly those depth snapshots:
 ``OUT/history/L{level}_P{pass}.npz`` holds every view's depth map (float32, losslessly packed by
-:func:`pack_depth`, key = view index) as
+``engine.io.packing.pack_float32``, key = view index) as
 the geometric pass ``pass`` of ``level`` read it, and ``OUT/history/manifest.json`` the fingerprint of the
 inputs (``checkpoint.inputs_fingerprint``) and the passes present. With it the pixel probe runs on demand on a
 finished run and a region re-run starts from the exact state a pass started from (``engine.run.probe``);
@@ -26,25 +26,12 @@ import numpy as np
 
 from engine.core.errors import DeepCError
 from engine.io.atomic import atomic_write_bytes, atomic_write_text
+from engine.io.packing import pack_float32, unpack_float32
 from engine.run.checkpoint import inputs_fingerprint
+from engine.run.probe_states import STATES_DIR, RunStates, StateStore, replay_key
 
 HISTORY_DIR = "history"
 _FORMAT = 1
-
-
-def pack_depth(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) float32 depth -> (bytes as uint8, shape): the four bytes of every value grouped by significance
-    ("byte shuffle", as HDF5's filter), then zlib level 1: about 0.64 of the raw size on PatchMatch depth maps
-    (plain zlib: 0.82), lossless."""
-    d = np.ascontiguousarray(depth, np.float32)
-    shuffled = d.view(np.uint8).reshape(-1, 4).T.tobytes()
-    return np.frombuffer(zlib.compress(shuffled, 1), np.uint8), np.array(d.shape, np.int64)
-
-
-def unpack_depth(packed: np.ndarray, shape: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`pack_depth`."""
-    raw = np.frombuffer(zlib.decompress(packed.tobytes()), np.uint8)
-    return np.ascontiguousarray(raw.reshape(4, -1).T).view(np.float32).reshape(tuple(int(s) for s in shape))
 
 
 class PassHistory:
@@ -58,6 +45,8 @@ class PassHistory:
         self.key: str | None = None
         self.passes: list[tuple[int, int]] = []
         self.n_views = 0
+        # every view's pass-start states, recorded by the run for the probe (engine.run.probe_states)
+        self.states = RunStates(StateStore(self.folder / STATES_DIR))
 
     @property
     def manifest_path(self) -> Path:
@@ -78,6 +67,7 @@ class PassHistory:
             shutil.rmtree(self.folder, ignore_errors=True)
             self.passes = []
         self.key, self.n_views = key, len(views)
+        self.states.clear()
         self._write_manifest()
 
     def save_snapshot(self, level: int, pass_index: int, depths: list[np.ndarray]) -> None:
@@ -85,7 +75,7 @@ class PassHistory:
         buffer = io.BytesIO()
         arrays = {}
         for i, d in enumerate(depths):
-            arrays[str(i)], arrays[f"{i}_shape"] = pack_depth(d)
+            arrays[str(i)], arrays[f"{i}_shape"] = pack_float32(d)
         np.savez(buffer, **arrays)
         atomic_write_bytes(self.folder / self._name(level, pass_index), buffer.getvalue())
         if (level, pass_index) not in self.passes:
@@ -127,10 +117,17 @@ class PassHistory:
         path = self.folder / self._name(level, pass_index)
         try:
             with np.load(path) as data:
-                return {i: unpack_depth(data[str(i)], data[f"{i}_shape"]) for i in indices}
+                return {i: unpack_float32(data[str(i)], data[f"{i}_shape"]) for i in indices}
         except (OSError, KeyError, ValueError, zlib.error) as exc:
             raise DeepCError(f"unreadable pass-history snapshot ({exc})", path) from None
 
+    def view_key(self, view: int, depth: np.ndarray) -> str | None:
+        """The key of view ``view``'s probe states (``probe_states.replay_key``) given its depth map as the run
+        wrote it; None before :meth:`bind` or :meth:`open`."""
+        if self.key is None:
+            return None
+        return replay_key(self.key, view, depth, sorted(self.folder.glob("L*_P*.npz")))
+
     def size_bytes(self) -> int:
         """Bytes on disk."""
-        return sum(p.stat().st_size for p in self.folder.glob("*") if p.is_file())
+        return sum(p.stat().st_size for p in self.folder.rglob("*") if p.is_file())

@@ -46,6 +46,7 @@ from engine.run.distributed.streamed import fuse_run_folder, read_view_map, stre
 from engine.run.folder import (
     file_sha256,
     maps_digest,
+    read_map,
     refinement_key,
     write_map,
     write_metrics,
@@ -156,6 +157,8 @@ def run_pipeline(scene: Scene, out_dir: str | Path, options: PipelineOptions | N
             write_map(out_dir, "normal", view.name, m.normal)
             write_map(out_dir, "cost", view.name, m.cost)
             write_map(out_dir, "counter", view.name, k)
+        if history is not None:  # the states the run recorded become the probe's (engine.run.probe_states)
+            history.states.finish(lambda i: history.view_key(i, read_map(out_dir, "depth", scene.views[i].name)))
     else:  # one task per view and pass, then per view (engine/distributed); the tasks write the maps
         if probe is not None or history is not None:
             raise DeepCError("the pixel probe and the pass history need --executor local")

@@ -38,7 +38,7 @@ from engine.run.folder import map_path, read_map, read_run_metrics, run_scene
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, patchmatch_views
 from engine.run.probe_output import final_entries, write_traces
-from engine.run.probe_states import STATES_DIR, StateStore, ViewStates, replay_key
+from engine.run.probe_states import StateStore, ViewStates
 
 ProgressFn = Callable[[str, int, int], Any]
 #: options a region re-run cannot change (they change the schedule the stored states belong to)
@@ -157,15 +157,13 @@ def _memory_key(run: _Run, i: int) -> tuple:
 
 
 def _store(run: _Run) -> StateStore:
-    return StateStore(run.run_dir / HISTORY_DIR / STATES_DIR)
+    return run.history.states.store
 
 
 def _store_key(run: _Run, i: int) -> str | None:
     """The key of view ``i``'s stored states (``probe_states.replay_key``), None without a stored depth map."""
     depth = read_map(run.run_dir, "depth", run.views[i].name)
-    if depth is None or run.history.key is None:
-        return None
-    return replay_key(run.history.key, i, depth, sorted(run.history.folder.glob("L*_P*.npz")))
+    return None if depth is None else run.history.view_key(i, depth)
 
 
 def _remember(key: tuple, rep: _Replay) -> _Replay:
