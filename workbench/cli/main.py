@@ -19,7 +19,7 @@ from engine.core.errors import DeepCError
 from engine.core.interrupt import EXIT_INTERRUPTED, deferred_interrupts
 from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions
-from workbench.cli.compare import add_compare_arguments
+from workbench.cli.compare import add_compare_arguments, tolerance_fraction
 from workbench.cli.probe import add_probe_arguments
 from workbench.flags.help_options import HelpOptionsAction
 from workbench.flags.options import add_options_flags
@@ -69,6 +69,13 @@ def _probe(args: argparse.Namespace) -> int:
 
 
 def _view(args: argparse.Namespace) -> int:
+    if args.compare:
+        tolerance = tolerance_fraction(args.tolerance)
+        from workbench.viewer.compare import serve_compare  # lazy: viser, the comparison
+
+        serve_compare(args.target, args.compare, host=args.host, port=args.port, scene=args.scene, maps=args.maps,
+                      tolerance=tolerance)
+        return EXIT_OK
     from workbench.viewer.app import serve  # lazy: viser
 
     serve(args.target, host=args.host, port=args.port)
@@ -163,6 +170,13 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("target", metavar="OUT_OR_SCENE")
     view.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)")
     view.add_argument("--port", type=int, default=8080)
+    view.add_argument("--compare", metavar="RUN_B", default=None,
+                      help="compare mode: OUT_OR_SCENE (a deepc run, COLMAP dense workspace or OpenMVS densify folder) "
+                           "against RUN_B, as deepc compare compares them")
+    view.add_argument("--scene", metavar="SCENE", default=None, help="with --compare: as deepc compare --scene")
+    view.add_argument("--maps", choices=("fused", "raw"), default="fused", help="with --compare: as deepc compare")
+    view.add_argument("--tolerance", type=float, default=1.0, metavar="PERCENT",
+                      help="with --compare: as deepc compare (default: 1)")
     view.set_defaults(handler=_view)
 
     probe = sub.add_parser("probe", help="trace pixels of a finished run through PatchMatch, or re-run a region",
