@@ -63,11 +63,17 @@ def _view_points(comparison: Comparison, view: ViewComparison, step: int) -> dic
     return out
 
 
+def pixel_step(comparison: Comparison, max_points: int) -> int:
+    """The step (in pixels, both directions) that keeps at most ``max_points`` of all compared views' pixels."""
+    pixels = sum(v.size[0] * v.size[1] for v in comparison.views)
+    return max(1, math.ceil(math.sqrt(pixels / max_points)))
+
+
 def case_clouds(comparison: Comparison, max_points: int = 200_000) -> dict[str, CaseCloud]:
     """"a" / "b" -> the run's compared pixels as a :class:`CaseCloud`, every view subsampled by one integer step
-    so that each cloud has about ``max_points`` points at most (a browser draws every point it is sent)."""
-    pixels = sum(v.size[0] * v.size[1] for v in comparison.views)
-    step = max(1, math.ceil(math.sqrt(pixels / max_points)))
+    (:func:`pixel_step`) so that each cloud has ``max_points`` points at most (a browser draws every point it is
+    sent)."""
+    step = pixel_step(comparison, max_points)
     parts = [_view_points(comparison, v, step) for v in comparison.views]
     return {side: CaseCloud(*(np.concatenate([getattr(p[side], f.name) for p in parts])
                               for f in dataclasses.fields(CaseCloud))) for side in SIDES}

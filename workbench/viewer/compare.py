@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from engine.compare.clouds import SIDES, case_clouds
+from engine.compare.clouds import SIDES, case_clouds, pixel_step
 from engine.compare.comparison import Comparison, ViewComparison, common_depths
 from engine.compare.pixels import DIFFERENT, case_codes
 from engine.core.errors import DeepCError
@@ -118,7 +118,10 @@ class CompareApp:
         self._pictures: dict[int, _ViewPictures] = {}
         self.selected = c.views[0]
         set_home_camera(self.server, c.scene)
-        self.frustums, _, point_size = add_cameras(self.server, c.scene)
+        self.frustums, _, pixel_size = add_cameras(self.server, c.scene)
+        # a point stands for a step x step block of pixels: drawn as wide, the clouds stay closed surfaces
+        shrink = max(c.scene.views[v.index].camera.width / v.size[0] for v in c.views)  # camera px per map px
+        point_size = pixel_size * shrink * pixel_step(c, max_points)
         for view, frustum in zip(c.scene.views, self.frustums, strict=True):
             frustum.on_click(lambda _event, i=view.index: self.select_view(i))
         self.handles = {side: self.server.scene.add_point_cloud(
@@ -216,16 +219,16 @@ class CompareApp:
         self._suggest_pixel(view)
 
     def _suggest_pixel(self, view: ViewComparison) -> None:
-        """Put the first pixel where the runs differ (at the scene camera's size) into the inspector's form."""
-        differ = np.zeros(view.maps[DIFFERENT[0]].shape, bool)
-        for case in DIFFERENT:
-            differ |= view.maps[case]
-        rows, cols = np.nonzero(differ)
-        if len(rows):
-            camera = self.comparison.scene.views[view.index].camera
-            mid = len(rows) // 2
-            self.pixel_x.value = int(cols[mid] * camera.width / view.size[0])
-            self.pixel_y.value = int(rows[mid] * camera.height / view.size[1])
+        """Put a pixel where the runs differ (at the scene camera's size) into the inspector's form: the middle one
+        of the first case of :data:`DIFFERENT` the view has (where GT says who is right, before disagreement)."""
+        case = next((k for k in DIFFERENT if view.maps[k].any()), None)
+        if case is None:
+            return
+        rows, cols = np.nonzero(view.maps[case])
+        camera = self.comparison.scene.views[view.index].camera
+        mid = len(rows) // 2
+        self.pixel_x.value = int(cols[mid] * camera.width / view.size[0])
+        self.pixel_y.value = int(rows[mid] * camera.height / view.size[1])
 
     def inspect(self, x: int, y: int) -> None:
         """Probe pixel (x, y) (the scene camera's pixels) of the selected view in A and in B, on a worker."""
