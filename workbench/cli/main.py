@@ -92,7 +92,8 @@ def _regress(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     from workbench.rerun.replay import replay  # lazy: rerun
 
-    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port, view=args.view)
+    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port, view=args.view,
+                  compare=args.compare)
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -196,6 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--view", metavar="NAME", default=None,
                         help="the view to show: its image name (e.g. view_003.png), its index or its entity name "
                              "(default: the first view)")
+    replay.add_argument("--compare", metavar="B.rrd", default=None,
+                        help="a second recording: both merged (entities under a/ and b/), each map of A beside B's, "
+                             "a tab per view (--layout does not apply)")
     replay.add_argument("--web", action="store_true", help="serve the web viewer even when there is a display")
     replay.add_argument("--host", default="127.0.0.1", help="address of the web viewer (default: 127.0.0.1)")
     replay.add_argument("--port", type=int, default=9090,

@@ -127,6 +127,19 @@ def layout_file(path: str | Path, layout: str, folder: Path, view: str | None = 
     return layout_files(path, layout, folder, view)[0]
 
 
+def replay_files(path: str | Path, layout: str | None, folder: Path, view: str | None = None,
+                 compare: str | Path | None = None) -> list[Path]:
+    """What the viewer opens: the recording with its layout's files, or (``compare``: a second recording) the two
+    merged under ``/a`` and ``/b`` with the side-by-side layout (:mod:`workbench.rerun.compare`)."""
+    if compare is not None:
+        from workbench.rerun.compare import compare_files  # (it builds on this module)
+
+        if layout is not None:
+            raise DeepCError("--layout does not apply with --compare: its layout sets each map of A beside B's")
+        return compare_files(path, compare, folder, view)
+    return [Path(path), *layout_files(path, layout or default_layout(path), folder, view)]
+
+
 def layout_files(path: str | Path, layout: str, folder: Path, view: str | None = None) -> list[Path]:
     """The blueprint ``.rbl`` of ``layout`` for ``view`` and the notes recording it shows."""
     if layout not in LAYOUTS:
@@ -182,14 +195,14 @@ class WebViewer:
     stream at :attr:`grpc_url`. Use as a context manager or call stop()."""
 
     def __init__(self, path: str | Path | None = None, layout: str | None = None, host: str = "127.0.0.1",
-                 port: int = 0, timeout: float = 60.0, view: str | None = None):
+                 port: int = 0, timeout: float = 60.0, view: str | None = None, compare: str | Path | None = None):
         self.port = free_port(host, port)
         self._tmp = tempfile.TemporaryDirectory(prefix="deepc-replay-")
-        files = [] if path is None else [str(Path(path).resolve())]
+        files = []
         try:
             if path is not None:  # validates the file before starting anything
-                files += [str(f) for f in layout_files(path, layout or default_layout(path), Path(self._tmp.name),
-                                                       view)]
+                files = [str(Path(f).resolve())
+                         for f in replay_files(path, layout, Path(self._tmp.name), view, compare)]
         except BaseException:
             self._tmp.cleanup()
             raise
@@ -247,14 +260,15 @@ def has_display() -> bool:
 
 
 def replay(path: str, layout: str | None = None, web: bool = False, host: str = "127.0.0.1", port: int = 9090,
-           view: str | None = None) -> int:
+           view: str | None = None, compare: str | None = None) -> int:
     """Blocking: open the native viewer, or serve the web viewer until Ctrl+C. The layout (default: iterations,
-    or pipelines for a recording without iterations) is built for ``view`` (default: the first view)."""
+    or pipelines for a recording without iterations) is built for ``view`` (default: the first view);
+    ``compare``: a second recording shown beside this one (:mod:`workbench.rerun.compare`)."""
     if has_display() and not web:
         with tempfile.TemporaryDirectory(prefix="deepc-replay-") as tmp:
-            files = [path, *(str(f) for f in layout_files(path, layout or default_layout(path), Path(tmp), view))]
+            files = [str(f) for f in replay_files(path, layout, Path(tmp), view, compare)]
             return subprocess.call([str(rerun_binary()), *files])
-    viewer = WebViewer(path, layout, host, port, view=view)
+    viewer = WebViewer(path, layout, host, port, view=view, compare=compare)
     if port and viewer.port != port:
         print(f"rerun web viewer: port {port} is in use; serving on port {viewer.port} instead", flush=True)
     print(f"rerun web viewer: {viewer.url}  (Ctrl+C to stop)", flush=True)
