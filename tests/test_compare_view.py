@@ -14,7 +14,7 @@ from PIL import Image
 from test_cli import _one_line_error, deepc
 from test_compare import BOX, TINY, VIEW, runs  # noqa: F401  (runs: the module's fixture)
 
-from engine.compare.clouds import case_clouds
+from engine.compare.clouds import case_clouds, pixel_step
 from engine.compare.pixels import CASES
 from engine.io.ply import read_points, write_ply
 from engine.run.folder import read_map
@@ -99,6 +99,15 @@ def test_the_inspector_probes_the_same_pixel_in_a_and_in_b(comparison, pair):
             text = app.inspect_text[side].content
             assert f"pixel ({x}, {y})" in text and f"depth {depth:.4g}" in text
         assert "✔" in app.inspect_text["a"].content and "✘" in app.inspect_text["b"].content
+        # a click on the cloud inspects the pixel its point came from, in both runs
+        view = comparison.scene.views[app.selected.index]
+        step = pixel_step(comparison, 5_000)  # the clouds keep every step-th pixel: take one inside the box
+        col, row = (-(-s.start // step) * step + step for s in (BOX[1], BOX[0]))
+        ray = view.camera.R.T @ view.camera.pixel_rays()[row, col]
+        app.select_view(0)
+        assert app.pick(view.camera.center, ray / np.linalg.norm(ray)) == (view.index, col, row)
+        assert app.selected.name == VIEW and app.wait_idle(30)
+        assert f"pixel ({col}, {row})" in app.inspect_text["b"].content
     finally:
         app.stop()
 

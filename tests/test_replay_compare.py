@@ -12,8 +12,8 @@ from test_replay_browser import blueprint_titles
 from test_stream import _depth, _events, _read, _stream
 
 from engine.core.errors import DeepCError
-from workbench.rerun.compare import compare_files
 from workbench.rerun.recording import Recording
+from workbench.rerun.replay import compare_files
 from workbench.rerun.stream import entity_name
 
 VIEW = entity_name(0, "img/0.png")

@@ -5,17 +5,13 @@ merged into one new recording: every chunk of A is re-logged under ``/a`` and ev
 (``Chunk.with_entity_path`` on each file's chunk stream, read with ``rerun.chunk.RrdReader`` as
 :func:`workbench.rerun.replay.recording_contents` reads it; row ids, timelines and components are kept, so both
 runs' iterations stay on the one ``view_iteration`` timeline). The ``compare`` layout (``layouts``) then puts each
-map of A beside B's, a tab per view.
+map of A beside B's, a tab per view (:func:`workbench.rerun.replay.compare_files` writes both files).
 """
 
 from __future__ import annotations
 
 import uuid
 from pathlib import Path
-
-from engine.core.errors import DeepCError
-from layouts import compare
-from workbench.rerun.replay import choose_view, recording_contents
 
 SIDES = ("a", "b")
 _PROPERTIES = "/__properties"  # a recording's own properties: the merged recording has its own
@@ -38,20 +34,3 @@ def merge_recordings(path_a: str | Path, path_b: str | Path, target: str | Path,
     LazyChunkStream.merge(*streams).write_rrd(str(target), application_id=application_id,
                                               recording_id=recording_id or f"compare-{uuid.uuid4()}")
     return Path(target)
-
-
-def compare_files(path_a: str | Path, path_b: str | Path, folder: Path, view: str | None = None) -> list[Path]:
-    """The merged recording of ``path_a`` and ``path_b`` and its ``compare`` blueprint (with ``view``'s tab open),
-    written into ``folder``; recordings without a per-view map in common are a :class:`DeepCError`."""
-    a, b = recording_contents(path_a), recording_contents(path_b)
-    common = [v for v in a.contents.views if v in b.contents.views]
-    if not common:
-        raise DeepCError(f"{path_a} and {path_b} hold no view's maps in common (views are matched by entity name, "
-                         "maps/<index>_<image>)")
-    chosen = common[0] if view is None else choose_view(a.contents, view)
-    if chosen not in common:
-        raise DeepCError(f"view {view} is not in both recordings")
-    merged = merge_recordings(path_a, path_b, folder / "compare.rrd", a.application_id)
-    blueprint = folder / "compare.rbl"
-    compare(a.contents, b.contents, chosen).save(a.application_id, str(blueprint))
-    return [merged, blueprint]

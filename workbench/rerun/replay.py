@@ -30,7 +30,7 @@ import rerun_cli
 from rerun.chunk import RrdReader
 
 from engine.core.errors import DeepCError
-from layouts import LAYOUTS, Contents, view_title
+from layouts import LAYOUTS, Contents, compare, view_title
 from workbench.rerun.notes import log_notes
 from workbench.rerun.recording import APP_ID
 
@@ -132,12 +132,31 @@ def replay_files(path: str | Path, layout: str | None, folder: Path, view: str |
     """What the viewer opens: the recording with its layout's files, or (``compare``: a second recording) the two
     merged under ``/a`` and ``/b`` with the side-by-side layout (:mod:`workbench.rerun.compare`)."""
     if compare is not None:
-        from workbench.rerun.compare import compare_files  # (it builds on this module)
-
         if layout is not None:
             raise DeepCError("--layout does not apply with --compare: its layout sets each map of A beside B's")
         return compare_files(path, compare, folder, view)
     return [Path(path), *layout_files(path, layout or default_layout(path), folder, view)]
+
+
+def compare_files(path_a: str | Path, path_b: str | Path, folder: Path, view: str | None = None) -> list[Path]:
+    """The recording of ``path_a`` and ``path_b`` merged under ``/a`` and ``/b``
+    (:func:`workbench.rerun.compare.merge_recordings`) and its ``compare`` blueprint with ``view``'s tab open
+    (default: the first view both hold), written into ``folder``; recordings without a view's maps in common are a
+    :class:`DeepCError`."""
+    from workbench.rerun.compare import merge_recordings  # lazy: rerun's chunk streams
+
+    a, b = recording_contents(path_a), recording_contents(path_b)
+    common = [v for v in a.contents.views if v in b.contents.views]
+    if not common:
+        raise DeepCError(f"{path_a} and {path_b} hold no view's maps in common (views are matched by entity name, "
+                         "maps/<index>_<image>)")
+    chosen = common[0] if view is None else choose_view(a.contents, view)
+    if chosen not in common:
+        raise DeepCError(f"view {view} is not in both recordings")
+    merged = merge_recordings(path_a, path_b, folder / "compare.rrd", a.application_id)
+    blueprint = folder / "compare.rbl"
+    compare(a.contents, b.contents, chosen).save(a.application_id, str(blueprint))
+    return [merged, blueprint]
 
 
 def layout_files(path: str | Path, layout: str, folder: Path, view: str | None = None) -> list[Path]:

@@ -400,14 +400,16 @@ def announce(label: str, host: str, requested: int, used: int, note: str) -> Non
 
 
 def hold(server: viser.ViserServer, make_app: Callable[[viser.ViserServer], Any], label: str, host: str,
-         requested: int) -> None:
-    """Build an app on ``server`` (viser's own output kept off the terminal), name its address, serve until
-    Ctrl+C; then stop the app (or the server, when the app never came up)."""
+         requested: int, on_open: Callable[[Any], None] | None = None) -> None:
+    """Build an app on ``server`` (viser's own output kept off the terminal), run ``on_open(app)``, name its
+    address, serve until Ctrl+C; then stop the app (or the server, when the app never came up)."""
     quiet = io.StringIO()
     app = None
     try:
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
             app = make_app(server)
+        if on_open is not None:
+            on_open(app)
         announce(label, host, requested, server.get_port(), "Ctrl+C to stop")
         while True:
             time.sleep(1.0)
@@ -415,7 +417,7 @@ def hold(server: viser.ViserServer, make_app: Callable[[viser.ViserServer], Any]
         pass
     finally:
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            (app or server).stop()
+            (server if app is None else app).stop()
 
 
 def serve(path: str, host: str = "127.0.0.1", port: int = 8080, server: viser.ViserServer | None = None,
@@ -425,19 +427,17 @@ def serve(path: str, host: str = "127.0.0.1", port: int = 8080, server: viser.Vi
     ``server``: an already running server to take over (``deepc run``'s live viewer, whose browser tabs stay
     connected); else one is opened on host:port. ``on_open(app)`` runs once the app's panel is up (the live
     viewer removes its own panel and clouds then)."""
-    try:  # (a Ctrl+C while the session opens stops a server taken over as well)
+    try:
         session = ViewerSession.open(path)
-    except KeyboardInterrupt:
+    except BaseException as exc:  # a bad folder or a Ctrl+C while it opens stops a server taken over as well
         if server is not None:
             server.stop()
-        return
-    requested = port if server is None else server.get_port()  # (a taken-over server announced its start)
-    server = server or open_server(host, port)
-
-    def make_app(server: viser.ViserServer) -> ViewerApp:
-        app = ViewerApp(session, host=host, port=port, verbose=False, server=server)
-        if on_open is not None:
-            on_open(app)
-        return app
-
-    hold(server, make_app, "viewer", host, requested)
+        if isinstance(exc, KeyboardInterrupt):
+            return
+        raise
+    if server is None:
+        server, requested = open_server(host, port), port
+    else:
+        requested = server.get_port()  # (a taken-over server announced its start)
+    hold(server, lambda s: ViewerApp(session, host=host, port=port, verbose=False, server=s), "viewer", host,
+         requested, on_open)

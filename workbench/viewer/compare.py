@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import viser
@@ -26,6 +27,7 @@ from workbench.compare.colours import COLOURINGS, case_lut, colour_arrays, legen
 from workbench.maps.images import colorize, subsample
 from workbench.trace.figures import summary_markdown
 from workbench.viewer.app import add_cameras, hold, open_server, set_home_camera
+from workbench.viewer.inspector import nearest_point_on_ray
 from workbench.viewer.panel import PANEL_IMAGE, view_label
 from workbench.viewer.scheduler import NewestWorker
 
@@ -131,6 +133,8 @@ class CompareApp:
         self.worker: NewestWorker[tuple[int, int]] = NewestWorker(self._inspect, self._inspect_failed,
                                                                   name="deepc-compare-probe")
         self.select_view(self.selected.index)
+        if c.a.kind == c.b.kind == "deepc":
+            self.server.scene.on_click()(lambda event: self.pick(event.ray_origin, event.ray_direction))
 
     # ---- GUI -------------------------------------------------------------------------------------
     def _build_gui(self) -> None:
@@ -229,6 +233,28 @@ class CompareApp:
         mid = len(rows) // 2
         self.pixel_x.value = int(cols[mid] * camera.width / view.size[0])
         self.pixel_y.value = int(rows[mid] * camera.height / view.size[1])
+
+    def pick(self, origin: Any, direction: Any) -> tuple[int, int, int] | None:
+        """Inspect the pixel of the front-most shown point under a click ray (origin, direction: (3,) world);
+        returns its (view index, x, y) at the scene camera's size, or None when the ray hits no point."""
+        hits = []
+        for side, handle in self.handles.items():
+            cloud = self.clouds[side]
+            i = nearest_point_on_ray(cloud.xyz, origin, direction) if handle.visible else None
+            if i is not None:
+                hits.append((float(np.dot(cloud.xyz[i] - np.asarray(origin), direction)), side, i))
+        if not hits:
+            return None
+        _, side, i = min(hits)
+        cloud = self.clouds[side]
+        view = int(cloud.view[i])
+        size = next(v.size for v in self.comparison.views if v.index == view)
+        camera = self.comparison.scene.views[view].camera
+        x, y = (int(cloud.pixel[i, k] * full / size[k]) for k, full in enumerate(camera.size))
+        self.select_view(view)
+        self.pixel_x.value, self.pixel_y.value = x, y
+        self.inspect(x, y)
+        return view, x, y
 
     def inspect(self, x: int, y: int) -> None:
         """Probe pixel (x, y) (the scene camera's pixels) of the selected view in A and in B, on a worker."""
