@@ -111,7 +111,7 @@ class CompareApp:
                  server: viser.ViserServer | None = None, max_points: int = MAX_POINTS,
                  probe: Callable | None = None):
         self.comparison = c = comparison
-        self.server = server or viser.ViserServer(host=host, port=port, verbose=False)
+        self.server = viser.ViserServer(host=host, port=port, verbose=False) if server is None else server
         self.port = self.server.get_port()
         self.probe_fn = probe or _probe
         self.clouds = case_clouds(c, max_points)
@@ -130,7 +130,7 @@ class CompareApp:
             f"/compare/{side}", self.clouds[side].xyz, colors=self.colours[COLOURINGS[0]][side],
             point_size=point_size, precision="float32") for side in SIDES}
         self._build_gui()
-        self.worker: NewestWorker[tuple[int, int]] = NewestWorker(self._inspect, self._inspect_failed,
+        self.worker: NewestWorker[tuple[str, int, int]] = NewestWorker(self._inspect, self._inspect_failed,
                                                                   name="deepc-compare-probe")
         self.select_view(self.selected.index)
         if c.a.kind == c.b.kind == "deepc":
@@ -259,17 +259,17 @@ class CompareApp:
     def inspect(self, x: int, y: int) -> None:
         """Probe pixel (x, y) (the scene camera's pixels) of the selected view in A and in B, on a worker."""
         self.inspect_status.content = f"probing pixel ({x}, {y}) of {self.selected.name} in A and B…"
-        self.worker.submit((x, y))
+        self.worker.submit((self.selected.name, x, y))
 
-    def _inspect(self, pixel: tuple[int, int]) -> None:
-        view = self.selected
+    def _inspect(self, job: tuple[str, int, int]) -> None:
+        view, pixel = job[0], job[1:]
         for side, run in (("a", self.comparison.a), ("b", self.comparison.b)):
-            traces = self.probe_fn(run.path, view.name, [pixel])
+            traces = self.probe_fn(run.path, view, [pixel])
             trace = next((t for t in traces if (t["x"], t["y"]) == pixel), None)
             if trace is None:
-                raise DeepCError(f"the probe of {run.path} returned no trace for pixel {pixel} of {view.name}")
-            self.inspect_text[side].content = f"**{side.upper()}** · " + summary_markdown(trace, view.name)
-        self.inspect_status.content = f"pixel {pixel} of {view.name} in A and B"
+                raise DeepCError(f"the probe of {run.path} returned no trace for pixel {pixel} of {view}")
+            self.inspect_text[side].content = f"**{side.upper()}** · " + summary_markdown(trace, view)
+        self.inspect_status.content = f"pixel {pixel} of {view} in A and B"
 
     def _inspect_failed(self, exc: Exception) -> None:
         self.inspect_status.content = f"**error:** {' '.join(str(exc).split())}"
