@@ -191,3 +191,28 @@ LAYOUTS: dict[str, Callable[[Contents, str], rrb.Blueprint]] = {
     "probe": probe,
 }
 DEFAULT = "iterations"
+
+
+#: the maps ``compare`` sets side by side, those either recording holds, in this order
+COMPARE_KINDS = ("depth", "error", "confidence", "label", "cost", "normal", "counter", "refined_depth")
+
+
+def _side_panel(contents: Contents, side: str, view: str, kind: str):
+    """``maps/<view>/<kind>`` of the recording re-logged under ``/<side>`` (``deepc replay A --compare B``)."""
+    label = f"{side.upper()} · {view_label(view)} · {MAP_LABELS.get(kind, kind)}"
+    if contents.has(f"/maps/{view}/{kind}"):
+        return rrb.Spatial2DView(name=label, origin=f"/{side}/maps/{view}/{kind}")
+    return rrb.TextDocumentView(name=f"{label}: not recorded", origin=f"/{side}/missing/{view}/{kind}")
+
+
+def compare(a: Contents, b: Contents, view: str) -> rrb.Blueprint:
+    """Two recordings merged under ``/a`` and ``/b``: one tab per view both hold (``view``'s open), each map of A
+    beside the same map of B, a row per map; one timeline scrubs both (their iterations share it)."""
+    views = [v for v in a.views if v in b.views]
+    tabs = []
+    for v in views:
+        kinds = [k for k in COMPARE_KINDS if a.has(f"/maps/{v}/{k}") or b.has(f"/maps/{v}/{k}")]
+        rows = [rrb.Horizontal(_side_panel(a, "a", v, k), _side_panel(b, "b", v, k)) for k in kinds]
+        tabs.append(rrb.Vertical(*rows, name=view_title(v)))
+    active = views.index(view) if view in views else 0
+    return rrb.Blueprint(rrb.Tabs(*tabs, active_tab=active), *_panels(a, "collapsed"))

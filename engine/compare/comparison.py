@@ -30,8 +30,8 @@ from engine.scene import Scene, SceneOptions, load_scene
 
 @dataclasses.dataclass
 class ViewComparison:
-    """One view: its name, the common size (width, height) in pixels, whether it has GT depth, the counts and
-    the (H, W) bool maps of :data:`engine.compare.pixels.MAP_KINDS`."""
+    """One view: its name, the common size (width, height) in pixels, whether it has GT depth, the counts, the
+    (H, W) bool maps of :data:`engine.compare.pixels.CASES` and the image names A and B store it under."""
 
     index: int
     name: str
@@ -39,6 +39,7 @@ class ViewComparison:
     has_gt: bool
     counts: PixelCounts
     maps: dict[str, np.ndarray]
+    keys: tuple[str, str] = ("", "")
 
     @property
     def difference(self) -> float:
@@ -117,6 +118,13 @@ def common_size(size_a: tuple[int, int], size_b: tuple[int, int], name: str) -> 
     return size_a if wa * ha <= wb * hb else size_b
 
 
+def common_depths(a: SourceRun, b: SourceRun, keys: tuple[str, str], size: tuple[int, int]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) depth of A's map stored as ``keys[0]`` and of B's stored as ``keys[1]``, both at ``size`` (width,
+    height): the maps the comparison compares (0 = none)."""
+    return resample_depth(a.depth(keys[0]), size), resample_depth(b.depth(keys[1]), size)
+
+
 def _gt_at(scene: Scene, index: int, size: tuple[int, int]) -> np.ndarray | None:
     """(H, W) GT depth of view ``index`` resampled from its file to ``size`` (one resampling), or None."""
     path = scene.gt_depth_paths[index]
@@ -176,10 +184,10 @@ def compare_runs(a: SourceRun, b: SourceRun, scene: Scene, tolerance: float = TO
             continue
         ka, kb = keys_a[v.name], keys_b[v.name]
         size = common_size(a.sizes[ka], b.sizes[kb], v.name)
-        da, db = resample_depth(a.depth(ka), size), resample_depth(b.depth(kb), size)
+        da, db = common_depths(a, b, (ka, kb), size)
         gt = _gt_at(scene, v.index, size)
         counts, maps = compare_pixels(da, db, gt, tolerance)
-        views.append(ViewComparison(v.index, v.name, size, gt is not None, counts, maps))
+        views.append(ViewComparison(v.index, v.name, size, gt is not None, counts, maps, (ka, kb)))
         total = total + counts
     if not views:
         raise DeepCError(f"{a.path} and {b.path} have no view of scene {scene.name} in common (views are matched by "

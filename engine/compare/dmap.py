@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.core.errors import DeepCError
+from engine.io.binary import ByteReader
 
 MAGIC = b"DR"
 HAS_DEPTH, HAS_NORMAL, HAS_CONF, HAS_VIEWS = 1, 2, 4, 8
@@ -62,25 +63,6 @@ class DepthData:
     normal: np.ndarray | None = None
     confidence: np.ndarray | None = None
     views: np.ndarray | None = None
-
-
-class _Cursor:
-    """Reads fields from a byte string; a read past the end is a :class:`DeepCError` naming the file."""
-
-    def __init__(self, data: bytes, path: Path, offset: int):
-        self.data, self.path, self.offset = data, path, offset
-
-    def take(self, count: int, what: str) -> bytes:
-        end = self.offset + count
-        if end > len(self.data):
-            raise DeepCError(f"truncated OpenMVS depth map: the file ends inside the {what}", self.path)
-        chunk, self.offset = self.data[self.offset:end], end
-        return chunk
-
-    def array(self, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray:
-        count = int(np.prod(shape))
-        raw = self.take(count * np.dtype(dtype).itemsize, what)
-        return np.frombuffer(raw, dtype=dtype, count=count).reshape(shape)
 
 
 def _map_bytes(flags: int, width: int, height: int, quantized: bool) -> int:
@@ -126,13 +108,13 @@ def decode_dmap(data: bytes, path: str | Path = "<bytes>") -> DepthData:
                          ("depth height", height)):
         if not 0 < value <= _MAX_DIM:
             raise DeepCError(f"malformed OpenMVS depth map header: {label} = {value}", path)
-    cur = _Cursor(data, path, header.size)
-    name_len = struct.unpack("<H", cur.take(2, "image name length"))[0]
+    cur = ByteReader(data, path, "OpenMVS depth map", header.size)
+    (name_len,) = cur.unpack("H", "image name length")
     try:
         image_name = cur.take(name_len, "image name").decode("utf-8")
     except UnicodeDecodeError:
         raise DeepCError("malformed OpenMVS depth map: the image name is not UTF-8", path) from None
-    n_ids = struct.unpack("<I", cur.take(4, "view count"))[0]
+    (n_ids,) = cur.unpack("I", "view count")
     view_ids = [int(v) for v in cur.array("<u4", (n_ids,), "view ids")]
     K = cur.array("<f8", (3, 3), "camera").copy()
     R = cur.array("<f8", (3, 3), "camera").copy()
@@ -150,8 +132,8 @@ def decode_dmap(data: bytes, path: str | Path = "<bytes>") -> DepthData:
         confidence = cur.array("<f4", (height, width), "confidence map").astype(np.float32) \
             if flags & HAS_CONF else None
     views = cur.array("u1", (height, width, 4), "views map").copy() if flags & HAS_VIEWS else None
-    if cur.offset != len(data):
-        raise DeepCError(f"malformed OpenMVS depth map: {len(data) - cur.offset} bytes after the maps", path)
+    if cur.pos != len(data):
+        raise DeepCError(f"malformed OpenMVS depth map: {len(data) - cur.pos} bytes after the maps", path)
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.float32(0)).astype(np.float32)
     return DepthData(image_name, (image_w, image_h), (width, height), (float(d_min), float(d_max)), view_ids, K, R, C,
                      depth, normal, confidence, views)

@@ -20,6 +20,13 @@ TOLERANCE = 0.01
 MAP_KINDS = ("a_right_b_wrong", "b_right_a_wrong", "both_wrong", "disagree")
 MAP_TITLES = {"a_right_b_wrong": "A right, B wrong", "b_right_a_wrong": "B right, A wrong",
               "both_wrong": "both wrong", "disagree": "disagree (no GT)"}
+#: every pixel's case, one each (:func:`case_codes`): the four GT cases, then the no-GT ones; a pixel no run has a
+#: depth at and no GT is none of them (code 0)
+CASES = ("both_right", "a_right_b_wrong", "b_right_a_wrong", "both_wrong", "agree", "disagree", "only_a", "only_b")
+CASE_TITLES = {"both_right": "both right", **MAP_TITLES, "agree": "agree (no GT)", "disagree": "disagree (no GT)",
+               "only_a": "only A has depth (no GT)", "only_b": "only B has depth (no GT)"}
+#: the cases where the runs differ (PixelCounts.shares' "difference")
+DIFFERENT = ("a_right_b_wrong", "b_right_a_wrong", "disagree")
 
 
 @dataclasses.dataclass
@@ -65,7 +72,8 @@ class PixelCounts:
 
 def compare_pixels(depth_a: np.ndarray, depth_b: np.ndarray, gt_depth: np.ndarray | None,
                    tolerance: float = TOLERANCE) -> tuple[PixelCounts, dict[str, np.ndarray]]:
-    """Counts and (H, W) bool maps (:data:`MAP_KINDS`) of two depth maps of one view.
+    """Counts and (H, W) bool maps (every name of :data:`CASES`; :data:`MAP_KINDS` are those reports draw) of two
+    depth maps of one view.
 
     Args:
         depth_a, depth_b: (H, W) camera-frame depth of runs A and B, 0 = none, same size.
@@ -87,11 +95,22 @@ def compare_pixels(depth_a: np.ndarray, depth_b: np.ndarray, gt_depth: np.ndarra
     disagree = np.zeros(a.shape, bool)
     disagree[both] = np.abs(a[both] - b[both]) / np.minimum(a[both], b[both]) > tolerance
     maps = {"a_right_b_wrong": right_a & ~right_b, "b_right_a_wrong": right_b & ~right_a,
-            "both_wrong": has_gt & ~right_a & ~right_b, "disagree": disagree}
+            "both_wrong": has_gt & ~right_a & ~right_b, "disagree": disagree,
+            "both_right": right_a & right_b, "agree": both & ~disagree, "only_a": valid_a & ~valid_b,
+            "only_b": valid_b & ~valid_a}
     counts = PixelCounts(
         gt=int(has_gt.sum()), a_right=int(right_a.sum()), b_right=int(right_b.sum()),
-        both_right=int((right_a & right_b).sum()), a_right_b_wrong=int(maps["a_right_b_wrong"].sum()),
+        both_right=int(maps["both_right"].sum()), a_right_b_wrong=int(maps["a_right_b_wrong"].sum()),
         b_right_a_wrong=int(maps["b_right_a_wrong"].sum()), both_wrong=int(maps["both_wrong"].sum()),
-        no_gt=int(both.sum()), disagree=int(disagree.sum()), only_a=int((valid_a & ~valid_b).sum()),
-        only_b=int((valid_b & ~valid_a).sum()))
+        no_gt=int(both.sum()), disagree=int(disagree.sum()), only_a=int(maps["only_a"].sum()),
+        only_b=int(maps["only_b"].sum()))
     return counts, maps
+
+
+def case_codes(maps: dict[str, np.ndarray]) -> np.ndarray:
+    """(H, W) uint8: at each pixel 1 + the index in :data:`CASES` of its case (the maps of :func:`compare_pixels`,
+    which never overlap), 0 where it has none."""
+    codes = np.zeros(maps[CASES[0]].shape, np.uint8)
+    for code, case in enumerate(CASES, start=1):
+        codes[maps[case]] = code
+    return codes

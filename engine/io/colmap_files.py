@@ -14,12 +14,12 @@ multi-sensor rig is left to pycolmap (:func:`read_model_files` returns None).
 from __future__ import annotations
 
 import dataclasses
-import struct
 from pathlib import Path
 
 import numpy as np
 
 from engine.core.errors import DeepCError
+from engine.io.binary import ByteReader
 
 # COLMAP camera model id -> (name, number of parameters) (src/colmap/sensor/models.h)
 CAMERA_MODELS = {0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
@@ -54,14 +54,14 @@ def read_model_files(model_dir: Path) -> ModelFiles | None:
     binary = all((model_dir / f"{name}.bin").is_file() for name in ("cameras", "images", "points3D"))
     if binary:
         rigs = model_dir / "rigs.bin"
-        if rigs.is_file() and not _single_sensor_rigs_bin(_Cursor(rigs)):
+        if rigs.is_file() and not _single_sensor_rigs_bin(_model_reader(rigs)):
             return None
         frames = model_dir / "frames.bin"
         if frames.is_file():
-            _check_frames_bin(_Cursor(frames))
-        cameras = _cameras_bin(_Cursor(model_dir / "cameras.bin"))
-        images = _images_bin(_Cursor(model_dir / "images.bin"))
-        points = _points_bin(_Cursor(model_dir / "points3D.bin"))
+            _check_frames_bin(_model_reader(frames))
+        cameras = _cameras_bin(_model_reader(model_dir / "cameras.bin"))
+        images = _images_bin(_model_reader(model_dir / "images.bin"))
+        points = _points_bin(_model_reader(model_dir / "points3D.bin"))
     else:
         rigs = model_dir / "rigs.txt"
         if rigs.is_file() and not _single_sensor_rigs_txt(rigs):
@@ -74,89 +74,31 @@ def read_model_files(model_dir: Path) -> ModelFiles | None:
 
 # ---- binary --------------------------------------------------------------------------------------
 
-class _Cursor:
-    """Reads little-endian values from a model file; any overrun is a :class:`DeepCError` naming it."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        try:
-            self.data = path.read_bytes()
-        except OSError as exc:
-            raise DeepCError(f"cannot read: {exc.strerror or exc}", path) from exc
-        self.pos = 0
-
-    def need(self, size: int, what: str) -> None:
-        if size < 0 or self.pos + size > len(self.data):
-            raise DeepCError(f"truncated or corrupt COLMAP binary model: {what} needs {size} bytes at offset "
-                             f"{self.pos}, {len(self.data) - self.pos} left", self.path)
-
-    def unpack(self, fmt: str, what: str) -> tuple:
-        size = struct.calcsize("<" + fmt)
-        self.need(size, what)
-        values = struct.unpack_from("<" + fmt, self.data, self.pos)
-        self.pos += size
-        return values
-
-    def count(self, fmt: str, item_size: int, what: str) -> int:
-        """A count, checked against the bytes left at ``item_size`` bytes (at least) per item."""
-        (n,) = self.unpack(fmt, what)
-        left = len(self.data) - self.pos
-        if n < 0 or n * item_size > left:
-            raise DeepCError(f"corrupt COLMAP binary model: {what} is {n}, but only {left} bytes follow", self.path)
-        return n
-
-    def floats(self, n: int, what: str) -> np.ndarray:
-        self.need(8 * n, what)
-        values = np.frombuffer(self.data, "<f8", n, self.pos).copy()
-        self.pos += 8 * n
-        if not np.isfinite(values).all():
-            raise DeepCError(f"corrupt COLMAP binary model: non-finite {what}", self.path)
-        return values
-
-    def skip(self, size: int, what: str) -> None:
-        self.need(size, what)
-        self.pos += size
-
-    def name(self) -> str:
-        end = self.data.find(b"\0", self.pos, self.pos + _MAX_NAME)
-        if end < 0:
-            raise DeepCError(f"corrupt COLMAP binary model: image name at offset {self.pos} is not terminated",
-                             self.path)
-        raw = self.data[self.pos:end]
-        self.pos = end + 1
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise DeepCError(f"corrupt COLMAP binary model: image name {raw[:40]!r} is not UTF-8", self.path) from None
-
-    def done(self) -> None:
-        if self.pos != len(self.data):
-            raise DeepCError(f"corrupt COLMAP binary model: {len(self.data) - self.pos} unexpected bytes at the end",
-                             self.path)
+def _model_reader(path: Path) -> ByteReader:
+    return ByteReader.from_file(path, "COLMAP binary model")
 
 
-def _cameras_bin(cur: _Cursor) -> list:
+def _cameras_bin(cur: ByteReader) -> list:
     cameras = []
     for _ in range(cur.count("Q", 24, "number of cameras")):
         camera_id, model_id, width, height = cur.unpack("IiQQ", "camera")
         if model_id not in CAMERA_MODELS:
-            raise DeepCError(f"corrupt COLMAP binary model: camera {camera_id} has unknown model id {model_id}",
-                             cur.path)
+            raise cur.error(f"camera {camera_id} has unknown model id {model_id}")
         if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
-            raise DeepCError(f"corrupt COLMAP binary model: camera {camera_id} is {width}x{height}", cur.path)
+            raise cur.error(f"camera {camera_id} is {width}x{height}")
         name, n_params = CAMERA_MODELS[model_id]
         cameras.append((camera_id, name, width, height, cur.floats(n_params, f"parameters of camera {camera_id}")))
     cur.done()
     return cameras
 
 
-def _images_bin(cur: _Cursor) -> list:
+def _images_bin(cur: ByteReader) -> list:
     images = []
     for _ in range(cur.count("Q", 69, "number of images")):
         (image_id,) = cur.unpack("I", "image id")
         pose = cur.floats(7, f"pose of image {image_id}")
         (camera_id,) = cur.unpack("I", f"camera id of image {image_id}")
-        name = cur.name()
+        name = cur.c_string("image name", _MAX_NAME)
         n_points = cur.count("Q", 24, f"number of 2-D points of image {image_id}")
         cur.skip(24 * n_points, f"2-D points of image {image_id}")
         images.append((image_id, name, camera_id, pose[:4], pose[4:]))
@@ -164,7 +106,7 @@ def _images_bin(cur: _Cursor) -> list:
     return images
 
 
-def _points_bin(cur: _Cursor) -> tuple[np.ndarray, ...]:
+def _points_bin(cur: ByteReader) -> tuple[np.ndarray, ...]:
     n = cur.count("Q", 51, "number of 3-D points")
     ids = np.empty(n, np.int64)
     xyz = np.empty((n, 3))
@@ -174,21 +116,19 @@ def _points_bin(cur: _Cursor) -> tuple[np.ndarray, ...]:
         xyz[i] = cur.floats(3, f"position of 3-D point {ids[i]}")
         cur.skip(3 + 8, f"colour and error of 3-D point {ids[i]}")
         length = cur.count("Q", 8, f"track length of 3-D point {ids[i]}")
-        cur.need(8 * length, f"track of 3-D point {ids[i]}")
-        tracks.append(np.frombuffer(cur.data, "<u4", 2 * length, cur.pos)[0::2])  # (image id, 2-D point index)
-        cur.pos += 8 * length
+        tracks.append(cur.array("<u4", (2 * length,), f"track of 3-D point {ids[i]}")[0::2])  # (image id, 2-D index)
     cur.done()
     lengths = np.array([len(t) for t in tracks], np.int64)
     track_image = np.concatenate(tracks).astype(np.int64) if tracks else np.zeros(0, np.int64)
     return ids, xyz, np.repeat(np.arange(n, dtype=np.int64), lengths), track_image
 
 
-def _single_sensor_rigs_bin(cur: _Cursor) -> bool:
+def _single_sensor_rigs_bin(cur: ByteReader) -> bool:
     single = True
     for _ in range(cur.count("Q", 8, "number of rigs")):
         rig_id, n_sensors = cur.unpack("Ii", "rig")
-        if n_sensors < 0 or n_sensors * 8 > len(cur.data) - cur.pos:
-            raise DeepCError(f"corrupt COLMAP binary model: rig {rig_id} has {n_sensors} sensors", cur.path)
+        if n_sensors < 0 or n_sensors * 8 > cur.left:
+            raise cur.error(f"rig {rig_id} has {n_sensors} sensors")
         single &= n_sensors <= 1
         if n_sensors > 0:
             cur.skip(8, f"reference sensor of rig {rig_id}")
@@ -201,7 +141,7 @@ def _single_sensor_rigs_bin(cur: _Cursor) -> bool:
     return single
 
 
-def _check_frames_bin(cur: _Cursor) -> None:
+def _check_frames_bin(cur: ByteReader) -> None:
     for _ in range(cur.count("Q", 68, "number of frames")):
         frame_id, _rig_id = cur.unpack("II", "frame")
         cur.floats(7, f"pose of frame {frame_id}")

@@ -88,10 +88,16 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                              "score both clouds: one fusion for both runs' maps")
 
 
+def tolerance_fraction(percent: float) -> float:
+    """The ``--tolerance`` percentage as a fraction; one outside (0, 100) is a :class:`DeepCError`."""
+    if not 0 < percent < 100:
+        raise DeepCError(f"option --tolerance={percent:g}: a percentage above 0 and below 100")
+    return percent / 100
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     """Handler of ``deepc compare``."""
-    if not 0 < args.tolerance < 100:
-        raise DeepCError(f"option --tolerance={args.tolerance:g}: a percentage above 0 and below 100")
+    tolerance = tolerance_fraction(args.tolerance)
     if args.views < 0:
         raise DeepCError(f"option --views={args.views}: a number of views, 0 or more")
     from engine.compare.comparison import compare_runs, reference_scene  # lazy: scenes, evaluation
@@ -99,7 +105,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     a, b = open_run(args.run_a, args.maps), open_run(args.run_b, args.maps)
     scene = reference_scene(a, b, args.scene)
-    comparison = compare_runs(a, b, scene, args.tolerance / 100, evaluate_fused=not args.no_fused,
+    comparison = compare_runs(a, b, scene, tolerance, evaluate_fused=not args.no_fused,
                               fuse_ours=args.fuse)
     print(format_comparison(comparison))
     if args.report:

@@ -19,7 +19,7 @@ from engine.core.errors import DeepCError
 from engine.core.interrupt import EXIT_INTERRUPTED, deferred_interrupts
 from engine.meshing.options import MESH_METHODS
 from engine.scene import SceneOptions
-from workbench.cli.compare import add_compare_arguments
+from workbench.cli.compare import add_compare_arguments, tolerance_fraction
 from workbench.cli.probe import add_probe_arguments
 from workbench.flags.help_options import HelpOptionsAction
 from workbench.flags.options import add_options_flags
@@ -69,6 +69,13 @@ def _probe(args: argparse.Namespace) -> int:
 
 
 def _view(args: argparse.Namespace) -> int:
+    if args.compare:
+        tolerance = tolerance_fraction(args.tolerance)
+        from workbench.viewer.compare import serve_compare  # lazy: viser, the comparison
+
+        serve_compare(args.target, args.compare, host=args.host, port=args.port, scene=args.scene, maps=args.maps,
+                      tolerance=tolerance)
+        return EXIT_OK
     from workbench.viewer.app import serve  # lazy: viser
 
     serve(args.target, host=args.host, port=args.port)
@@ -85,7 +92,8 @@ def _regress(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     from workbench.rerun.replay import replay  # lazy: rerun
 
-    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port, view=args.view)
+    return replay(args.recording, layout=args.layout, web=args.web, host=args.host, port=args.port, view=args.view,
+                  compare=args.compare)
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -163,6 +171,13 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("target", metavar="OUT_OR_SCENE")
     view.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)")
     view.add_argument("--port", type=int, default=8080)
+    view.add_argument("--compare", metavar="RUN_B", default=None,
+                      help="compare mode: OUT_OR_SCENE (a deepc run, COLMAP dense workspace or OpenMVS densify folder) "
+                           "against RUN_B, as deepc compare compares them")
+    view.add_argument("--scene", metavar="SCENE", default=None, help="with --compare: as deepc compare --scene")
+    view.add_argument("--maps", choices=("fused", "raw"), default="fused", help="with --compare: as deepc compare")
+    view.add_argument("--tolerance", type=float, default=1.0, metavar="PERCENT",
+                      help="with --compare: as deepc compare (default: 1)")
     view.set_defaults(handler=_view)
 
     probe = sub.add_parser("probe", help="trace pixels of a finished run through PatchMatch, or re-run a region",
@@ -182,6 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--view", metavar="NAME", default=None,
                         help="the view to show: its image name (e.g. view_003.png), its index or its entity name "
                              "(default: the first view)")
+    replay.add_argument("--compare", metavar="B.rrd", default=None,
+                        help="a second recording: both merged (entities under a/ and b/), each map of A beside B's, "
+                             "a tab per view (--layout does not apply)")
     replay.add_argument("--web", action="store_true", help="serve the web viewer even when there is a display")
     replay.add_argument("--host", default="127.0.0.1", help="address of the web viewer (default: 127.0.0.1)")
     replay.add_argument("--port", type=int, default=9090,

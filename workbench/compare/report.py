@@ -23,12 +23,10 @@ from engine.compare.pixels import MAP_KINDS, MAP_TITLES, PixelCounts
 from engine.compare.sources import SourceRun
 from engine.io.atomic import atomic_write_bytes, atomic_write_text, write_json
 from engine.io.images import resize_area, to_gray
+from workbench.compare.colours import COLOURS
 from workbench.regress.report.figures import eval_figure
 from workbench.regress.report.page import CSS
 
-#: RGB of each case on the maps
-COLOURS = {"a_right_b_wrong": (40, 110, 255), "b_right_a_wrong": (255, 150, 0), "both_wrong": (230, 30, 30),
-           "disagree": (220, 0, 220)}
 #: rows of the shares tables: (key of PixelCounts.shares or a count, heading)
 ROWS = (("gt", "GT pixels"), ("a_right", "A right %"), ("b_right", "B right %"),
         ("a_right_b_wrong", "A right, B wrong %"), ("b_right_a_wrong", "B right, A wrong %"),

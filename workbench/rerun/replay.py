@@ -30,7 +30,7 @@ import rerun_cli
 from rerun.chunk import RrdReader
 
 from engine.core.errors import DeepCError
-from layouts import LAYOUTS, Contents, view_title
+from layouts import LAYOUTS, Contents, compare, view_title
 from workbench.rerun.notes import log_notes
 from workbench.rerun.recording import APP_ID
 
@@ -127,6 +127,38 @@ def layout_file(path: str | Path, layout: str, folder: Path, view: str | None = 
     return layout_files(path, layout, folder, view)[0]
 
 
+def replay_files(path: str | Path, layout: str | None, folder: Path, view: str | None = None,
+                 compare: str | Path | None = None) -> list[Path]:
+    """What the viewer opens: the recording with its layout's files, or (``compare``: a second recording) the two
+    merged under ``/a`` and ``/b`` with the side-by-side layout (:mod:`workbench.rerun.compare`)."""
+    if compare is not None:
+        if layout is not None:
+            raise DeepCError("--layout does not apply with --compare: its layout sets each map of A beside B's")
+        return compare_files(path, compare, folder, view)
+    return [Path(path), *layout_files(path, layout or default_layout(path), folder, view)]
+
+
+def compare_files(path_a: str | Path, path_b: str | Path, folder: Path, view: str | None = None) -> list[Path]:
+    """The recording of ``path_a`` and ``path_b`` merged under ``/a`` and ``/b``
+    (:func:`workbench.rerun.compare.merge_recordings`) and its ``compare`` blueprint with ``view``'s tab open
+    (default: the first view both hold), written into ``folder``; recordings without a view's maps in common are a
+    :class:`DeepCError`."""
+    from workbench.rerun.compare import merge_recordings  # lazy: rerun's chunk streams
+
+    a, b = recording_contents(path_a), recording_contents(path_b)
+    common = [v for v in a.contents.views if v in b.contents.views]
+    if not common:
+        raise DeepCError(f"{path_a} and {path_b} hold no view's maps in common (views are matched by entity name, "
+                         "maps/<index>_<image>)")
+    chosen = common[0] if view is None else choose_view(a.contents, view)
+    if chosen not in common:
+        raise DeepCError(f"view {view} is not in both recordings")
+    merged = merge_recordings(path_a, path_b, folder / "compare.rrd", a.application_id)
+    blueprint = folder / "compare.rbl"
+    compare(a.contents, b.contents, chosen).save(a.application_id, str(blueprint))
+    return [merged, blueprint]
+
+
 def layout_files(path: str | Path, layout: str, folder: Path, view: str | None = None) -> list[Path]:
     """The blueprint ``.rbl`` of ``layout`` for ``view`` and the notes recording it shows."""
     if layout not in LAYOUTS:
@@ -182,14 +214,14 @@ class WebViewer:
     stream at :attr:`grpc_url`. Use as a context manager or call stop()."""
 
     def __init__(self, path: str | Path | None = None, layout: str | None = None, host: str = "127.0.0.1",
-                 port: int = 0, timeout: float = 60.0, view: str | None = None):
+                 port: int = 0, timeout: float = 60.0, view: str | None = None, compare: str | Path | None = None):
         self.port = free_port(host, port)
         self._tmp = tempfile.TemporaryDirectory(prefix="deepc-replay-")
-        files = [] if path is None else [str(Path(path).resolve())]
+        files = []
         try:
             if path is not None:  # validates the file before starting anything
-                files += [str(f) for f in layout_files(path, layout or default_layout(path), Path(self._tmp.name),
-                                                       view)]
+                files = [str(Path(f).resolve())
+                         for f in replay_files(path, layout, Path(self._tmp.name), view, compare)]
         except BaseException:
             self._tmp.cleanup()
             raise
@@ -247,14 +279,15 @@ def has_display() -> bool:
 
 
 def replay(path: str, layout: str | None = None, web: bool = False, host: str = "127.0.0.1", port: int = 9090,
-           view: str | None = None) -> int:
+           view: str | None = None, compare: str | None = None) -> int:
     """Blocking: open the native viewer, or serve the web viewer until Ctrl+C. The layout (default: iterations,
-    or pipelines for a recording without iterations) is built for ``view`` (default: the first view)."""
+    or pipelines for a recording without iterations) is built for ``view`` (default: the first view);
+    ``compare``: a second recording shown beside this one (:mod:`workbench.rerun.compare`)."""
     if has_display() and not web:
         with tempfile.TemporaryDirectory(prefix="deepc-replay-") as tmp:
-            files = [path, *(str(f) for f in layout_files(path, layout or default_layout(path), Path(tmp), view))]
+            files = [str(f) for f in replay_files(path, layout, Path(tmp), view, compare)]
             return subprocess.call([str(rerun_binary()), *files])
-    viewer = WebViewer(path, layout, host, port, view=view)
+    viewer = WebViewer(path, layout, host, port, view=view, compare=compare)
     if port and viewer.port != port:
         print(f"rerun web viewer: port {port} is in use; serving on port {viewer.port} instead", flush=True)
     print(f"rerun web viewer: {viewer.url}  (Ctrl+C to stop)", flush=True)

@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import viser
@@ -398,6 +399,27 @@ def announce(label: str, host: str, requested: int, used: int, note: str) -> Non
     print(f"{label}: http://{host}:{used}  ({note})", flush=True)
 
 
+def hold(server: viser.ViserServer, make_app: Callable[[viser.ViserServer], Any], label: str, host: str,
+         requested: int, on_open: Callable[[Any], None] | None = None) -> None:
+    """Build an app on ``server`` (viser's own output kept off the terminal), run ``on_open(app)``, name its
+    address, serve until Ctrl+C; then stop the app (or the server, when the app never came up)."""
+    quiet = io.StringIO()
+    app = None
+    try:
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            app = make_app(server)
+        if on_open is not None:
+            on_open(app)
+        announce(label, host, requested, server.get_port(), "Ctrl+C to stop")
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            (server if app is None else app).stop()
+
+
 def serve(path: str, host: str = "127.0.0.1", port: int = 8080, server: viser.ViserServer | None = None,
           on_open: Callable[[ViewerApp], None] | None = None) -> None:
     """Open a session and serve until interrupted (``deepc view``); the server stops on the way out.
@@ -405,27 +427,17 @@ def serve(path: str, host: str = "127.0.0.1", port: int = 8080, server: viser.Vi
     ``server``: an already running server to take over (``deepc run``'s live viewer, whose browser tabs stay
     connected); else one is opened on host:port. ``on_open(app)`` runs once the app's panel is up (the live
     viewer removes its own panel and clouds then)."""
-    quiet = io.StringIO()
-    app = None
-    try:  # (a Ctrl+C right after the start stops the server as well)
+    try:
         session = ViewerSession.open(path)
-        if server is None:
-            server = open_server(host, port)
-            requested = port
-        else:
-            requested = server.get_port()  # announced when it started
-        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            app = ViewerApp(session, host=host, port=port, verbose=False, server=server)
-        if on_open is not None:
-            on_open(app)
-        announce("viewer", host, requested, app.port, "Ctrl+C to stop")
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            if app is not None:
-                app.stop()
-            elif server is not None:
-                server.stop()
+    except BaseException as exc:  # a bad folder or a Ctrl+C while it opens stops a server taken over as well
+        if server is not None:
+            server.stop()
+        if isinstance(exc, KeyboardInterrupt):
+            return
+        raise
+    if server is None:
+        server, requested = open_server(host, port), port
+    else:
+        requested = server.get_port()  # (a taken-over server announced its start)
+    hold(server, lambda s: ViewerApp(session, host=host, port=port, verbose=False, server=s), "viewer", host,
+         requested, on_open)
