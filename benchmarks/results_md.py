@@ -9,7 +9,7 @@ table saying why and what would refresh it. Only the JSONs are read, so the page
 
 ``--check`` (tests/test_benchmarks.py runs it) exits 1 when the committed page differs from the generated one,
 when a JSON fails its script's ``SCHEMA``, when a stale mark is missing or out of date, or when a number in
-docs/decisions.md lacks a source (:mod:`support.doc_sources`).
+a page of ``SOURCED_DOCS`` lacks a source (:mod:`support.doc_sources`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from typing import Any
 from support import bench, doc_sources
 
 OUT = bench.REPO_ROOT / "docs" / "results.md"
-SOURCED_DOCS = ("docs/decisions.md",)  # hand-written pages whose numbers must cite a JSON key
+SOURCED_DOCS = ("docs/decisions.md", "docs/architecture.md", "docs/distributed.md",
+                "docs/reliability.md")  # hand-written pages whose numbers must cite a JSON key
 MAX_ROWS = 15  # longer tables are cut: the JSON holds the rest
 PURPOSE = {"paper": "Paper tables", "performance": "Performance: speed and memory",
            "reliability": "Reliability: interruption and damaged inputs",

@@ -1,5 +1,6 @@
 """The benchmark harness (support/bench.py), every benchmark script and result JSON (each against its script's
-SCHEMA), the stale marks (benchmarks/mark_stale.py), the sources of docs/decisions.md's numbers and docs/results.md."""
+SCHEMA), the stale marks (benchmarks/mark_stale.py), the sources of the numbers of the
+hand-written pages (docs/decisions.md, architecture.md, distributed.md, reliability.md) and docs/results.md."""
 
 from __future__ import annotations
 
@@ -137,7 +138,8 @@ def test_result_json_names_its_script_and_no_machine_path(path):
 
 def test_results_md_check_passes():
     """What `benchmarks/results_md.py --check` checks: the page is generated, every JSON matches its script's
-    SCHEMA, every stale mark is in place and every number of docs/decisions.md cites a JSON key that holds it."""
+    SCHEMA, every stale mark is in place and every number of the pages of
+    ``SOURCED_DOCS`` cites a JSON key that holds it."""
     generator = bench.load_script(bench.BENCHMARKS / "results_md.py")
     assert generator.problems() == []
 

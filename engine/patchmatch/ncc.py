@@ -181,7 +181,7 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
             np.float32(min_ratio_fine), np.ascontiguousarray(allowed, dtype=np.uint8), mu_a, var_a, wset)
     if pacer is None:
         _window_terms_kernel(*args, 0, h)
-    else:  # blocks of rows, a stop request honoured between them (one call took up to 5.8 s at 768x512, loaded)
+    else:  # blocks of rows, a stop request honoured between them (one call took seconds at 768x512, loaded)
         pacer.run("window_terms", h, w, lambda start, stop: _window_terms_kernel(*args, start, stop))
     return mu_a, var_a, wset
 

@@ -7,7 +7,7 @@ image get 0. The ``degree`` largest ŵ are kept and normalised to sum 1 per pixe
 directed. Empty slots (weight 0) point to i itself, so they contribute nothing to any term.
 
 The kernel runs over blocks of rows (``engine.core.blocks.RowPacer``, about half a second each) with a stop request
-(Ctrl-C, ``engine.core.interrupt``) honoured between them: one call per scale took up to 4.8 s on fountain_p11 at
+(Ctrl-C, ``engine.core.interrupt``) honoured between them: one call per scale took seconds on fountain_p11 at
 768×512 on the loaded machine (docs/reliability.md). Every pixel's neighbours and weights depend only on the grey
 image, so the graph is the same bit for bit however the rows are split.
 """
