@@ -10,11 +10,13 @@ The convention (docs/decisions.md states it at its top):
   number inside a key such as ``f1@0.02``) equals it rounded as written (``93.05`` matches 93.0498; a share
   stored as a fraction may be written as a percentage). Signs are prose (``−0.06`` matches -0.06 and 0.06).
 - **Checked numbers**: those with a decimal point, those followed by ``%`` or a unit of time, size or work
-  (``s``, ``ms``, ``CPU-s``, ``minutes``, ``MB``, ``MiB``, ``GB``, ``kB``, ``points``), and counts written
-  with thousands separators (``191,792``); not a tolerance written "within N %". Plain integers (views,
-  pixels, iterations, seeds, sizes) are descriptions, not measurements. Not checked: headings, code (option
-  values and their defaults are written as code: ``confidence.tau = 0.1``), and a paper's numbers, in the part
-  of a block that starts with ``**Paper**`` (up to ``**Ours**``).
+  (``s``, ``ms``, ``CPU-s``, ``minutes``, ``MB``, ``MiB``, ``GB``, ``GiB``, ``kB``, ``points``), both ends of a
+  range with such a unit (``4-5 s``), and counts written with thousands separators (``191,792``); not a
+  tolerance written "within N %". Plain integers (views, pixels, iterations, seeds, sizes) are descriptions,
+  not measurements. Not checked: headings, code (option
+  values and their defaults are written as code: ``confidence.tau = 0.1``), a paper's numbers, in the part
+  of a block that starts with ``**Paper**`` (up to ``**Ours**``), and arithmetic from stated formulas, in the part
+  of a block that starts with ``**Estimate**`` (up to ``**Measured**``): projections, not measurements.
 - A block citing a result marked stale (benchmarks/mark_stale.py) says "stale".
 """
 
@@ -27,9 +29,12 @@ from typing import Any
 
 SOURCE = re.compile(r"\[([\w.-]+\.json):\s*([^\]]+)\]")
 CODE = re.compile(r"`[^`]*`")
-UNITS = r"(?:\s?%|\s(?:s|ms|CPU-s|minutes|MB|MiB|GB|kB|points)\b)"
+UNITS = r"(?:\s?%|\s(?:s|ms|CPU-s|minutes|MB|MiB|GB|GiB|kB|points)\b)"
 NUMBER = re.compile(r"(?<![\w.^/@-])[−+-]?(\d{1,3}(?:,\d{3})+|\d+\.\d+|\d+)(?=(" + UNITS + r")?)(?![\w.]\d)")
+# a range with a unit ("4-5 s", "270–290 MiB", "20..30 %"): both ends are measurements
+RANGE = re.compile(r"(?<![\w.^/@-])(\d+(?:\.\d+)?)\s?(?:-|–|\.\.)\s?(\d+(?:\.\d+)?)(?=" + UNITS + r")")
 PAPER = re.compile(r"\*\*Paper\*\*.*?(?=\*\*Ours\*\*|$)", re.S)
+ESTIMATE = re.compile(r"\*\*Estimate\*\*.*?(?=\*\*Measured\*\*|$)", re.S)
 
 
 def blocks(text: str) -> list[tuple[int, str]]:
@@ -63,7 +68,7 @@ def blocks(text: str) -> list[tuple[int, str]]:
 
 def checked_numbers(block: str) -> list[str]:
     """The numbers of a block that need a source (see the module's docstring)."""
-    text = PAPER.sub(" ", SOURCE.sub(" ", CODE.sub(" ", block)))
+    text = ESTIMATE.sub(" ", PAPER.sub(" ", SOURCE.sub(" ", CODE.sub(" ", block))))
     numbers = []
     for m in NUMBER.finditer(text):
         token, unit = m.group(1), m.group(2)
@@ -71,6 +76,8 @@ def checked_numbers(block: str) -> list[str]:
             continue  # a tolerance, "within 1 %"
         if "." in token or "," in token or unit:
             numbers.append(token)
+    for m in RANGE.finditer(text):
+        numbers += [t for t in m.groups() if t not in numbers]
     return numbers
 
 
