@@ -41,8 +41,6 @@ KNOWN = {
                                     "'ours' row ran on main before the memory cuts, the other two rows after them",
     "peer_fountain.json": "peer_openmvs holds OpenMVS numbers that were hard-coded in the script, not measured "
                           "(peer numbers come from benchmarks/performance/bench_peer.py)",
-    "peer_fountain_paper_schedule.json": "peer_openmvs holds OpenMVS numbers that were hard-coded in the script, "
-                                         "not measured (peer numbers come from benchmarks/performance/bench_peer.py)",
 }
 # What would remake a result whose arguments were not recorded (the runs named are fresh `deepc run --pipeline
 # vanilla` folders of the scenes at the sizes the JSON records).
@@ -54,9 +52,6 @@ REFRESH = {
                                          "engine/confidence/weights/deepc_refined.pt --run fountain_p11=RUN ...",
     "table2_filters.json": "benchmarks/paper/table2_filters.py RUN ... --weights "
                            "engine/confidence/weights/deepc_middle.pt",
-    "table2_filters_confidence_fountain768.json": "benchmarks/paper/table2_filters.py RUN_fountain768 --weights "
-                                                  "engine/confidence/weights/deepc_middle.pt --out "
-                                                  "benchmarks/results/table2_filters_confidence_fountain768.json",
     "table2_filters_pixels.json": "benchmarks/paper/table2_filters.py RUN ... --weights "
                                   "engine/confidence/weights/deepc_middle.pt --preset pixels --out "
                                   "benchmarks/results/table2_filters_pixels.json",
