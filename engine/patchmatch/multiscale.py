@@ -32,7 +32,7 @@ from engine.patchmatch.probe.pixel_probe import PassProbe, PixelProbe
 from engine.patchmatch.pyramid import area_resize, jbu_upsample, level_size
 from engine.patchmatch.rng import stream_key
 from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, ViewState, row_cache_bytes
-from engine.patchmatch.view_pass import run_view_level
+from engine.patchmatch.view_pass import Box, run_view_level
 
 # engine.run.memory sizes the cost caches with these (they live in state.py)
 __all__ = ["MAX_SOURCES", "ROW_CACHE_MAX_BYTES", "PatchMatchView", "ViewMaps", "effective_levels", "replay_view",
@@ -404,7 +404,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
                    step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
                    on_stage: Callable | None = None, probe: PassProbe | None = None, iterations: int | None = None,
-                   box: tuple[int, int, int, int] | None = None) -> int:
+                   box: Box | Callable[[int], Box] | None = None) -> int:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
     counter after it."""
@@ -507,14 +507,14 @@ def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: li
                   snapshot: list | None, level: int, pass_index: int, n_levels: int, options: PatchMatchOptions,
                   done_before: int, probe: PixelProbe | None = None, pool: BufferPool | None = None,
                   origin: tuple[int, int] = (0, 0), on_iter: Callable | None = None, iterations: int | None = None,
-                  box: tuple[int, int, int, int] | None = None) -> None:
+                  box: Box | Callable[[int], Box] | None = None) -> None:
     """Pass ``pass_index`` of view ``i`` at ``level`` on ``st`` in place, as :func:`run_patchmatch` runs it (detail
     restorer in a finer level's photometric pass, random start at the coarsest's): ``images``, ``cameras``: every
     view's pyramid (``images[i][level]`` may be a crop of the level's image at ``origin`` (x, y), with its camera;
     ``probe`` then traces the probed pixels inside it); ``snapshot``: the views' depth maps a geometric pass reads;
     ``done_before``: iterations of all earlier passes; ``on_iter(event)`` after each iteration; ``iterations``: run
     exactly this many (the count a converged pass of the run ran; None: the schedule's, ended by convergence);
-    ``box`` (x0, y0, x1, y1): update only those pixels (``view_pass.run_view_level``)."""
+    ``box`` (x0, y0, x1, y1), or ``box(j)`` per half-step: update only those pixels (``view_pass.run_view_level``)."""
     coarsest = level == n_levels - 1
     detail = pass_index == 0 and not coarsest and options.detail_restorer
     pass_probe = None

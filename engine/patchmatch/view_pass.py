@@ -31,6 +31,8 @@ from engine.patchmatch.state import ViewState
 RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
 
 IterationFn = Callable[[int, np.ndarray, float], object]
+# (x0, y0, x1, y1): the pixels [x0, x1) x [y0, y1) a kernel updates
+Box = tuple[int, int, int, int]
 PACER = RowPacer()  # the row blocks of this process's kernel calls (only their time depends on it)
 
 
@@ -125,7 +127,7 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
                    view: int = 0, level: int = 0, pass_index: int = 0, detail: bool = False,
                    iterations: int | None = None, done_before: int = 0, on_iteration: IterationFn | None = None,
                    pool: BufferPool | None = None, probe: PassProbe | None = None,
-                   box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+                   box: Box | Callable[[int], Box] | None = None) -> np.ndarray:
     """Run one pass of PatchMatch over one reference view at one pyramid level, in place on ``state``.
 
     The initial cost of the stored hypotheses (ACMM's top-k rule), then ``iterations`` (default
@@ -148,12 +150,14 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     wrote (outside the kernels: the maps are the same with or without it).
     ``box`` (x0, y0, x1, y1): only the pixels [x0, x1) x [y0, y1) are costed and updated, the others keep their
     maps (the pixel probe's partial replay: a pixel depends only on pixels within the pattern's reach per
-    half-step; None = all).
+    half-step; None = all); or ``box(j)``, the box of the pass's initial cost (j = 0) and of its j-th half-step
+    (j = 1, 2, ...): a box that shrinks as fewer half-steps remain to read it.
     Returns the (N_COUNTS,) int64 counts of the whole pass."""
     pattern = pattern_of(options)
     geometric = pass_index > 0
     n_iter = options.pass_iterations(pass_index) if iterations is None else iterations
-    params = kernel_params(options, zmin, zmax, 0, geometric, detail, n_regions(pattern), box=box)
+    box_at = box if callable(box) else (lambda _j: box)
+    params = kernel_params(options, zmin, zmax, 0, geometric, detail, n_regions(pattern), box=box_at(0))
     if probe is not None:
         probe.start(state)
     if detail:
@@ -169,10 +173,11 @@ def run_view_level(state: ViewState, ctx: ViewContext, options: PatchMatchOption
     for t in range(n_iter):
         check_interrupt()  # a stop request is honoured between kernels (engine/core/interrupt.py)
         t0 = time.perf_counter()
-        params = kernel_params(options, zmin, zmax, t, geometric, detail, n_regions(pattern),
-                               perturbation_scale(options, t, done_before), last=last, box=box)
         counts = np.zeros(K.N_COUNTS, np.int64)
         for colour in (0, 1):
+            params = kernel_params(options, zmin, zmax, t, geometric, detail, n_regions(pattern),
+                                   perturbation_scale(options, t, done_before), last=last,
+                                   box=box_at(2 * t + colour + 1))
             key = np.uint64(stream_key(options.seed, view, level, pass_index, t, colour))
             if probe is not None:
                 probe.before(state, ctx, colour, cpre, pattern, key, params, t)

@@ -12,13 +12,16 @@ What one half-step at pixel p reads (``kernels.half_step_kernel``), and so how f
   the half-step only.
 
 So after k half-steps of a pass, pixel p depends on the pass's start state within k · reach pixels (Chebyshev),
-and nothing else of the pass. Updating only a box of radius 2T · reach around the traced pixels (T: the pass's
-iterations) gives the traced pixels bit for bit what the whole-level pass gives them: the wrong values at the
-box's edge (pixels whose neighbours outside the box are never updated) move inward by at most ``reach`` per
-half-step and never reach them (a bound: in practice a change travels only as far as it keeps winning, and the
-tests' traces stay the same with half that radius, so the tests cannot show that the bound is tight). The box is
-applied inside the kernels (``KernelParams.box_*``), with every map
-kept at full level size, so coordinates, random streams and ray directions are the full level's.
+and nothing else of the pass. Of the pass's K = 2T half-steps (T: its iterations), the j-th need only be right
+within (K - j) · reach of the traced pixels, since the K - j half-steps after it read no farther: by induction,
+if every pixel within (K - j + 1) · reach is right before it, every pixel it updates within (K - j) · reach reads
+only right values, and the other colour's are unchanged. So the pass's initial cost covers a box of radius
+K · reach and its j-th half-step one of radius (K - j) · reach (the last: the traced pixels alone), about a third
+of the work of one box of radius K · reach throughout, and the traced pixels get bit for bit what the whole-level
+pass gives them (a bound: in practice a change travels only as far as it keeps winning, and the tests' traces
+stay the same with half that radius, so the tests cannot show that the bound is tight). The box is applied
+inside the kernels (``KernelParams.box_*``), with every map kept at full level size, so coordinates, random
+streams and ray directions are the full level's.
 
 What is whole-view, and so needs the stored states rather than a band from scratch: a pass's length (the
 convergence test counts the whole level's changed pixels: the first replay records how many iterations each pass
@@ -119,6 +122,8 @@ def trace_from_states(views: list[PatchMatchView], view: int, states: StartState
             if pass_index > 0:
                 got = snapshots(level, pass_index, list(v.source_views))
                 snapshot = [got.get(j) for j in range(len(views))]
+            # the pass's j-th half-step only needs to be right where the remaining 2 n_iter - j can still reach
             run_view_pass(views, view, st, images, cameras, snapshot, level, pass_index, n_levels, options, done,
-                          probe, pool, iterations=n_iter, box=dependency_box(points, 2 * n_iter, reach, lw, lh))
+                          probe, pool, iterations=n_iter,
+                          box=lambda j, n=2 * n_iter, p=points, w=lw, h=lh: dependency_box(p, n - j, reach, w, h))
             done += options.pass_iterations(pass_index)
