@@ -164,6 +164,7 @@ class ControlPanel:
             self.metrics = gui.add_markdown("computing…" if s.has_maps else
                                             "no maps: run `deepc run` and open its output folder")
             self.metrics_table = gui.add_html("")
+            self.mesh_metrics = gui.add_markdown("")  # the mesh's own scores (workbench/viewer/mesh.py)
         with gui.add_folder("View"):
             names = tuple(view_label(v.index, v.name) for v in s.scene.views)
             self.view_dropdown = gui.add_dropdown("View", options=names, initial_value=names[0])
