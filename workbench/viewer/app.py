@@ -13,6 +13,9 @@ setting. Controls that cannot act are disabled and say why, previews say they ar
 colour mode and map has a legend with its unit (``workbench/viewer/legends.py``), and the View folder shows
 the selected view's maps as the current pipeline and filters use them.
 
+The browser gets at most the point budget (Display folder, ``POINT_BUDGET`` by default): a larger cloud is sent
+voxel-thinned (``engine/core/thinning.py``) and a note says so; scores, exports and meshes use every point.
+
 The controls are declared in ``workbench/viewer/panel.py``, the newest-request-wins scheduling of previews
 and recomputations is ``workbench/viewer/scheduler.py``, the Export panel's files ``workbench/viewer/export.py`` and
 the pixel inspector with its region re-run ``workbench/viewer/inspector.py``.
@@ -50,8 +53,8 @@ __all__ = ["POINT_BUDGET", "ViewerApp", "preset_of", "serve"]
 THUMBNAIL = 160  # longest side of the images sent with the frustums
 # The browser gets at most this many points (the Display folder's "Point budget" changes it): above it the cloud
 # is voxel-thinned (engine/core/thinning.py). Scores, exports and meshes use every point. Sample small's 458 k
-# points took 7-22 s a change in chromium's software WebGL, tiny's 77 k 0.15 s (docs/decisions.md, "Viewer: at
-# most 200 000 points to the browser").
+# points took 7-22 s a change in chromium's software WebGL, tiny's 77 k 0.15 s (issue 47; docs/decisions.md,
+# "Viewer: at most 200 000 points and 200 000 triangles to the browser").
 POINT_BUDGET = 200_000
 THIN_CACHE = 4  # voxel grids kept (the base clouds previews mask and the exact cloud shown)
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client

@@ -27,8 +27,9 @@ from workbench.viewer.scheduler import NewestWorker
 from workbench.viewer.session import GT_DISTANCE
 
 SHOW = ("cloud", "mesh", "cloud + mesh")
-# Triangles sent to the browser at most: about 4 MB of GLB (float32 positions and normals, RGBA colours, uint32
-# faces), a tenth of sample small's Poisson mesh (docs/decisions.md, "Viewer: at most 200 000 points ...").
+# Triangles sent to the browser at most: about 5 MB of GLB (uint32 faces; float32 positions and normals and RGBA
+# colours of about half as many vertices), a sixth of sample small's Poisson mesh (docs/decisions.md, "Viewer: at
+# most 200 000 points and 200 000 triangles ...").
 TRIANGLE_BUDGET = 200_000
 SCORED_TOLERANCES = (0.02, 0.05)  # the mesh scores the Metrics folder shows (as deepc mesh prints them)
 

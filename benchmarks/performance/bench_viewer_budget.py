@@ -1,0 +1,151 @@
+"""What a user of the tuning viewer waits for in chromium (software WebGL) under the point and triangle budgets.
+
+    .venv/bin/python benchmarks/performance/bench_viewer_budget.py [--scene sample_scenes/small] [--run DIR]
+                                                     [--tau 0.3] [--out benchmarks/results/bench_viewer_budget.json]
+
+Without ``--run`` the scene is run first as ``deepc run SCENE --pipeline fast --headless --out DIR`` (a temporary
+folder) and meshed with ``deepc mesh DIR`` (Poisson) when the run has no ``mesh.ply``; neither is timed. Then, one
+headless chromium page (``support/browser.py``) on ``deepc view DIR`` (``ViewerApp``, 127.0.0.1, a free port), each
+measured once, wall clock in this process:
+
+- ``open_ready_s``: from opening the session to the page showing the first exact cloud's metrics and what was sent
+  (its budget note); the page is loaded while the viewer computes, as a user's would be;
+- ``tau_preview_s`` / ``tau_exact_s``: from a change of the confidence threshold (to ``--tau``, a value not shown
+  before) until the page shows the preview, then the exact result;
+- ``mesh_shown_s``: from choosing Show "mesh" until the page says the (decimated) mesh was sent, and
+  ``mesh_frame_s`` until a screenshot of the 3-D canvas after it (one frame rendered with the mesh).
+
+The budgets are the viewer's defaults (``POINT_BUDGET``, ``TRIANGLE_BUDGET``); the counts sent are recorded with
+them. Issue 47's numbers before the budgets: on small, a τ change took 7-22 s to show and showing the mesh about
+60 s (not kept in a result file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from support import bench
+from support.browser import chromium, dismiss_software_webgl_notice
+
+# The fast pipeline's run (without --run) uses the shipped network of the fast pipeline.
+WEIGHTS = ("deepc_middle.pt",)
+
+# Top-level keys of this script's result JSON and their types (support/schema.py); the harness adds its own
+# (script, argv, git, dirty, environment, inputs).
+SCHEMA = {"scene": str, "run_points": int, "point_budget": int, "sent_points": int, "open_ready_s": float,
+          "tau_from": float, "tau_to": float, "tau_preview_s": float, "tau_exact_s": float,
+          "tau_exact_points": int, "mesh_triangles": int, "triangle_budget": int, "mesh_sent_triangles": int,
+          "mesh_shown_s": float, "mesh_frame_s": float, "load_average_1min": float, "cpus": int}
+
+PAGE_TIMEOUT_MS = 600_000  # a wait on the page gives up after this (software WebGL on a loaded machine is slow)
+
+
+def summary(result: dict) -> list[dict]:
+    """The waits of one session: open, τ preview and exact result, mesh; with the counts sent."""
+    return [{"scene": result["scene"], "points (sent)": f"{result['run_points']:,} ({result['sent_points']:,})",
+             "open s": result["open_ready_s"], "τ preview s": result["tau_preview_s"],
+             "τ exact s": result["tau_exact_s"], "mesh shown s": result["mesh_shown_s"],
+             "mesh triangles (sent)": f"{result['mesh_triangles']:,} ({result['mesh_sent_triangles']:,})"}]
+
+
+def _deepc(*args: str) -> None:
+    """``deepc ARGS`` in a child process (its output discarded unless it fails)."""
+    done = subprocess.run([sys.executable, "-m", "workbench.cli", *args], capture_output=True, text=True,
+                          cwd=bench.REPO_ROOT)
+    if done.returncode != 0:
+        raise SystemExit(f"deepc {' '.join(args)} failed:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
+
+
+def prepare_run(scene: Path, run: Path | None) -> Path:
+    """The run folder to view: ``run``, else a fast headless run of ``scene``; meshed (Poisson) if not yet."""
+    if run is None:
+        run = Path(tempfile.mkdtemp(prefix="bench-viewer-budget-")) / scene.name
+        _deepc("run", str(scene), "--pipeline", "fast", "--headless", "--out", str(run))
+    if not (run / "mesh.ply").is_file():
+        _deepc("mesh", str(run))
+    return run
+
+
+def _since(start: float) -> float:
+    return round(time.perf_counter() - start, 3)
+
+
+def measure(run: Path, tau: float) -> dict:
+    """One viewer session on ``run`` in one chromium page: the waits of :data:`SCHEMA`."""
+    from workbench.viewer.app import POINT_BUDGET, ViewerApp
+    from workbench.viewer.session import ViewerSession
+
+    record: dict = {"point_budget": POINT_BUDGET}
+    quiet = io.StringIO()
+    with chromium(timeout_ms=PAGE_TIMEOUT_MS) as context:
+        start = time.perf_counter()
+        with contextlib.redirect_stdout(quiet):
+            app = ViewerApp(ViewerSession.open(run), port=0)
+        try:
+            page = context.new_page()
+            page.goto(f"http://127.0.0.1:{app.port}/")
+            page.get_by_text("Connected").wait_for()
+            page.get_by_text("· exact").first.wait_for()
+            page.get_by_text(re.compile("whole cloud sent|points sent")).first.wait_for()  # the budget note
+            record["open_ready_s"] = _since(start)
+            app.wait_idle(PAGE_TIMEOUT_MS / 1000)
+            dismiss_software_webgl_notice(page)
+            record["run_points"] = len(app.cloud)
+            record["sent_points"] = int(app.cloud_handle.points.shape[0])
+
+            record["tau_from"] = float(app.fused_confidence_tau.value)
+            record["tau_to"] = tau
+            start = time.perf_counter()
+            app.fused_confidence_tau.value = tau  # as a browser's change arrives: runs the callbacks
+            page.get_by_text("exact result follows").first.wait_for()
+            record["tau_preview_s"] = _since(start)
+            page.get_by_text("· exact").first.wait_for()
+            record["tau_exact_s"] = _since(start)
+            record["tau_exact_points"] = len(app.cloud)
+
+            panel = app.mesh_panel
+            page.get_by_text("Mesh", exact=True).first.dispatch_event("click")  # open the folder
+            start = time.perf_counter()
+            panel.show.value = "mesh"
+            page.get_by_text("triangles, ").first.wait_for()  # "N triangles, M sent (decimated)" / ", all sent"
+            record["mesh_shown_s"] = _since(start)
+            page.locator("canvas").first.screenshot(timeout=PAGE_TIMEOUT_MS)
+            record["mesh_frame_s"] = _since(start)
+            record["mesh_triangles"] = len(panel.mesh)
+            record["triangle_budget"] = panel.budget()
+            record["mesh_sent_triangles"] = len(panel.sent.shown)
+            page.close()
+        finally:
+            with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+                app.stop()
+    return record
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", type=Path, default=bench.REPO_ROOT / "sample_scenes" / "small",
+                        help="scene to run when --run is not given (default: sample_scenes/small)")
+    parser.add_argument("--run", type=Path, default=None,
+                        help="an existing deepc run folder to view instead (meshed first if it has no mesh.ply)")
+    parser.add_argument("--tau", type=float, default=0.3,
+                        help="confidence threshold to change to (default 0.3; the fast run's own is 0.1)")
+    parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
+    args = parser.parse_args()
+    run = prepare_run(args.scene, args.run)
+    record = {"scene": args.scene.name if args.run is None else run.name, **measure(run, args.tau),
+              "load_average_1min": os.getloadavg()[0], "cpus": os.cpu_count()}
+    bench.print_table(summary(record))
+    print(f"wrote {bench.write_result(record, args.out)}")
+
+
+if __name__ == "__main__":
+    main()
