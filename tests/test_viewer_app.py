@@ -83,6 +83,12 @@ def test_large_clouds_are_sent_voxel_thinned_but_scored_and_exported_whole(app):
     assert f"{sent:,} of {total:,} points sent" in app.budget_note.content and "thinned" in app.budget_note.content
     assert f"**{total:,} points** ({sent:,} sent, thinned)" in app.metrics.content
     assert len(read_ply(app.export_ply("whole"))["x"]) == total
+    shown = app.cloud
+    app.cloud = shown.subset(np.arange(10))  # as while a preview (a thinned mask of the base cloud) is shown
+    try:
+        assert len(read_ply(app.export_ply("during_preview"))["x"]) == total  # the export is the exact cloud
+    finally:
+        app.cloud = shown
     app.point_budget.value = POINT_BUDGET
     assert app.wait_idle(60)
     wait_for(lambda: app.cloud_handle.points.shape[0] == total)

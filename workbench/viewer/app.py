@@ -392,21 +392,30 @@ class ViewerApp(ControlPanel):
         base = self.session.out_dir or Path.cwd()
         return base / "exports"
 
+    def whole_cloud(self) -> FusedCloud | None:
+        """The whole exact cloud of the setting shown (None before any): what is shown may be a preview, a thinned
+        mask of the base cloud, so the exact one is taken from the session (computed there if not yet)."""
+        if self.cloud is None or self.cloud_params is None:
+            return self.cloud
+        return self.session.cloud(self.cloud_params)
+
     def export_ply(self, name: str | None = None) -> Path | None:
-        """Write the current cloud to OUT/exports/<sanitised name>.ply."""
-        if self.cloud is None:
+        """Write the current setting's whole cloud to OUT/exports/<sanitised name>.ply."""
+        cloud = self.whole_cloud()
+        if cloud is None:
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".ply")
-        write_cloud_ply(path, self.cloud)
-        self.export_status.content = f"wrote `{path}` ({len(self.cloud):,} points)"
+        write_cloud_ply(path, cloud)
+        self.export_status.content = f"wrote `{path}` ({len(cloud):,} points)"
         return path
 
     def save_rrd(self, name: str | None = None) -> Path | None:
-        """Save cameras, the selected view's maps and the current cloud as OUT/exports/<name>.rrd."""
-        if self.cloud is None:
+        """Save cameras, the selected view's maps and the current setting's whole cloud as OUT/exports/<name>.rrd."""
+        cloud = self.whole_cloud()
+        if cloud is None:
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
-        write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, self.cloud_point_size(),
+        write_state_rrd(path, self.session.scene, cloud, self.cloud_params, self.cloud_point_size(),
                         self.selected_view,
                         {k.replace(" ", "_"): image for k, (image, _) in
                          self.session.view_maps(self.selected_view, self.cloud_params).items()})
