@@ -192,9 +192,14 @@ def test_viewer_shows_the_runs_mesh_and_meshes_the_tuned_cloud_on_request(tmp_pa
 
 @pytest.mark.browser
 @pytest.mark.timeout(300)
-def test_viewer_mesh_toggle_in_the_browser(tmp_path, browser_context):
+def test_viewer_mesh_toggle_in_the_browser(tmp_path, browser_context, monkeypatch):
     from conftest import running_viewer, wait_for
 
+    import workbench.viewer.app as viewer_module
+
+    # a page of 20 000 points renders a frame well within a click's wait in software WebGL on a loaded machine
+    # (tiny's whole cloud timed the clicks out at 30 s)
+    monkeypatch.setattr(viewer_module, "POINT_BUDGET", 20_000)
     run = make_fake_run(SAMPLES / "tiny", tmp_path / "run")
     with running_viewer(run) as app:
         page = browser_context.new_page()
