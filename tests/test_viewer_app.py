@@ -80,7 +80,7 @@ def test_large_clouds_are_sent_voxel_thinned_but_scored_and_exported_whole(app):
     xyz = np.asarray(app.cloud.xyz, np.float64)
     keys = voxel_keys(xyz, xyz.min(axis=0), voxel)
     assert len(np.unique(keys)) == sent
-    assert f"{sent:,} of {total:,} points sent" in app.budget_note.content and "thinned" in app.budget_note.content
+    assert f"{sent:,} sent of {total:,}" in app.budget_note.content and "thinned" in app.budget_note.content
     assert f"**{total:,} points** ({sent:,} sent, thinned)" in app.metrics.content
     assert len(read_ply(app.export_ply("whole"))["x"]) == total
     shown = app.cloud

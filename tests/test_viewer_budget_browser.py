@@ -49,7 +49,7 @@ def test_a_cloud_over_the_budget_is_sent_thinned_and_the_page_says_so(browser_co
     try:
         sent = _sent_points(app)
         assert 0 < sent <= SMALL_BUDGET
-        page.get_by_text(f"{sent:,} of {total:,} points sent").wait_for()
+        page.get_by_text(f"{sent:,} sent of {total:,}").wait_for()
         page.get_by_text("cloud thinned").first.wait_for()
         page.get_by_text(f"{total:,} points ({sent:,} sent, thinned)").wait_for()
 
@@ -58,13 +58,13 @@ def test_a_cloud_over_the_budget_is_sent_thinned_and_the_page_says_so(browser_co
         wait_for(lambda: int(app.point_budget.value) == 40_000 and app.wait_idle(1)
                  and SMALL_BUDGET < _sent_points(app) <= 40_000, timeout=120)
         more = _sent_points(app)
-        page.get_by_text(f"{more:,} of {total:,} points sent").wait_for()
+        page.get_by_text(f"{more:,} sent of {total:,}").wait_for()
         assert len(app.cloud) == total  # the whole cloud stays for the scores and exports
 
         # a budget above the cloud: all of it is sent
         _element(page, app.point_budget).fill(str(total + 1000))
         wait_for(lambda: app.wait_idle(1) and _sent_points(app) == total, timeout=120)
-        page.get_by_text(f"whole cloud sent: {total:,} points").wait_for()
+        page.get_by_text(f"whole cloud sent: all {total:,}").wait_for()
     finally:
         page.close()
 

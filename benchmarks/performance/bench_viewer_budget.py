@@ -11,7 +11,8 @@ measured once, wall clock in this process:
 - ``open_ready_s``: from opening the session to the page showing the first exact cloud's metrics and what was sent
   (its budget note); the page is loaded while the viewer computes, as a user's would be;
 - ``tau_preview_s`` / ``tau_exact_s``: from a change of the confidence threshold (to ``--tau``, a value not shown
-  before) until the page shows the preview, then the exact result;
+  before) until the page shows the preview, then the exact result (noted in the page by a MutationObserver, so a
+  preview shown briefly still counts);
 - ``mesh_shown_s``: from choosing Show "mesh" until the page says the (decimated) mesh was sent, and
   ``mesh_frame_s`` until a screenshot of the 3-D canvas after it (one frame rendered with the mesh).
 
@@ -46,7 +47,7 @@ SCHEMA = {"scene": str, "run_points": int, "point_budget": int, "sent_points": i
           "tau_exact_points": int, "mesh_triangles": int, "triangle_budget": int, "mesh_sent_triangles": int,
           "mesh_shown_s": float, "mesh_frame_s": float, "load_average_1min": float, "cpus": int}
 
-PAGE_TIMEOUT_MS = 600_000  # a wait on the page gives up after this (software WebGL on a loaded machine is slow)
+PAGE_TIMEOUT_MS = 300_000  # a wait on the page gives up after this (software WebGL on a loaded machine is slow)
 
 
 def summary(result: dict) -> list[dict]:
@@ -79,6 +80,32 @@ def _since(start: float) -> float:
     return round(time.perf_counter() - start, 3)
 
 
+# In the page: a MutationObserver notes (performance.now(), ms) when the page's text first holds a watched text,
+# so a state shown briefly (a preview the exact result replaces at once) is never missed by polling.
+WATCHER = """() => {
+  window.__marks = {}; window.__watches = [];
+  const check = () => {
+    const text = document.body.textContent;
+    for (const w of window.__watches) {
+      if (window.__marks[w.name] !== undefined || (w.after && window.__marks[w.after] === undefined)) continue;
+      if (text.includes(w.text) && !(w.absent && text.includes(w.absent))) window.__marks[w.name] = performance.now();
+    }
+  };
+  new MutationObserver(check).observe(document.body, {subtree: true, childList: true, characterData: true});
+}"""
+
+
+def _watch(page, *watches: dict) -> float:
+    """Start watching for ``watches`` ({name, text, absent?, after?}); returns the page's clock now (ms)."""
+    return page.evaluate("w => { window.__watches.push(...w); return performance.now(); }", list(watches))
+
+
+def _seconds_to(page, name: str, start_ms: float) -> float:
+    """Seconds from ``start_ms`` (page clock) until the watch ``name`` was met; waits for it (with a timeout)."""
+    page.wait_for_function("n => window.__marks[n] !== undefined", arg=name, timeout=PAGE_TIMEOUT_MS)
+    return round((page.evaluate("n => window.__marks[n]", name) - start_ms) / 1000, 3)
+
+
 def measure(run: Path, tau: float) -> dict:
     """One viewer session on ``run`` in one chromium page: the waits of :data:`SCHEMA`."""
     from workbench.viewer.app import POINT_BUDGET, ViewerApp
@@ -95,29 +122,32 @@ def measure(run: Path, tau: float) -> dict:
             page.goto(f"http://127.0.0.1:{app.port}/")
             page.get_by_text("Connected").wait_for()
             page.get_by_text("· exact").first.wait_for()
-            page.get_by_text(re.compile("whole cloud sent|points sent")).first.wait_for()  # the budget note
+            page.get_by_text(re.compile("whole cloud sent|cloud thinned")).first.wait_for()  # the budget note
             record["open_ready_s"] = _since(start)
             app.wait_idle(PAGE_TIMEOUT_MS / 1000)
             dismiss_software_webgl_notice(page)
+            page.evaluate(WATCHER)
             record["run_points"] = len(app.cloud)
             record["sent_points"] = int(app.cloud_handle.points.shape[0])
 
             record["tau_from"] = float(app.fused_confidence_tau.value)
             record["tau_to"] = tau
-            start = time.perf_counter()
+            start_ms = _watch(page, {"name": "preview", "text": "exact result follows"},
+                              {"name": "exact", "text": "· exact", "absent": "exact result follows",
+                               "after": "preview"})
             app.fused_confidence_tau.value = tau  # as a browser's change arrives: runs the callbacks
-            page.get_by_text("exact result follows").first.wait_for()
-            record["tau_preview_s"] = _since(start)
-            page.get_by_text("· exact").first.wait_for()
-            record["tau_exact_s"] = _since(start)
+            record["tau_preview_s"] = _seconds_to(page, "preview", start_ms)
+            record["tau_exact_s"] = _seconds_to(page, "exact", start_ms)
+            app.wait_idle(PAGE_TIMEOUT_MS / 1000)
             record["tau_exact_points"] = len(app.cloud)
 
             panel = app.mesh_panel
             page.get_by_text("Mesh", exact=True).first.dispatch_event("click")  # open the folder
+            # "N triangles, M sent (decimated)" or "N triangles, all sent"
+            start_ms = _watch(page, {"name": "mesh", "text": "triangles, "})
             start = time.perf_counter()
             panel.show.value = "mesh"
-            page.get_by_text("triangles, ").first.wait_for()  # "N triangles, M sent (decimated)" / ", all sent"
-            record["mesh_shown_s"] = _since(start)
+            record["mesh_shown_s"] = _seconds_to(page, "mesh", start_ms)
             page.locator("canvas").first.screenshot(timeout=PAGE_TIMEOUT_MS)
             record["mesh_frame_s"] = _since(start)
             record["mesh_triangles"] = len(panel.mesh)

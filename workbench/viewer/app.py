@@ -65,10 +65,11 @@ EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user w
 def thinned_note(total: int, sent: int, voxel: float, budget: int) -> str:
     """What the browser got of a cloud of ``total`` points: all of them, or ``sent`` thinned to one per voxel of
     edge ``voxel`` (model units, metres: shown in mm) under the point budget."""
+    # (the metrics above say "N points": the note does not repeat it, a page has one "N points" text)
     if sent >= total:
-        return f"whole cloud sent: {total:,} points (point budget {budget:,})"
-    return (f"**cloud thinned** for the browser: {sent:,} of {total:,} points sent, one per {voxel * 1000:.3g} mm "
-            f"voxel (point budget {budget:,}); scores, export and mesh use every point")
+        return f"whole cloud sent: all {total:,} (point budget {budget:,})"
+    return (f"**cloud thinned** for the browser: {sent:,} sent of {total:,}, one per {voxel * 1000:.3g} mm voxel "
+            f"(point budget {budget:,}); scores, export and mesh use every point")
 
 
 def set_home_camera(server: viser.ViserServer, scene: Scene) -> None:
@@ -251,14 +252,14 @@ class ViewerApp(ControlPanel):
         scheduler's quiet time): while a slider is being dragged the previews answer, and an exact result for
         a value already left behind would only take the CPU from them."""
         base = self.session.base_cloud(params)  # makes later previews possible
-        if len(base) > self.budget():
-            self._thinning(base, self.budget())  # ...and their thinning a linear pass
         cloud = self.session.cloud(params)
         if not self._scheduler.is_current(generation):
             return  # a newer request is queued: skip the stale push
         if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
             self._show(cloud, params, preview=False, generation=generation)
         self._refresh_view_latest()
+        if len(base) > self.budget():  # after the exact cloud is shown: it must not wait on this
+            self._thinning(base, self.budget())  # previews then thin in a linear pass
         scores = self.session.evaluate(params, cloud)
         if self._scheduler.is_current(generation):
             self._show_scores(cloud, params, scores)
