@@ -183,7 +183,11 @@ class MeshPanel:
         rgba = np.concatenate([colors, np.full((len(colors), 1), 255, np.uint8)], axis=1)
         surface = trimesh.Trimesh(np.asarray(shown.vertices, np.float32), np.asarray(shown.triangles, np.int64),
                                   vertex_normals=shown.vertex_normals, vertex_colors=rgba, process=False)
-        handle = self.app.server.scene.add_mesh_trimesh("/mesh", surface, visible=False)
+        # no shadows: in software WebGL they cost most of a frame (tiny's Poisson mesh at 200 000 triangles, a
+        # canvas screenshot 48 s with viser's default shadows, 3.7 s without, once on a busy machine; not kept in
+        # a result file)
+        handle = self.app.server.scene.add_mesh_trimesh("/mesh", surface, visible=False, cast_shadow=False,
+                                                        receive_shadow=False)
         self.sent = SentMesh(mesh, budget, shown, handle)
         reduced = f", {len(shown):,} sent (decimated)" if len(shown) < len(mesh) else ", all sent"
         self.status.content = f"**mesh:** {len(mesh):,} triangles{reduced} · {self.label}"
