@@ -56,6 +56,7 @@ THUMBNAIL = 160  # longest side of the images sent with the frustums
 # points took 7-22 s a change in chromium's software WebGL, tiny's 77 k 0.15 s (issue 47; docs/decisions.md,
 # "Viewer: at most 200 000 points and 200 000 triangles to the browser").
 POINT_BUDGET = 200_000
+MIN_POINT_BUDGET = 1_000  # the control's minimum
 THIN_CACHE = 4  # voxel grids kept (the base clouds previews mask and the exact cloud shown)
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
@@ -128,7 +129,7 @@ class ViewerApp(ControlPanel):
         """``server``: an already running viser server to take over (the live viewer of ``deepc run``, whose
         clients stay connected and keep their camera); without it the app starts its own on host:port."""
         self.session = session
-        self.point_budget_default = POINT_BUDGET
+        self.point_budget_default, self.point_budget_min = POINT_BUDGET, MIN_POINT_BUDGET
         own_server = server is None
         self.server = viser.ViserServer(host=host, port=port, verbose=verbose) if server is None else server
         self.port = self.server.get_port()
@@ -209,8 +210,9 @@ class ViewerApp(ControlPanel):
                    generation=generation, voxel=0.0 if thinning is None else thinning.voxel)
 
     def budget(self) -> int:
-        """The point budget control's value: the most points sent to the browser."""
-        return max(1, int(self.point_budget.value))
+        """The point budget control's value: the most points sent to the browser (a value typed below the
+        control's minimum counts as the minimum: a digit on its way to a larger number must not thin to one)."""
+        return max(MIN_POINT_BUDGET, int(self.point_budget.value))
 
     def _thinning(self, cloud: FusedCloud, budget: int) -> VoxelThinning:
         """The voxel grid of ``cloud`` for ``budget`` points, cached for the newest THIN_CACHE clouds."""

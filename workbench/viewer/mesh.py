@@ -31,6 +31,7 @@ SHOW = ("cloud", "mesh", "cloud + mesh")
 # colours of about half as many vertices), a sixth of sample small's Poisson mesh (docs/decisions.md, "Viewer: at
 # most 200 000 points and 200 000 triangles ...").
 TRIANGLE_BUDGET = 200_000
+MIN_TRIANGLE_BUDGET = 1_000  # the control's minimum
 SCORED_TOLERANCES = (0.02, 0.05)  # the mesh scores the Metrics folder shows (as deepc mesh prints them)
 
 
@@ -74,7 +75,7 @@ class MeshPanel:
             self.show = gui.add_dropdown("Show", options=SHOW, initial_value="cloud", disabled=True,
                                          hint="no mesh yet: make one below, or run deepc mesh on the run")
             self.triangle_budget = gui.add_number("Triangle budget (triangles)", initial_value=TRIANGLE_BUDGET,
-                                                  min=1_000, max=10_000_000, step=1_000,
+                                                  min=MIN_TRIANGLE_BUDGET, max=10_000_000, step=1_000,
                                                   hint="most triangles sent to the browser (quadric decimation); "
                                                        "default from docs/decisions.md (software WebGL)")
             self.method = gui.add_dropdown("Method", options=("poisson", "tsdf"), initial_value="poisson",
@@ -107,8 +108,8 @@ class MeshPanel:
         return None if sent is None else sent.handle
 
     def budget(self) -> int:
-        """The triangle budget control's value."""
-        return max(1, int(self.triangle_budget.value))
+        """The triangle budget control's value (at least its minimum, as the point budget's)."""
+        return max(MIN_TRIANGLE_BUDGET, int(self.triangle_budget.value))
 
     def request(self, method: str) -> None:
         """Mesh the cloud shown now (its exact result) with ``method`` in the worker; a newer request wins."""

@@ -90,6 +90,7 @@ class ControlPanel:
     session: ViewerSession
     default_point_size: float
     point_budget_default: int  # the Point budget control's initial value (app.POINT_BUDGET)
+    point_budget_min: int  # ...and its minimum (app.MIN_POINT_BUDGET)
 
     def _build_gui(self) -> None:
         gui = self.server.gui
@@ -155,7 +156,7 @@ class ControlPanel:
             self.color_legend = gui.add_html(s.cloud_legend("rgb"))
             self.color_notes = gui.add_markdown("  \n".join(f"*{m}* {r}" for m, r in modes.items() if r))
             self.point_budget = gui.add_number("Point budget (points)", initial_value=self.point_budget_default,
-                                               min=1_000, max=10_000_000, step=1_000,
+                                               min=self.point_budget_min, max=10_000_000, step=1_000,
                                                hint="most points sent to the browser; above it the cloud is "
                                                     "thinned to one point per voxel; default from "
                                                     "docs/decisions.md (software WebGL)")
