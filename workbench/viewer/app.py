@@ -295,7 +295,7 @@ class ViewerApp(ControlPanel):
         return text
 
     def _sent_note(self, cloud: FusedCloud) -> str:
-        """" (N sent)" when the browser got a thinned ``cloud``."""
+        """The metrics' " (N sent, thinned)" when the browser got ``cloud`` thinned, else ""."""
         sent = self._sent
         return f" ({sent[1]:,} sent, thinned)" if sent is not None and sent[0] is cloud and sent[1] < len(cloud) \
             else ""
