@@ -12,7 +12,8 @@ measured once, wall clock in this process:
   (its budget note); the page is loaded while the viewer computes, as a user's would be;
 - ``tau_preview_s`` / ``tau_exact_s``: from a change of the confidence threshold (to ``--tau``, a value not shown
   before) until the page shows the preview, then the exact result (noted in the page by a MutationObserver, so a
-  preview shown briefly still counts);
+  preview shown briefly still counts; when the exact result comes first no preview shows and
+  ``tau_preview_shown`` is false);
 - ``mesh_shown_s``: from choosing Show "mesh" until the page says the (decimated) mesh was sent, and
   ``mesh_frame_s`` until a screenshot of the 3-D canvas after it (one frame rendered with the mesh).
 
@@ -43,7 +44,7 @@ WEIGHTS = ("deepc_middle.pt",)
 # Top-level keys of this script's result JSON and their types (support/schema.py); the harness adds its own
 # (script, argv, git, dirty, environment, inputs).
 SCHEMA = {"scene": str, "run_points": int, "point_budget": int, "sent_points": int, "open_ready_s": float,
-          "tau_from": float, "tau_to": float, "tau_preview_s": float, "tau_exact_s": float,
+          "tau_from": float, "tau_to": float, "tau_preview_shown": bool, "tau_preview_s?": float, "tau_exact_s": float,
           "tau_exact_points": int, "mesh_triangles": int, "triangle_budget": int, "mesh_sent_triangles": int,
           "mesh_shown_s": float, "mesh_frame_s": float, "load_average_1min": float, "cpus": int}
 
@@ -53,7 +54,7 @@ PAGE_TIMEOUT_MS = 300_000  # a wait on the page gives up after this (software We
 def summary(result: dict) -> list[dict]:
     """The waits of one session: open, τ preview and exact result, mesh; with the counts sent."""
     return [{"scene": result["scene"], "points (sent)": f"{result['run_points']:,} ({result['sent_points']:,})",
-             "open s": result["open_ready_s"], "τ preview s": result["tau_preview_s"],
+             "open s": result["open_ready_s"], "τ preview s": result.get("tau_preview_s"),
              "τ exact s": result["tau_exact_s"], "mesh shown s": result["mesh_shown_s"],
              "mesh triangles (sent)": f"{result['mesh_triangles']:,} ({result['mesh_sent_triangles']:,})"}]
 
@@ -81,22 +82,25 @@ def _since(start: float) -> float:
 
 
 # In the page: a MutationObserver notes (performance.now(), ms) when the page's text first holds a watched text,
-# so a state shown briefly (a preview the exact result replaces at once) is never missed by polling.
-WATCHER = """() => {
-  window.__marks = {}; window.__watches = [];
+# and logs every change of what the metrics show ("preview", or the exact result's point count "75,047"), so a
+# state shown briefly (a preview the exact result replaces at once) is never missed by polling.
+WATCHER = r"""() => {
+  window.__marks = {}; window.__watches = []; window.__log = []; let last = null;
   const check = () => {
     const text = document.body.textContent;
     for (const w of window.__watches) {
-      if (window.__marks[w.name] !== undefined || (w.after && window.__marks[w.after] === undefined)) continue;
-      if (text.includes(w.text) && !(w.absent && text.includes(w.absent))) window.__marks[w.name] = performance.now();
+      if (window.__marks[w.name] === undefined && text.includes(w.text)) window.__marks[w.name] = performance.now();
     }
+    const exact = text.match(/([\d,]+) points(?: \([^)]*\))? · exact/);
+    const state = text.includes("exact result follows") ? "preview" : (exact ? exact[1] : null);
+    if (state !== last) { last = state; window.__log.push([performance.now(), state]); }
   };
   new MutationObserver(check).observe(document.body, {subtree: true, childList: true, characterData: true});
 }"""
 
 
 def _watch(page, *watches: dict) -> float:
-    """Start watching for ``watches`` ({name, text, absent?, after?}); returns the page's clock now (ms)."""
+    """Start watching for ``watches`` ({name, text}); returns the page's clock now (ms)."""
     return page.evaluate("w => { window.__watches.push(...w); return performance.now(); }", list(watches))
 
 
@@ -132,14 +136,21 @@ def measure(run: Path, tau: float) -> dict:
 
             record["tau_from"] = float(app.fused_confidence_tau.value)
             record["tau_to"] = tau
-            start_ms = _watch(page, {"name": "preview", "text": "exact result follows"},
-                              {"name": "exact", "text": "· exact", "absent": "exact result follows",
-                               "after": "preview"})
+            start_ms = _watch(page)
             app.fused_confidence_tau.value = tau  # as a browser's change arrives: runs the callbacks
-            record["tau_preview_s"] = _seconds_to(page, "preview", start_ms)
-            record["tau_exact_s"] = _seconds_to(page, "exact", start_ms)
             app.wait_idle(PAGE_TIMEOUT_MS / 1000)
+            count = f"{len(app.cloud):,}"
             record["tau_exact_points"] = len(app.cloud)
+            page.wait_for_function("n => window.__log.some(e => e[1] === n)", arg=count, timeout=PAGE_TIMEOUT_MS)
+            log = [(t, state) for t, state in page.evaluate("window.__log") if t > start_ms]
+            exact_ms = next(t for t, state in log if state == count)
+            preview_ms = next((t for t, state in log if state == "preview" and t < exact_ms), None)
+            # a preview that waited for the previous cloud to reach the page may find the exact result done: then
+            # the exact result is the first answer and no preview shows
+            record["tau_preview_shown"] = preview_ms is not None
+            if preview_ms is not None:
+                record["tau_preview_s"] = round((preview_ms - start_ms) / 1000, 3)
+            record["tau_exact_s"] = round((exact_ms - start_ms) / 1000, 3)
 
             panel = app.mesh_panel
             page.get_by_text("Mesh", exact=True).first.dispatch_event("click")  # open the folder
