@@ -104,6 +104,15 @@ def running_viewer(run_dir: Path):
         viewer.stop()
 
 
+def open_page(context, app):
+    """A browser page on ``app``'s viewer, once the server sees its client and the page says Connected."""
+    page = context.new_page()
+    page.goto(f"http://127.0.0.1:{app.port}/")
+    wait_for(lambda: len(app.server.get_clients()) > 0)
+    page.get_by_text("Connected").wait_for()
+    return page
+
+
 def wait_for(predicate, timeout: float = 30.0, interval: float = 0.05):
     """Poll ``predicate`` until it is truthy; fail the test after ``timeout`` seconds."""
     import time

@@ -167,22 +167,41 @@ def test_viewer_shows_the_runs_mesh_and_meshes_the_tuned_cloud_on_request(tmp_pa
         assert panel.show.disabled and panel.handle is None  # nothing to show before a mesh exists
         panel.method.value = "tsdf"
         panel.request("tsdf")
-        wait_for(lambda: panel.mesh is not None, timeout=120)
-        assert panel.show.value == "cloud + mesh" and panel.handle.visible and app.cloud_handle.visible
+        wait_for(lambda: panel.mesh is not None and panel.handle is not None and panel.handle.visible, timeout=120)
+        assert panel.show.value == "cloud + mesh" and app.cloud_handle.visible
         assert "triangles" in panel.status.content and "tsdf of the current cloud" in panel.status.content
+        legend = panel.legend.content
+        assert "distance of its vertices to the nearest GT point" in legend and " cm" in legend
+        # the mesh's own scores, as deepc mesh takes them, in the Metrics folder
+        wait_for(lambda: "F1" in app.mesh_metrics.content and "at 2 cm" in app.mesh_metrics.content, timeout=120)
         panel.show.value = "mesh"
         assert panel.handle.visible and not app.cloud_handle.visible
     write_mesh_ply(run / "mesh.ply", panel.mesh)
-    with running_viewer(run) as app:  # a run meshed before opens with its mesh available
-        assert app.mesh_panel.mesh is not None and "the run's mesh.ply" in app.mesh_panel.status.content
-        assert not app.mesh_panel.show.disabled and app.mesh_panel.show.value == "cloud"
+    with running_viewer(run) as app:  # a run meshed before opens with its mesh available, not yet sent
+        panel = app.mesh_panel
+        assert panel.mesh is None and panel.handle is None and "the run's mesh.ply" in panel.status.content
+        assert not panel.show.disabled and panel.show.value == "cloud"
+        from workbench.viewer.mesh import MIN_TRIANGLE_BUDGET
+
+        budget = max(MIN_TRIANGLE_BUDGET, len(read_mesh(run / "mesh.ply")) // 3)
+        panel.triangle_budget.value = budget
+        panel.show.value = "mesh"  # now it is read, decimated and sent
+        wait_for(lambda: panel.handle is not None and panel.handle.visible, timeout=120)
+        assert 0 < panel.glb_triangles() <= budget and len(panel.sent.shown) <= budget
+        assert len(panel.mesh) > budget and "sent (decimated)" in panel.status.content
+        wait_for(lambda: "F1" in app.mesh_metrics.content, timeout=120)
 
 
 @pytest.mark.browser
 @pytest.mark.timeout(300)
-def test_viewer_mesh_toggle_in_the_browser(tmp_path, browser_context):
+def test_viewer_mesh_toggle_in_the_browser(tmp_path, browser_context, monkeypatch):
     from conftest import running_viewer, wait_for
 
+    import workbench.viewer.app as viewer_module
+
+    # a page of 20 000 points renders a frame well within a click's wait in software WebGL on a loaded machine
+    # (tiny's whole cloud timed the clicks out at 30 s)
+    monkeypatch.setattr(viewer_module, "POINT_BUDGET", 20_000)
     run = make_fake_run(SAMPLES / "tiny", tmp_path / "run")
     with running_viewer(run) as app:
         page = browser_context.new_page()
@@ -190,10 +209,28 @@ def test_viewer_mesh_toggle_in_the_browser(tmp_path, browser_context):
             page.goto(f"http://127.0.0.1:{app.port}/")
             wait_for(lambda: len(app.server.get_clients()) > 0)
             page.get_by_text("Connected").wait_for()
-            page.get_by_text("Mesh", exact=True).first.click()  # open the folder
+            # open the folder by its label's click handler: a real click waits on animation frames, seconds each
+            # in software WebGL on a loaded machine (it timed out at 30 s on main too)
+            page.get_by_text("Mesh", exact=True).first.dispatch_event("click")
             page.get_by_role("button", name="Mesh the current cloud").click()
             page.get_by_text("of the current cloud").wait_for(timeout=120_000)
             wait_for(lambda: app.mesh_panel.handle is not None and app.mesh_panel.handle.visible)
             assert app.mesh_panel.show.value == "cloud + mesh"
         finally:
             page.close()
+
+
+def test_decimate_keeps_a_mesh_within_its_triangle_budget():
+    import open3d as o3d
+
+    from engine.meshing import decimate
+
+    sphere = TriangleMesh.from_open3d(o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=40))
+    small = decimate(sphere, 500)
+    assert 0 < len(small) <= 500 < len(sphere)
+    assert small.vertex_colors.shape == (len(small.vertices), 3) and small.vertex_colors.dtype == np.uint8
+    radius = np.linalg.norm(small.vertices, axis=1)
+    assert np.all(np.abs(radius - 1) < 0.1)  # still the sphere, not a few scattered triangles
+    assert decimate(sphere, len(sphere)) is sphere  # within the budget: the mesh itself
+    with pytest.raises(DeepCError):
+        decimate(sphere, 0)

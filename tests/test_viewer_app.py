@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
-from conftest import running_viewer
+from conftest import running_viewer, wait_for
 
 from engine.io.ply import read_ply
 
@@ -65,25 +63,36 @@ def test_fusion_preset_dropdown_sets_the_sliders_and_follows_them(app):
     assert len(app.cloud) == dense
 
 
-def test_large_clouds_are_drawn_thinned_but_scored_and_exported_whole(app, monkeypatch):
-    import workbench.viewer.app as viewer_module
+def test_large_clouds_are_sent_voxel_thinned_but_scored_and_exported_whole(app):
+    from engine.core.thinning import voxel_keys
+    from workbench.viewer.app import POINT_BUDGET
 
     assert app.wait_idle(60)
     total = len(app.cloud)
-    monkeypatch.setattr(viewer_module, "DISPLAY_MAX_POINTS", total // 4)
-    app.color_mode.value = "views"  # a redraw of the same exact cloud
+    budget = total // 4
+    app.point_budget.value = budget  # as if typed in the browser: runs the callbacks
     assert app.wait_idle(60)
-    deadline = time.monotonic() + 30
-    while app.cloud_handle.points.shape[0] != total // 4 and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert app.cloud_handle.points.shape == (total // 4, 3)
-    assert app.cloud_handle.colors.shape == (total // 4, 3)
-    assert len(app.cloud) == total and f"**{total:,} points** ({total // 4:,} drawn)" in app.metrics.content
-    np.testing.assert_array_equal(app.cloud_handle.points[[0, -1]], np.float32(app.cloud.xyz[[0, -1]]))
+    wait_for(lambda: app._sent is not None and app._sent[0] is app.cloud and app._sent[1] <= budget)
+    sent, voxel = app._sent[1], app._sent[2]
+    assert app.cloud_handle.points.shape == (sent, 3) and app.cloud_handle.colors.shape == (sent, 3)
+    assert budget // 2 <= sent <= budget and voxel > 0
+    # one point of the cloud per occupied voxel: every voxel of the whole cloud is there once
+    xyz = np.asarray(app.cloud.xyz, np.float64)
+    keys = voxel_keys(xyz, xyz.min(axis=0), voxel)
+    assert len(np.unique(keys)) == sent
+    assert f"{sent:,} sent of {total:,}" in app.budget_note.content and "thinned" in app.budget_note.content
+    assert f"**{total:,} points** ({sent:,} sent, thinned)" in app.metrics.content
     assert len(read_ply(app.export_ply("whole"))["x"]) == total
-    monkeypatch.undo()
-    app.color_mode.value = "rgb"
+    shown = app.cloud
+    app.cloud = shown.subset(np.arange(10))  # as while a preview (a thinned mask of the base cloud) is shown
+    try:
+        assert len(read_ply(app.export_ply("during_preview"))["x"]) == total  # the export is the exact cloud
+    finally:
+        app.cloud = shown
+    app.point_budget.value = POINT_BUDGET
     assert app.wait_idle(60)
+    wait_for(lambda: app.cloud_handle.points.shape[0] == total)
+    assert "whole cloud sent" in app.budget_note.content
 
 
 def test_exports_stay_inside_the_output_folder(app, fake_run):

@@ -9,7 +9,7 @@ import io
 
 import numpy as np
 import pytest
-from conftest import running_viewer, wait_for
+from conftest import open_page, running_viewer, wait_for
 from PIL import Image
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
@@ -19,14 +19,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.timeout(300)]
 def app(fake_run):
     with running_viewer(fake_run) as viewer:
         yield viewer
-
-
-def _open(context, app):
-    page = context.new_page()
-    page.goto(f"http://127.0.0.1:{app.port}/")
-    wait_for(lambda: len(app.server.get_clients()) > 0)
-    page.get_by_text("Connected").wait_for()
-    return page
 
 
 def _screenshot_is_not_blank(page) -> np.ndarray:
@@ -40,7 +32,7 @@ def _slider_thumb(page, handle):
 
 
 def test_cloud_renders_and_the_confidence_slider_updates_points_and_metrics(browser_context, app):
-    page = _open(browser_context, app)
+    page = open_page(browser_context, app)
     try:
         page.get_by_text("points").first.wait_for()
         _screenshot_is_not_blank(page)
@@ -70,7 +62,7 @@ def test_cloud_renders_and_the_confidence_slider_updates_points_and_metrics(brow
 
 
 def test_choosing_the_paper_fusion_preset_in_the_browser(browser_context, app):
-    page = _open(browser_context, app)
+    page = open_page(browser_context, app)
     try:
         page.get_by_text("points").first.wait_for()
         default = len(app.cloud)
@@ -85,7 +77,7 @@ def test_choosing_the_paper_fusion_preset_in_the_browser(browser_context, app):
 
 
 def test_clicking_a_camera_shows_its_maps(browser_context, app):
-    page = _open(browser_context, app)
+    page = open_page(browser_context, app)
     try:
         view = app.session.scene.views[3]
         cam = view.camera
@@ -105,7 +97,7 @@ def test_clicking_a_camera_shows_its_maps(browser_context, app):
 
 
 def test_two_tabs_share_one_session(browser_context, app):
-    first, second = _open(browser_context, app), _open(browser_context, app)
+    first, second = open_page(browser_context, app), open_page(browser_context, app)
     try:
         app.min_views.value = 5  # as if a user moved it: runs the callbacks
         assert app.wait_idle(60)
@@ -123,7 +115,7 @@ def test_a_new_page_opens_looking_through_the_first_camera(browser_context, app)
     scene = app.session.scene
     first = scene.views[0].camera
     depth = float(np.median([np.mean(v.depth_range) for v in scene.views]))
-    page = _open(browser_context, app)
+    page = open_page(browser_context, app)
     try:
         client = next(iter(app.server.get_clients().values()))
         home = first.center - first.R[2] * 0.2 * depth

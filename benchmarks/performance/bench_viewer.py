@@ -28,7 +28,7 @@ from engine.scene import SceneOptions
 from support import bench
 from support.fake_run import make_fake_run
 from support.viewer_clients import decode_frame
-from workbench.viewer.app import DISPLAY_MAX_POINTS, ViewerApp
+from workbench.viewer.app import POINT_BUDGET, ViewerApp
 from workbench.viewer.panel import preset_of
 from workbench.viewer.session import ViewerSession
 
@@ -144,7 +144,7 @@ def main() -> None:
                "preview_ms_max": 1000 * max(previews) if previews else None,
                "exact_s_median": statistics.median(exacts), "exact_s_max": max(exacts),
                "targets": {"preview_ms": 100, "exact_s": 2.0}, "fusion_preset": preset_of(app.params().fusion),
-               "display_max_points": DISPLAY_MAX_POINTS, "moves": results}
+               "display_max_points": POINT_BUDGET, "moves": results}  # (the point budget, under its old key)
     preview_text = (f"median {record['preview_ms_median']:.0f} ms, max {record['preview_ms_max']:.0f} ms"
                     if previews else "none arrived before the exact result")
     print(f"\npreview: {preview_text} (target 100 ms); exact: median {record['exact_s_median']:.2f} s, "

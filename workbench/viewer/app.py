@@ -13,6 +13,9 @@ setting. Controls that cannot act are disabled and say why, previews say they ar
 colour mode and map has a legend with its unit (``workbench/viewer/legends.py``), and the View folder shows
 the selected view's maps as the current pipeline and filters use them.
 
+The browser gets at most the point budget (Display folder, ``POINT_BUDGET`` by default): a larger cloud is sent
+voxel-thinned (``engine/core/thinning.py``) and a note says so; scores, exports and meshes use every point.
+
 The controls are declared in ``workbench/viewer/panel.py``, the newest-request-wins scheduling of previews
 and recomputations is ``workbench/viewer/scheduler.py``, the Export panel's files ``workbench/viewer/export.py`` and
 the pixel inspector with its region re-run ``workbench/viewer/inspector.py``.
@@ -33,6 +36,7 @@ import viser
 from viser.transforms import SO3
 
 from engine.core.errors import DeepCError
+from engine.core.thinning import VoxelThinning, voxel_thinning
 from engine.fusion import FusedCloud
 from engine.scene import Scene
 from workbench.maps.images import subsample
@@ -45,25 +49,29 @@ from workbench.viewer.scheduler import LatestOnly, RecomputeScheduler
 from workbench.viewer.session import ViewerSession, ViewParams, describe
 
 # preset_of is imported from here by benchmarks/bench_viewer.py
-__all__ = ["DISPLAY_MAX_POINTS", "ViewerApp", "preset_of", "serve"]
+__all__ = ["POINT_BUDGET", "ViewerApp", "preset_of", "serve"]
 
 THUMBNAIL = 160  # longest side of the images sent with the frustums
-PREVIEW_MAX_POINTS = 150_000  # previews are approximate anyway; the exact cloud follows
-# The exact cloud is scored and exported in full but drawn with at most this many points (an even stride):
-# a per-pixel cloud of fountain_p11 at 768 px has 3.4 M points, 50 MB a push to every tab.
-DISPLAY_MAX_POINTS = 1_000_000
+# The browser gets at most this many points (the Display folder's "Point budget" changes it): above it the cloud
+# is voxel-thinned (engine/core/thinning.py). Scores, exports and meshes use every point. Sample small's 458 k
+# points took 7-22 s a change in chromium's software WebGL, tiny's 77 k 0.15 s (issue 47; docs/decisions.md,
+# "Viewer: at most 200 000 points and 200 000 triangles to the browser").
+POINT_BUDGET = 200_000
+MIN_POINT_BUDGET = 1_000  # the control's minimum
+THIN_CACHE = 4  # voxel grids kept (the base clouds previews mask and the exact cloud shown)
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
 EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user who never lets go)
 
 
-def _even_stride(total: int, count: int) -> np.ndarray:
-    """(count,) int64 indices spread evenly over range(total): the cloud's shape and density pattern stay."""
-    return np.linspace(0, total - 1, count).astype(np.int64)
-
-
-def _shown_note(total: int) -> str:
-    return f" ({DISPLAY_MAX_POINTS:,} drawn)" if total > DISPLAY_MAX_POINTS else ""
+def thinned_note(total: int, sent: int, voxel: float, budget: int) -> str:
+    """What the browser got of a cloud of ``total`` points: all of them, or ``sent`` thinned to one per voxel of
+    edge ``voxel`` (model units, metres: shown in mm) under the point budget."""
+    # (the metrics above say "N points": the note does not repeat it, a page has one "N points" text)
+    if sent >= total:
+        return f"whole cloud sent: all {total:,} (point budget {budget:,})"
+    return (f"**cloud thinned** for the browser: {sent:,} sent of {total:,}, one per {voxel * 1000:.3g} mm voxel "
+            f"(point budget {budget:,}); scores, export and mesh use every point")
 
 
 def set_home_camera(server: viser.ViserServer, scene: Scene) -> None:
@@ -122,6 +130,7 @@ class ViewerApp(ControlPanel):
         """``server``: an already running viser server to take over (the live viewer of ``deepc run``, whose
         clients stay connected and keep their camera); without it the app starts its own on host:port."""
         self.session = session
+        self.point_budget_default, self.point_budget_min = POINT_BUDGET, MIN_POINT_BUDGET
         own_server = server is None
         self.server = viser.ViserServer(host=host, port=port, verbose=verbose) if server is None else server
         self.port = self.server.get_port()
@@ -138,6 +147,9 @@ class ViewerApp(ControlPanel):
         self._previous_scored: tuple | None = None  # ...and of the setting before it (the "previous" column)
         self._refresh_view_latest = LatestOnly(self._refresh_view)
         self._last_preview: tuple | None = None  # (params, point count) of the newest preview shown
+        self._thin_lock = threading.Lock()
+        self._thinnings: list[tuple[FusedCloud, int, VoxelThinning]] = []  # newest last, THIN_CACHE at most
+        self._sent: tuple | None = None  # (cloud, points sent, voxel) of the cloud drawn now
         # Previews run on their own thread: in viser's callback thread a preview that waits for the previous
         # cloud to leave would hold up the next events themselves.
         self._scheduler: RecomputeScheduler[ViewParams] = RecomputeScheduler(
@@ -187,13 +199,32 @@ class ViewerApp(ControlPanel):
             self.metrics.content = "**fusing…**  \nexact result follows"
             self.metrics_table.content = ""
             return
-        keep = np.flatnonzero(ViewerSession.preview_mask(base, params))
-        total = len(keep)
-        if total > PREVIEW_MAX_POINTS:
-            keep = keep[_even_stride(total, PREVIEW_MAX_POINTS)]
+        mask = ViewerSession.preview_mask(base, params)  # on the whole base cloud: its count is the preview's
+        total = int(np.count_nonzero(mask))
+        budget = self.budget()
+        # over the budget: the masked points of the base cloud's voxel grid (built once per base cloud by the
+        # exact worker), one per voxel; a linear pass, no search
+        thinning = self._thinning(base, budget) if total > budget else None
+        keep = np.flatnonzero(mask) if thinning is None else thinning.select(mask)
         colors = self._base_colors(base)[keep]
         self._show(base.subset(keep), params, preview=True, count=total, colors=colors, stale_fusion=not own,
-                   generation=generation)
+                   generation=generation, voxel=0.0 if thinning is None else thinning.voxel)
+
+    def budget(self) -> int:
+        """The point budget control's value: the most points sent to the browser (a value typed below the
+        control's minimum counts as the minimum: a digit on its way to a larger number must not thin to one)."""
+        return max(MIN_POINT_BUDGET, int(self.point_budget.value))
+
+    def _thinning(self, cloud: FusedCloud, budget: int) -> VoxelThinning:
+        """The voxel grid of ``cloud`` for ``budget`` points, cached for the newest THIN_CACHE clouds."""
+        with self._thin_lock:
+            for entry in self._thinnings:
+                if entry[0] is cloud and entry[1] == budget:
+                    return entry[2]
+        thinning = voxel_thinning(np.asarray(cloud.xyz), budget)  # (outside the lock: a search over sizes)
+        with self._thin_lock:
+            self._thinnings = [*self._thinnings, (cloud, budget, thinning)][-THIN_CACHE:]
+        return thinning
 
     def _base_colors(self, base: FusedCloud) -> np.ndarray:
         """Colours of the whole base cloud, cached: previews only index them (the error colours need a
@@ -223,13 +254,15 @@ class ViewerApp(ControlPanel):
         """The exact cloud and scores of a request. It starts only once the controls are still (the
         scheduler's quiet time): while a slider is being dragged the previews answer, and an exact result for
         a value already left behind would only take the CPU from them."""
-        self.session.base_cloud(params)  # makes later previews possible
+        base = self.session.base_cloud(params)  # makes later previews possible
         cloud = self.session.cloud(params)
         if not self._scheduler.is_current(generation):
             return  # a newer request is queued: skip the stale push
         if self.cloud is not cloud:  # (the preview may have shown this cached cloud already)
             self._show(cloud, params, preview=False, generation=generation)
         self._refresh_view_latest()
+        if len(base) > self.budget():  # after the exact cloud is shown: it must not wait on this
+            self._thinning(base, self.budget())  # previews then thin in a linear pass
         scores = self.session.evaluate(params, cloud)
         if self._scheduler.is_current(generation):
             self._show_scores(cloud, params, scores)
@@ -256,20 +289,34 @@ class ViewerApp(ControlPanel):
                    if stale_fusion else "the unfiltered cloud masked by per-point confidence and views")
             return (f"**{total:,} points** (preview, approximate{shown})  \n*{how}*  \n"
                     "exact result follows…")
-        text = f"**{len(cloud):,} points**{_shown_note(len(cloud))} · exact  \n{describe(scores)}"
+        text = f"**{len(cloud):,} points**{self._sent_note(cloud)} · exact  \n{describe(scores)}"
         last = self._last_preview
         if last is not None and params is not None and last[0] == params and last[1] != len(cloud):
             text += f"  \n*the approximate preview showed {last[1]:,} points ({last[1] - len(cloud):+,})*"
         return text
 
+    def _sent_note(self, cloud: FusedCloud) -> str:
+        """The metrics' " (N sent, thinned)" when the browser got ``cloud`` thinned, else ""."""
+        sent = self._sent
+        return f" ({sent[1]:,} sent, thinned)" if sent is not None and sent[0] is cloud and sent[1] < len(cloud) \
+            else ""
+
     def _show(self, cloud: FusedCloud, params: ViewParams, preview: bool, count: int | None = None,
               colors: np.ndarray | None = None, scores: dict | None = None, stale_fusion: bool = False,
-              generation: int | None = None) -> None:
+              generation: int | None = None, voxel: float = 0.0) -> None:
+        """Draw ``cloud`` (an exact one thinned to the point budget here; a preview arrives thinned, ``voxel`` its
+        grid's edge and ``count`` its whole count) with its metrics text."""
         drawn = cloud
-        if not preview and len(cloud) > DISPLAY_MAX_POINTS:
-            keep = _even_stride(len(cloud), DISPLAY_MAX_POINTS)
+        budget = self.budget()
+        if not preview and len(cloud) > budget:
+            thinning = self._thinning(cloud, budget)
+            keep, voxel = thinning.select(), thinning.voxel
             drawn = cloud.subset(keep)
             colors = None if colors is None else colors[keep]
+        total = len(cloud) if count is None else count
+        note = thinned_note(total, len(drawn), voxel, budget)
+        if preview:
+            note = f"preview: {note}"
         if colors is None:  # outside the lock: the error colours take a nearest-GT query that previews must not wait on
             colors = self.session.colors(drawn, str(self.color_mode.value))
         points = np.asarray(drawn.xyz, np.float32)
@@ -288,6 +335,8 @@ class ViewerApp(ControlPanel):
                 else:
                     self.cloud_handle.points = points
                     self.cloud_handle.colors = colors
+                self._sent = (cloud, len(drawn), voxel)
+                self.budget_note.content = note
                 if preview:
                     self.metrics.content = self._metrics_text(cloud, None, preview=True, count=count,
                                                               stale_fusion=stale_fusion)
@@ -296,7 +345,7 @@ class ViewerApp(ControlPanel):
                 elif scores is not None or not self.session.has_gt:
                     self.metrics.content = self._metrics_text(cloud, scores, params=params)
                 else:
-                    self.metrics.content = f"**{len(cloud):,} points**{_shown_note(len(cloud))}  \nscoring…"
+                    self.metrics.content = f"**{len(cloud):,} points**{self._sent_note(cloud)}  \nscoring…"
                 self._cloud_message_id = self.server._websock_server.get_message_buffer().message_counter - 1
             self.cloud, self.cloud_params = cloud, params
 
@@ -347,21 +396,30 @@ class ViewerApp(ControlPanel):
         base = self.session.out_dir or Path.cwd()
         return base / "exports"
 
+    def whole_cloud(self) -> FusedCloud | None:
+        """The whole exact cloud of the setting shown (None before any): what is shown may be a preview, a thinned
+        mask of the base cloud, so the exact one is taken from the session (computed there if not yet)."""
+        if self.cloud is None or self.cloud_params is None:
+            return self.cloud
+        return self.session.cloud(self.cloud_params)
+
     def export_ply(self, name: str | None = None) -> Path | None:
-        """Write the current cloud to OUT/exports/<sanitised name>.ply."""
-        if self.cloud is None:
+        """Write the current setting's whole cloud to OUT/exports/<sanitised name>.ply."""
+        cloud = self.whole_cloud()
+        if cloud is None:
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".ply")
-        write_cloud_ply(path, self.cloud)
-        self.export_status.content = f"wrote `{path}` ({len(self.cloud):,} points)"
+        write_cloud_ply(path, cloud)
+        self.export_status.content = f"wrote `{path}` ({len(cloud):,} points)"
         return path
 
     def save_rrd(self, name: str | None = None) -> Path | None:
-        """Save cameras, the selected view's maps and the current cloud as OUT/exports/<name>.rrd."""
-        if self.cloud is None:
+        """Save cameras, the selected view's maps and the current setting's whole cloud as OUT/exports/<name>.rrd."""
+        cloud = self.whole_cloud()
+        if cloud is None:
             return None
         path = self._export_dir() / safe_file_name(name or str(self.export_name.value), ".rrd")
-        write_state_rrd(path, self.session.scene, self.cloud, self.cloud_params, self.cloud_point_size(),
+        write_state_rrd(path, self.session.scene, cloud, self.cloud_params, self.cloud_point_size(),
                         self.selected_view,
                         {k.replace(" ", "_"): image for k, (image, _) in
                          self.session.view_maps(self.selected_view, self.cloud_params).items()})

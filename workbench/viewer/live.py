@@ -35,7 +35,7 @@ from engine.run.pipeline import PipelineOptions
 from engine.scene import Scene
 from workbench.maps.gt_depth import LevelGT, depth_error
 from workbench.maps.images import colorize
-from workbench.viewer.app import DISPLAY_MAX_POINTS, add_cameras, announce, open_server, set_home_camera
+from workbench.viewer.app import POINT_BUDGET, add_cameras, announce, open_server, set_home_camera
 from workbench.viewer.legends import NO_DATA, Scale, note_html, scale_html
 from workbench.viewer.scheduler import NewestWorker
 from workbench.viewer.session import DEPTH_ERROR_PCT
@@ -44,7 +44,9 @@ from workbench.viewer.session import DEPTH_ERROR_PCT
 # all, and one view's push is about 160 kB (float32 points + uint8 colours), light enough for every tab.
 LIVE_MAX_SIZE = 128
 PUSH_HZ = 10.0  # the worker pushes at most this often (newer snapshots replace waiting ones meanwhile)
-FUSED_MAX_POINTS = DISPLAY_MAX_POINTS // 4  # the fused cloud shown until the tuning viewer's exact one
+# the fused cloud shown until the tuning viewer's exact one: its budget, by an even stride (a streamed cloud maps
+# its file; the tuning viewer's voxel thinning would read every point)
+FUSED_MAX_POINTS = POINT_BUDGET
 STOP_TIMEOUT_S = 10.0
 # the colour mode of the relative depth error; the tuning viewer's GT distance (session.GT_DISTANCE) is in cm
 DEPTH_ERROR = "depth error (%)"

@@ -89,6 +89,8 @@ class ControlPanel:
     server: viser.ViserServer
     session: ViewerSession
     default_point_size: float
+    point_budget_default: int  # the Point budget control's initial value (app.POINT_BUDGET)
+    point_budget_min: int  # ...and its minimum (app.MIN_POINT_BUDGET)
 
     def _build_gui(self) -> None:
         gui = self.server.gui
@@ -153,10 +155,17 @@ class ControlPanel:
                                                hint="; ".join(f"{m}: {r}" for m, r in modes.items() if r) or None)
             self.color_legend = gui.add_html(s.cloud_legend("rgb"))
             self.color_notes = gui.add_markdown("  \n".join(f"*{m}* {r}" for m, r in modes.items() if r))
+            self.point_budget = gui.add_number("Point budget (points)", initial_value=self.point_budget_default,
+                                               min=self.point_budget_min, max=10_000_000, step=1_000,
+                                               hint="most points sent to the browser; above it the cloud is "
+                                                    "thinned to one point per voxel; default from "
+                                                    "docs/decisions.md (software WebGL)")
+            self.budget_note = gui.add_markdown("")
         with gui.add_folder("Metrics"):
             self.metrics = gui.add_markdown("computing…" if s.has_maps else
                                             "no maps: run `deepc run` and open its output folder")
             self.metrics_table = gui.add_html("")
+            self.mesh_metrics = gui.add_markdown("")  # the mesh's own scores (workbench/viewer/mesh.py)
         with gui.add_folder("View"):
             names = tuple(view_label(v.index, v.name) for v in s.scene.views)
             self.view_dropdown = gui.add_dropdown("View", options=names, initial_value=names[0])
@@ -186,6 +195,7 @@ class ControlPanel:
         self.preset.on_update(lambda _event: self._apply_preset())
         self.color_mode.on_update(lambda _event: self._color_mode_changed())
         self.point_size.on_update(lambda _event: self._set_point_size())
+        self.point_budget.on_update(lambda _event: self.request(self.params()))  # the cached cloud, re-thinned
         self.export_button.on_click(lambda _event: self.export_ply())
         self.rrd_button.on_click(lambda _event: self.save_rrd())
         self.reset_button.on_click(lambda _event: self.reset_to_run())

@@ -390,10 +390,17 @@ class ViewerSession:
             return _no_data(colorize(np.nan_to_num(values, nan=0.0)[None, :], 0.0, 1.0, scale.cmap)[0], missing)
         if mode == "views":
             return colorize(cloud.num_views[None, :].astype(np.float32), scale.vmin, scale.vmax, scale.cmap)[0]
+        return self.gt_distance_colors(np.asarray(cloud.xyz))
+
+    def gt_distance_colors(self, xyz: np.ndarray) -> np.ndarray:
+        """(N, 3) uint8 colours of points ``xyz`` ((N, 3), model units) by their distance to the nearest GT point,
+        on the scale of :meth:`cloud_scale` (GT_DISTANCE: cm, saturating at ``ERROR_SATURATION``); the cloud's
+        colour mode and the mesh's vertices share it. Needs GT points (:attr:`has_gt`)."""
         # workers=-1 also releases the GIL, so the viewer's websocket thread keeps sending meanwhile
-        dist, _ = self._gt_index().tree.query(np.asarray(cloud.xyz, np.float64), k=1,
+        dist, _ = self._gt_index().tree.query(np.asarray(xyz, np.float64), k=1,
                                               distance_upper_bound=2 * ERROR_SATURATION, workers=-1)
-        return colorize(np.minimum(dist, ERROR_SATURATION)[None, :], 0.0, ERROR_SATURATION, scale.cmap)[0]
+        return colorize(np.minimum(dist, ERROR_SATURATION)[None, :], 0.0, ERROR_SATURATION,
+                        self.cloud_scale(GT_DISTANCE).cmap)[0]
 
     def view_maps(self, i: int, params: ViewParams) -> dict[str, tuple[np.ndarray, str]]:
         """View ``i``'s maps as the pipeline and filters of ``params`` use them, each an (image, HTML legend):

@@ -1,0 +1,129 @@
+"""Voxel thinning of a point set to a point budget: one point per occupied voxel, the voxel size chosen so that
+the occupied voxels fit the budget.
+
+The one owner of the rule the tuning viewer (``workbench/viewer/app.py``) uses to send at most a budget of points
+to the browser (docs/decisions.md, "Viewer: at most 200 000 points ..."). Unlike every k-th point, a voxel keeps
+sparse parts of a cloud (a thin wall, a far facade) as they are and thins only where points are dense, so the
+picture keeps its shape. Deterministic: the grid starts at the points' minimum corner and a voxel's point is the
+one with the lowest index among those in it (the mask's, when masked).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+MAX_STEPS = 40  # voxel sizes tried at most; the search usually settles in 3-5
+FILL = 0.9  # a voxel size whose occupied voxels are within [FILL, 1] x the budget is taken at once
+
+
+def voxel_keys(xyz: np.ndarray, origin: np.ndarray, voxel: float) -> np.ndarray:
+    """(N,) int64 key of each point's voxel of edge ``voxel`` (model units) on a grid from ``origin`` ((3,))."""
+    cells = np.floor((np.asarray(xyz, np.float64) - origin) / voxel).astype(np.int64)
+    cells = np.maximum(cells, 0)  # (rounding at the minimum corner)
+    extent = cells.max(axis=0) + 1 if len(cells) else np.ones(3, np.int64)
+    return (cells[:, 0] * extent[1] + cells[:, 1]) * extent[2] + cells[:, 2]
+
+
+@dataclasses.dataclass(frozen=True)
+class VoxelThinning:
+    """A voxel grid over a point set, sorted so that any mask of it thins in linear time (:meth:`select`).
+
+    Attributes:
+        voxel: voxel edge in model units; 0 when the points fit the budget (nothing is thinned).
+        order: (N,) int64 point indices, stably sorted by voxel key (within a voxel: ascending index).
+        ids: (N,) int64 voxel number (0, 1, ...) at each position of ``order``, non-decreasing.
+        count: points of the whole set (N).
+    """
+
+    voxel: float
+    order: np.ndarray
+    ids: np.ndarray
+    count: int
+
+    @property
+    def voxels(self) -> int:
+        """Occupied voxels of the whole set (what :meth:`select` returns without a mask)."""
+        return int(self.ids[-1]) + 1 if self.count else 0
+
+    def select(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """(M,) int64 indices, one per voxel that holds a point of ``mask`` ((N,) bool; None: every point):
+        the lowest-indexed such point, in voxel order. Without thinning (``voxel`` 0) the masked indices.
+
+        Index the points' colours and attributes with the result: they stay with their points."""
+        if self.voxel == 0:
+            return np.arange(self.count, dtype=np.int64) if mask is None else np.flatnonzero(mask)
+        kept = slice(None) if mask is None else mask[self.order]
+        voxel_id = self.ids[kept]  # the voxel of every (masked) point, in voxel order
+        first = np.empty(len(voxel_id), bool)
+        first[:1] = True
+        np.not_equal(voxel_id[1:], voxel_id[:-1], out=first[1:])
+        return self.order[kept][first]
+
+
+def _occupied(xyz: np.ndarray, origin: np.ndarray, voxel: float) -> int:
+    return len(np.unique(voxel_keys(xyz, origin, voxel)))
+
+
+def voxel_size_for(xyz: np.ndarray, max_points: int) -> float:
+    """The voxel edge (model units) at which the occupied voxels of ``xyz`` ((N, 3)) are at most ``max_points``
+    and, where the search allows, at least :data:`FILL` of it; 0 when N ≤ ``max_points``.
+
+    A bracketed search: the next size follows the count's power of the size measured over the last two steps
+    (first a surface's, count ∝ 1/size²) and falls back to halving the bracket in log space when that guess
+    leaves it; deterministic for given points."""
+    if max_points < 1:
+        raise ValueError(f"a point budget must be at least 1, not {max_points}")
+    n = len(xyz)
+    if n <= max_points:
+        return 0.0
+    xyz = np.asarray(xyz, np.float64)
+    origin = xyz.min(axis=0)
+    extent = float((xyz.max(axis=0) - origin).max())
+    if extent == 0.0:
+        return 1.0  # every point in one place: one voxel holds them all
+    hi = extent * 1.0001  # one voxel along every axis: at most 1 point
+    lo, voxel = 0.0, extent / max(1.0, np.sqrt(max_points))  # a flat square's spacing: a first guess
+    best, previous, power = hi, None, 2.0
+    for _ in range(MAX_STEPS):
+        count = _occupied(xyz, origin, voxel)
+        if count <= max_points:
+            best = min(best, voxel)
+            hi = min(hi, voxel)
+            if count >= FILL * max_points:
+                break
+        else:
+            lo = max(lo, voxel)
+        if previous is not None and previous[0] != voxel and previous[1] != count and count > 0:
+            # the count's local power of the size, from the last two steps (2 on a surface, 3 in a volume)
+            power = float(np.clip(np.log(previous[1] / count) / np.log(voxel / previous[0]), 0.5, 3.0))
+        previous = (voxel, count)
+        guess = voxel * (count / (0.95 * max_points)) ** (1.0 / power)
+        voxel = guess if lo < guess < hi else (np.sqrt(lo * hi) if lo > 0 else hi / 2)
+        if hi - lo <= 1e-9 * extent:
+            break
+    return float(best)
+
+
+def voxel_thinning(xyz: np.ndarray, max_points: int, voxel: float | None = None) -> VoxelThinning:
+    """The grid of :func:`voxel_size_for` over ``xyz`` ((N, 3), model units), or of a given ``voxel`` edge,
+    sorted for :meth:`VoxelThinning.select`; ``select()`` then returns at most ``max_points`` indices."""
+    n = len(xyz)
+    if voxel is None:
+        voxel = voxel_size_for(xyz, max_points)
+    if voxel == 0.0:
+        return VoxelThinning(0.0, np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64), n)
+    keys = voxel_keys(xyz, np.asarray(xyz, np.float64).min(axis=0), voxel)
+    order = np.argsort(keys, kind="stable").astype(np.int64)
+    sorted_keys = keys[order]
+    ids = np.zeros(n, np.int64)
+    np.cumsum(sorted_keys[1:] != sorted_keys[:-1], out=ids[1:])
+    return VoxelThinning(float(voxel), order, ids, n)
+
+
+def thin_to_budget(xyz: np.ndarray, max_points: int) -> tuple[np.ndarray, float]:
+    """Indices of at most ``max_points`` points of ``xyz`` ((N, 3)), one per occupied voxel, and the voxel edge
+    (model units; 0: all N points, they fit)."""
+    thinning = voxel_thinning(xyz, max_points)
+    return thinning.select(), thinning.voxel
