@@ -12,8 +12,8 @@ The convention (docs/decisions.md states it at its top):
 - **Checked numbers**: those with a decimal point, those followed by ``%`` or a unit of time, size or work
   (``s``, ``ms``, ``CPU-s``, ``minutes``, ``MB``, ``MiB``, ``GB``, ``GiB``, ``kB``, ``points``), both ends of a
   range with such a unit (``4-5 s``), and counts written with thousands separators (``191,792``); not a
-  tolerance written "within N %". Plain integers (views, pixels, iterations, seeds, sizes) are descriptions,
-  not measurements. Not checked: headings, code (option
+  tolerance written "within N %" nor a section of a paper (``§3.2``). Plain integers (views, pixels, iterations,
+  seeds, sizes) are descriptions, not measurements. Not checked: headings, code (option
   values and their defaults are written as code: ``confidence.tau = 0.1``), a paper's numbers, in the part
   of a block that starts with ``**Paper**`` (up to ``**Ours**``), and arithmetic from stated formulas, in the part
   of a block that starts with ``**Estimate**`` (up to ``**Measured**``): projections, not measurements.
@@ -30,7 +30,7 @@ from typing import Any
 SOURCE = re.compile(r"\[([\w.-]+\.json):\s*([^\]]+)\]")
 CODE = re.compile(r"`[^`]*`")
 UNITS = r"(?:\s?%|\s(?:s|ms|CPU-s|minutes|MB|MiB|GB|GiB|kB|points)\b)"
-NUMBER = re.compile(r"(?<![\w.^/@-])[−+-]?(\d{1,3}(?:,\d{3})+|\d+\.\d+|\d+)(?=(" + UNITS + r")?)(?![\w.]\d)")
+NUMBER = re.compile(r"(?<![\w.^/@§-])[−+-]?(\d{1,3}(?:,\d{3})+|\d+\.\d+|\d+)(?=(" + UNITS + r")?)(?![\w.]\d)")
 # a range with a unit ("4-5 s", "270–290 MiB", "20..30 %"): both ends are measurements
 RANGE = re.compile(r"(?<![\w.^/@-])(\d+(?:\.\d+)?)\s?(?:-|–|\.\.)\s?(\d+(?:\.\d+)?)(?=" + UNITS + r")")
 PAPER = re.compile(r"\*\*Paper\*\*.*?(?=\*\*Ours\*\*|$)", re.S)
