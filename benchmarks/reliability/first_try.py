@@ -4,7 +4,7 @@ the command line.
 
     .venv/bin/python benchmarks/reliability/first_try.py --workspace LABEL=PATH [--workspace ...]
         [--source LABEL=OWNER/NAME@COMMIT[:FOLDER]] [--mismatch LABEL] [--undistort LABEL] [--run LABEL]
-        [--stop-delay S] [--repeats N] [--json benchmarks/results/first_try.json]
+        [--stop-delay S] [--no-stop] [--repeats N] [--json benchmarks/results/first_try.json]
 
 Every workspace gets `deepc info` (wall time and exit status, ``--repeats`` times). ``--mismatch``: a workspace whose
 images disagree with their (distorted) camera: `deepc info` and `deepc run` must each end with one `deepc:` line and
@@ -48,6 +48,7 @@ TEMP_PREFIX = ".undistort-"  # engine/io/undistort.py's temporary folders in the
 ETA_RE = re.compile(r"ETA (\d+(?:\.\d+)?) (s|min|h)\b")
 ESTIMATE_RE = re.compile(r"estimated (\d+(?:\.\d+)?) (s|min|h) on this machine")
 LEVEL_RE = re.compile(r"level (\d+)")
+PASS_RE = re.compile(r"(level \d+ [a-z]+)\s*:.*\|\s*(\d+)/(\d+) \[")  # a pass's bar: its name, views done, views
 UNDISTORT_LOG_RE = re.compile(rb"Undistorting image \[(\d+)/(\d+)\]")  # pycolmap's log line per image
 
 
@@ -73,6 +74,13 @@ class Watched:
         for thread in self._threads:
             thread.start()
         self.end: float | None = None
+        self.load: list[tuple[float, float]] = []  # (seconds since the start, 1-minute load average), every 10 s
+        threading.Thread(target=self._sample_load, daemon=True).start()
+
+    def _sample_load(self) -> None:
+        while self.proc.poll() is None:
+            self.load.append((time.perf_counter() - self.start, os.getloadavg()[0]))
+            time.sleep(10)
 
     def _read(self, stream: Any, name: str) -> None:
         partial = b""
@@ -318,6 +326,14 @@ def eta_rows(watched: Watched, end: float) -> dict[str, Any]:
         actual = end - t
         out.update({"after_first_level_at_s": round(t, 2), "after_first_level_bar": line.strip()[-120:],
                     "eta_s": eta, "actual_left_s": round(actual, 2), "eta_error": round(eta / actual - 1, 4)})
+    passes = {}  # each pass's last bar (its end): the run's ETA then against the time actually left
+    for t, line in lines:
+        bar = PASS_RE.search(line)
+        if bar and ETA_RE.search(line) and bar.group(2) == bar.group(3):
+            passes[bar.group(1).strip()] = (t, seconds_of(*ETA_RE.search(line).groups()))
+    out["passes"] = [{"pass": name, "ended_at_s": round(t, 1), "eta_s": eta, "actual_left_s": round(end - t, 1),
+                      "error": round(eta / (end - t) - 1, 3)} for name, (t, eta) in passes.items()]
+    out["load_average"] = [(round(t), load) for t, load in watched.load]
     estimate = next(((t, line) for t, line in lines if ESTIMATE_RE.search(line)), None)
     if estimate is not None:
         t, line = estimate
@@ -327,7 +343,8 @@ def eta_rows(watched: Watched, end: float) -> dict[str, Any]:
     return out
 
 
-def measure_run(label: str, path: Path, stop_delay: float, paths: dict[str, Path], tmp: Path) -> dict[str, Any]:
+def measure_run(label: str, path: Path, stop_delay: float, paths: dict[str, Path], tmp: Path,
+                stop: bool = True) -> dict[str, Any]:
     env = dict(os.environ, DEEPC_CACHE=str(tmp / "cache-run"))
     result: dict[str, Any] = {"workspace": label}
     # 1. defaults, headless, to the end
@@ -343,6 +360,8 @@ def measure_run(label: str, path: Path, stop_delay: float, paths: dict[str, Path
     print(f"run {label}: {result['full']}")
     if code != 0:
         result["full"]["stderr_tail"] = [scrubbed(x, paths) for x in lines[-5:]]
+        return result
+    if not stop:
         return result
     reference = tree_digest(full)
     # 2. SIGINT stop_delay s into PatchMatch's second level, then --resume
@@ -445,6 +464,7 @@ def main() -> None:
     ap.add_argument("--undistort", metavar="LABEL", help="distorted workspace for the interrupted undistortion")
     ap.add_argument("--run", metavar="LABEL", help="workspace for deepc run with defaults, Ctrl-C and --resume")
     ap.add_argument("--stop-delay", type=float, default=5.0, help="seconds into PatchMatch's second level")
+    ap.add_argument("--no-stop", action="store_true", help="--run: the run to its end only (no Ctrl-C, no --resume)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", default=bench.results_path(__file__))
     args = ap.parse_args()
@@ -465,7 +485,8 @@ def main() -> None:
         undistortion = measure_undistortion(args.undistort, paths[args.undistort], paths, tmp) \
             if args.undistort else None
         load.append(os.getloadavg()[0])
-        run = measure_run(args.run, paths[args.run], args.stop_delay, paths, tmp) if args.run else None
+        run = measure_run(args.run, paths[args.run], args.stop_delay, paths, tmp, not args.no_stop) \
+            if args.run else None
         load.append(os.getloadavg()[0])
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
