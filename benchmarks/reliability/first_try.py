@@ -468,6 +468,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", default=bench.results_path(__file__))
     args = ap.parse_args()
+    # A background job (`cmd &` from a script) inherits SIGINT ignored, and so would every deepc started here: a
+    # Python handler is reset to the default in a child, an ignored signal stays ignored.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     paths = {label: Path(p) for label, p in (w.split("=", 1) for w in args.workspace)}
     sources = dict(s.split("=", 1) for s in args.source)
     described = {label: describe_workspace(label, path, sources.get(label)) for label, path in paths.items()}
