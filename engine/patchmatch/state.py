@@ -9,8 +9,8 @@ import numpy as np
 
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
+from engine.patchmatch.options import ROW_CACHE_MAX_BYTES, row_cache_bytes
 from engine.patchmatch.records import CostCaches, HypothesisMaps
-from engine.patchmatch.row_cache import ROW_CACHE_MAX_BYTES, row_cache_bytes
 
 # names of the maps in a checkpoint (engine.run.checkpoint), kept from the first format so saved runs resume
 CHECKPOINT_NAMES = {"depth": "Z", "normal": "N", "cost": "C", "selected_views": "S"}

@@ -37,8 +37,7 @@ from typing import Any
 import numpy as np
 
 from engine.core.camera import Camera, rescaled_size
-from engine.patchmatch.options import PatchMatchOptions
-from engine.patchmatch.row_cache import ROW_CACHE_MAX_BYTES, row_cache_bytes
+from engine.patchmatch.options import ROW_CACHE_MAX_BYTES, PatchMatchOptions, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
