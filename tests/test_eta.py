@@ -64,7 +64,8 @@ def test_run_eta_follows_the_engines_events_and_announces_the_calibration() -> N
     now[0] += 1.0
     eta.on_stage("patchmatch_pass", level=0, pass_index=0, iterations=2)
     left = eta.seconds_left()
-    assert left == pytest.approx(1600 * 3.0 / 300)  # 300 pixel-iterations in 3 s
+    # 300 pixel-iterations in 3 s; the finished view passes ran 3 of their 4 planned iterations
+    assert left == pytest.approx(0.75 * 1600 * 3.0 / 300)
     eta.on_stage("patchmatch_done")
     assert eta.seconds_left() == 0.0  # no later stage allowance here
 
@@ -84,3 +85,22 @@ def test_the_progress_line_shows_the_runs_eta(capsys) -> None:
     err = capsys.readouterr().err
     assert re.search(r"level 2 photometric *: +14%.*1/7 \[\d\d:\d\d, run ETA 12 min\]", err), err
     assert "estimated 12 min on this machine" in err
+
+
+def test_what_is_left_is_counted_at_the_share_of_the_plan_finished_view_passes_ran() -> None:
+    """A view pass that ends by convergence (2 of 4 planned iterations) halves the estimate of what is left."""
+    plan = [PlannedPass(1, 0, (100, 100), 4), PlannedPass(0, 0, (400, 400), 4)]
+    now = [0.0]
+    eta = RunEta(plan, 0.0, clock=lambda: now[0])
+    depth = np.zeros((10, 10), np.float32)
+    eta.on_stage("patchmatch_pass", level=1, pass_index=0, iterations=4)
+    for t in range(2):  # view 0 stops after 2 of its 4 iterations: 1 s per 100 px
+        now[0] += 1.0
+        eta.on_iteration(SimpleNamespace(view=0, iteration=t, depth=depth))
+    assert eta.run_share == 1.0  # nothing finished yet: the plan as it is
+    assert eta.seconds_left() == pytest.approx((200 + 400 + 3200) / 100)
+    now[0] += 1.0
+    eta.on_iteration(SimpleNamespace(view=1, iteration=0, depth=depth))  # view 0's pass is finished
+    assert eta.run_share == pytest.approx(0.5)
+    assert eta.seconds_left() == pytest.approx(0.5 * (300 + 3200) / 100)
+    assert eta_seconds(plan, 0, 1, 1, 300, 3.0, 0.0, run_share=0.5) == eta.seconds_left()

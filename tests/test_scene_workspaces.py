@@ -104,3 +104,20 @@ def test_info_on_a_distorted_model_undistorts_nothing(tmp_path):
     assert result.stderr.strip() == ""  # no pycolmap log lines
     assert not cache.exists()
     assert seconds < 30  # 2-5 s here under load
+
+
+def test_info_loads_no_kernels(tmp_path):
+    """`deepc info` is pixel-free and kernel-free: it imports neither numba nor the pipeline's stages (they were half
+    of its CPU time: about 10 s on the loaded 2-core machine for a 40-photo workspace; engine/core/lazy.py)."""
+    workspace = write_workspace(SAMPLES / "tiny", tmp_path / "ws", camera_model="SIMPLE_RADIAL")
+    code = ("import sys, runpy; sys.argv = ['deepc', 'info', sys.argv[1]]\n"
+            "try:\n    runpy.run_module('workbench.cli', run_name='__main__')\n"
+            "except SystemExit as exc:\n    assert not exc.code, exc.code\n"
+            "heavy = ('numba', 'scipy.ndimage', 'torch', 'engine.run.pipeline', 'engine.patchmatch.context')\n"
+            "print('loaded:', sorted(m for m in heavy if m in sys.modules))")
+    env = dict(os.environ, DEEPC_CACHE=str(tmp_path / "cache"))
+    result = subprocess.run([sys.executable, "-c", code, str(workspace)], capture_output=True, text=True, timeout=120,
+                            cwd=REPO, env=env)
+    assert result.returncode == 0, result.stderr
+    assert "memory: estimated peak" in result.stdout
+    assert result.stdout.strip().splitlines()[-1] == "loaded: []"

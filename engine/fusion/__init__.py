@@ -6,11 +6,11 @@
 disk, a ``DiskCloud``), ``ply`` the cloud's file format and ``views`` the scene adapter.
 """
 
-from engine.fusion.cloud import DiskCloud, FusedCloud, FusionView
-from engine.fusion.kernel import fuse
-from engine.fusion.options import DEFAULT_PRESET, FUSION_PRESETS, FusionOptions
-from engine.fusion.ply import read_fused_ply, write_fused_ply
-from engine.fusion.views import views_from_scene
+from engine.core.lazy import lazy_attributes
 
-__all__ = ["DEFAULT_PRESET", "FUSION_PRESETS", "DiskCloud", "FusedCloud", "FusionOptions", "FusionView", "fuse",
-           "read_fused_ply", "views_from_scene", "write_fused_ply"]
+# Loaded on first use (engine/core/lazy.py): the command line imports the options alone, without numba.
+_WHERE = {"DiskCloud": "cloud", "FusedCloud": "cloud", "FusionView": "cloud", "fuse": "kernel",
+          "DEFAULT_PRESET": "options", "FUSION_PRESETS": "options", "FusionOptions": "options",
+          "read_fused_ply": "ply", "write_fused_ply": "ply", "views_from_scene": "views"}
+__all__ = sorted(_WHERE)
+__getattr__ = lazy_attributes(__name__, _WHERE, globals())

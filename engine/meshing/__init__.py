@@ -6,13 +6,13 @@ uniform surface samples that let a mesh be scored like a cloud. open3d is import
 need it (it takes seconds to load).
 """
 
-from engine.meshing.decimate import decimate
-from engine.meshing.mesh import TriangleMesh, read_mesh, write_mesh_ply
-from engine.meshing.options import MESH_METHODS, MeshOptions
-from engine.meshing.poisson import poisson_mesh
-from engine.meshing.sampling import point_spacing, sample_surface
-from engine.meshing.stage import evaluate_mesh, mesh_run
-from engine.meshing.tsdf import tsdf_mesh, tsdf_voxel_size
+from engine.core.lazy import lazy_attributes
 
-__all__ = ["MESH_METHODS", "MeshOptions", "TriangleMesh", "decimate", "evaluate_mesh", "mesh_run", "point_spacing",
-           "poisson_mesh", "read_mesh", "sample_surface", "tsdf_mesh", "tsdf_voxel_size", "write_mesh_ply"]
+# Loaded on first use (engine/core/lazy.py): the command line imports the options alone, without numba and scipy.
+_WHERE = {"decimate": "decimate", "TriangleMesh": "mesh", "read_mesh": "mesh", "write_mesh_ply": "mesh",
+          "MESH_METHODS": "options",
+          "MeshOptions": "options", "poisson_mesh": "poisson", "point_spacing": "sampling",
+          "sample_surface": "sampling", "evaluate_mesh": "stage", "mesh_run": "stage", "tsdf_mesh": "tsdf",
+          "tsdf_voxel_size": "tsdf"}
+__all__ = sorted(_WHERE)
+__getattr__ = lazy_attributes(__name__, _WHERE, globals())

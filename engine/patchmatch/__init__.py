@@ -21,12 +21,12 @@ plane propagation, normals), ``ncc`` (bilateral NCC), ``propagation`` (sampling 
 Plain-numpy references of the kernels live in ``support/patchmatch_reference.py``.
 """
 
-from engine.patchmatch.context import ViewContext, build_context
-from engine.patchmatch.multiscale import PatchMatchView, ViewMaps, effective_levels, run_patchmatch
-from engine.patchmatch.options import PatchMatchOptions
-from engine.patchmatch.records import KernelParams, kernel_params
-from engine.patchmatch.state import ViewState
-from engine.patchmatch.view_pass import run_view_level
+from engine.core.lazy import lazy_attributes
 
-__all__ = ["KernelParams", "PatchMatchOptions", "PatchMatchView", "ViewContext", "ViewMaps", "ViewState",
-           "build_context", "effective_levels", "kernel_params", "run_patchmatch", "run_view_level"]
+# Loaded on first use (engine/core/lazy.py): the command line imports the options alone, without numba and scipy.
+_WHERE = {"ViewContext": "context", "build_context": "context", "PatchMatchView": "multiscale",
+          "ViewMaps": "multiscale", "effective_levels": "multiscale", "run_patchmatch": "multiscale",
+          "PatchMatchOptions": "options", "KernelParams": "records", "kernel_params": "records",
+          "ViewState": "state", "run_view_level": "view_pass"}
+__all__ = sorted(_WHERE)
+__getattr__ = lazy_attributes(__name__, _WHERE, globals())

@@ -160,3 +160,15 @@ class PatchMatchOptions(Options):
         """1-D sample offsets of the fine window (empty when it is off), e.g. [-2, -1, 0, 1, 2]."""
         r = self.fine_window // 2
         return list(range(-r, r + 1, self.fine_window_step)) if self.fine_window else []
+
+
+# The size rule of a view's candidate row cache (state.ViewState.prepare_caches), beside the options so that the
+# memory estimate (engine/run/memory.py, deepc info) reads it without the kernels. The cache takes
+# K_up · (4 N + 1) + 8 bytes per pixel (129 MB at 768x512 with 5 sources, 255 MB with 10); above this it is
+# left out (results are the same either way, only slower).
+ROW_CACHE_MAX_BYTES = 2 << 30
+
+
+def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
+    """Bytes of the candidate row cache of an (h, w) view with ``k_up`` candidates and ``n_sources`` sources."""
+    return h * w * (k_up * (4 * n_sources + 1) + 4 + 4)

@@ -9,18 +9,12 @@ import numpy as np
 
 from engine.patchmatch.buffers import BufferPool
 from engine.patchmatch.context import ViewContext
+from engine.patchmatch.options import ROW_CACHE_MAX_BYTES, row_cache_bytes
 from engine.patchmatch.records import CostCaches, HypothesisMaps
 
-# the candidate row cache takes K_up · (4 N + 1) + 8 bytes per pixel (129 MB at 768x512 with 5 sources,
-# 255 MB with 10); above this it is left out (results are the same either way, only slower)
-ROW_CACHE_MAX_BYTES = 2 << 30
 # names of the maps in a checkpoint (engine.run.checkpoint), kept from the first format so saved runs resume
 CHECKPOINT_NAMES = {"depth": "Z", "normal": "N", "cost": "C", "selected_views": "S"}
-
-
-def row_cache_bytes(h: int, w: int, k_up: int, n_sources: int) -> int:
-    """Bytes of the candidate row cache of an (h, w) view with ``k_up`` candidates and ``n_sources`` sources."""
-    return h * w * (k_up * (4 * n_sources + 1) + 4 + 4)
+__all__ = ["CHECKPOINT_NAMES", "ROW_CACHE_MAX_BYTES", "ViewState", "row_cache_bytes"]
 
 
 @dataclasses.dataclass

@@ -37,8 +37,7 @@ from typing import Any
 import numpy as np
 
 from engine.core.camera import Camera, rescaled_size
-from engine.patchmatch import PatchMatchOptions, PatchMatchView, run_patchmatch
-from engine.patchmatch.state import ROW_CACHE_MAX_BYTES, row_cache_bytes
+from engine.patchmatch.options import ROW_CACHE_MAX_BYTES, PatchMatchOptions, row_cache_bytes
 
 _MIB = 1 << 20
 _MAX_CACHED_VIEWS = 64  # Scene's image lru_cache
@@ -172,7 +171,7 @@ def largest_fitting_size(scene: Any, options: Any, estimate: MemoryEstimate) -> 
 
 def load_kernels() -> None:
     """Run PatchMatch once on two synthetic 24x24 views, so the kernels and the JIT runtime are resident."""
-
+    from engine.patchmatch.multiscale import PatchMatchView, run_patchmatch  # lazy: numba (not for deepc info)
 
     rng = np.random.default_rng(0)
     views = []

@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter
+from types import SimpleNamespace
 
 from engine.core.words import plural
 from engine.io.undistort import cached_workspace
+from engine.patchmatch.options import PatchMatchOptions
+from engine.run.memory import estimate_run_memory, largest_fitting_size
 from engine.scene import SceneOptions, SceneSurvey, survey_scene, views_table, working_size_line
 from workbench.flags.options import options_from_args
 
@@ -59,11 +62,9 @@ def describe(survey: SceneSurvey, requested: int | None = None) -> list[str]:
 
 def memory_line(survey: SceneSurvey) -> str:
     """The estimated peak memory of ``deepc run`` on ``survey`` with the default pipeline options."""
-    # lazy: the estimator imports the PatchMatch engine (numba)
-    from engine.run.memory import estimate_run_memory, largest_fitting_size
-    from engine.run.pipeline import PipelineOptions  # lazy: the pipeline's stages
-
-    options = PipelineOptions()
+    # the estimate reads the pipeline's PatchMatch options only; importing engine.run.pipeline for its
+    # PipelineOptions would load every stage's kernels (numba, scipy) and double what deepc info takes
+    options = SimpleNamespace(patchmatch=PatchMatchOptions())
     estimate = estimate_run_memory(survey, options)
     line = (f"{estimate.summary()} (default pipeline; the baseline is this process, without the compiled kernels "
             "deepc run adds)")
