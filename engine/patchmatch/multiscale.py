@@ -409,10 +409,12 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
     counter after it."""
     src_idx = list(v.source_views)
+    widest = box(0) if callable(box) else box  # the pass's initial cost covers the widest box
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
                         [cameras[j][level] for j in src_idx], options,
                         [snapshot[j] for j in src_idx] if snapshot is not None else None,
-                        fine_window_region(st.depth, st.normal, cameras[i][level], options, random_start, level), pool)
+                        fine_window_region(st.depth, st.normal, cameras[i][level], options, random_start, level), pool,
+                        rows=None if widest is None else (widest[1], widest[3]))
     kind = "geometric" if pass_index > 0 else "photometric"
     first_step = step
     ran = 0

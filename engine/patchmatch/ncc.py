@@ -161,14 +161,16 @@ def window_weight_maps(img: np.ndarray, offsets: np.ndarray, n_samples: np.ndarr
 def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weighting: str, sigma_s: float,
                  sigma_c: float, sigma_s_fine: float, sigma_c_fine: float, min_var_fine: float,
                  allowed: np.ndarray | None, alloc: Callable[..., np.ndarray] = np.empty, min_ratio_fine: float = 0.0,
-                 pacer: RowPacer | None = PACER) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 pacer: RowPacer | None = PACER, rows: tuple[int, int] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference-side NCC terms with a per-pixel choice between two windows (see
     ``context.reference_terms``): mu_a, var_a (H, W) f32 the chosen window's weighted mean and variance and
     wset (H, W) u8 (1 = fine). ``offs_fine`` (0, 2) disables the fine window; ``allowed`` (H, W) bool, uint8
     codes (FINE_OFF, FINE_EDGE, FINE_CREASE: subject to ``min_ratio_fine`` too, its variance under its own weights
     must reach that fraction of the standard window's) or None (everywhere, FINE_EDGE). ``alloc(shape, dtype)``
     gives the output arrays (``np.empty`` or a ``buffers.BufferPool``'s take); ``pacer``: the row blocks
-    (``engine.core.blocks``; None: one call)."""
+    (``engine.core.blocks``; None: one call); ``rows`` (y0, y1): only those rows' terms (the others 0), for
+    kernels that update a box of pixels within them (the probe's partial replay)."""
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
     mu_a = alloc((h, w), np.float32)
@@ -179,10 +181,14 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     args = (img, offs, np.ascontiguousarray(offs_fine, dtype=np.int32), WEIGHTING_CODES[weighting], float(sigma_s),
             float(sigma_c), float(sigma_s_fine), float(sigma_c_fine), np.float32(min_var_fine),
             np.float32(min_ratio_fine), np.ascontiguousarray(allowed, dtype=np.uint8), mu_a, var_a, wset)
+    y0, y1 = (0, h) if rows is None else (max(0, int(rows[0])), min(h, int(rows[1])))
+    for a in (mu_a, var_a, wset):
+        a[:y0] = 0
+        a[y1:] = 0
     if pacer is None:
-        _window_terms_kernel(*args, 0, h)
+        _window_terms_kernel(*args, y0, y1)
     else:  # blocks of rows, a stop request honoured between them (one call took seconds at 768x512, loaded)
-        pacer.run("window_terms", h, w, lambda start, stop: _window_terms_kernel(*args, start, stop))
+        pacer.run("window_terms", y1 - y0, w, lambda start, stop: _window_terms_kernel(*args, y0 + start, y0 + stop))
     return mu_a, var_a, wset
 
 
