@@ -186,15 +186,18 @@ def tiny_run(tmp_path_factory):
 
 
 def test_run_writes_traces_with_final_entries(tiny_run):
+    from engine.confidence.data import view_labels
+
     out, scene, probe = tiny_run
     name = scene.views[1].name
     depth = read_map(out, "depth", name)
+    labels = view_labels(scene, 1, depth)  # the whole view's: the probe labels its pixels alone
     for x, y in probe.pixels:
         data = json.loads(probe_path(out, name, x, y).read_text())
         assert data["view"] == name and (data["x"], data["y"]) == (x, y)
         assert data["iterations"][-1]["after"]["depth"] == float(depth[y, x])
         final = data["final"]
-        assert final["gt_depth"] is not None and final["label"] in (-1, 0, 1)
+        assert final["gt_depth"] is not None and final["label"] == int(labels[y, x])
         assert final["error"] == pytest.approx(abs(final["depth"] - final["gt_depth"]) / final["gt_depth"])
         verdicts = final["counter_verdicts"]
         assert set(verdicts) == {scene.views[j].name for j in scene.views[1].source_views}

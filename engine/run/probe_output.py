@@ -122,7 +122,11 @@ def final_entries(scene: Any, index: int, views: list[PatchMatchView], depths: l
     if gt is not None:
         if gt.shape != depth.shape:
             gt = resample_depth(gt, (depth.shape[1], depth.shape[0]))
-        labels = view_labels(scene, index, depth)
+        # a label is a function of its own pixel's depth alone (Kuhn et al. 2020, §3.2): label the probed ones only
+        probed = np.zeros_like(depth)
+        cols, rows = np.array([p[0] for p in pixels], np.intp), np.array([p[1] for p in pixels], np.intp)
+        probed[rows, cols] = depth[rows, cols]
+        labels = view_labels(scene, index, probed)
     out = []
     for (x, y), ver in zip(pixels, verdicts, strict=True):
         z = float(depth[y, x])
