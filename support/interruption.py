@@ -83,9 +83,12 @@ def check_no_partial(out: Path) -> int:
 
 def differences(reference: Path, out: Path) -> list[str]:
     """Files that differ between two run folders (checkpoint folder ignored; metrics without seconds and without the
-    PatchMatch work this process did, which a resumed run counts only for the passes it recomputed)."""
+    PatchMatch work this process did, which a resumed run counts only for the passes it recomputed; the probe's
+    recorded states, ``history/states/``, ignored: a cache keyed on the history files' times, which a resumed run
+    holds only for the views it ran whole, and the first probe of a view makes the others)."""
     def files(root: Path) -> set[str]:
-        return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and CHECKPOINT_DIR not in p.parts}
+        return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and CHECKPOINT_DIR not in p.parts
+                and p.relative_to(root).parts[:2] != ("history", "states")}
 
     names = files(reference) | files(out)
     diff = []
