@@ -125,16 +125,19 @@ def test_replay_on_a_port_in_use_serves_on_the_next_one_and_says_so(recording):
                                  "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 start_new_session=True)
         lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(line.strip() for line in proc.stdout), daemon=True)
-        reader.start()
+        errors: list[str] = []
+        # both pipes read as they fill: a full one would block the viewer's writes, and so its stop
+        for stream, into in ((proc.stdout, lines), (proc.stderr, errors)):
+            threading.Thread(target=lambda s=stream, out=into: out.extend(line.strip() for line in s),
+                             daemon=True).start()
         try:
             deadline = time.monotonic() + 120
             while len(lines) < 2 and time.monotonic() < deadline and proc.poll() is None:
                 time.sleep(0.1)
         finally:
             os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(timeout=30)
-    assert len(lines) == 2, (lines, proc.stderr.read())
+            proc.wait(timeout=60)
+    assert len(lines) == 2, (lines, errors)
     moved = re.fullmatch(rf"rerun web viewer: port {port} is in use; serving on port (\d+) instead", lines[0])
     assert moved and int(moved.group(1)) > port, lines
     assert lines[1].startswith(f"rerun web viewer: http://127.0.0.1:{moved.group(1)}"), lines

@@ -284,6 +284,8 @@ def test_deepc_run_interrupted_during_patchmatch_stops_the_live_viewer(tmp_path)
                 break
             assert time.monotonic() < deadline, line
         assert port
+        # keep reading its output: a full pipe would block the run's progress writes and so its stop
+        threading.Thread(target=proc.stdout.read, daemon=True).start()
         socket.create_connection(("127.0.0.1", port), timeout=20).close()  # serving while PatchMatch runs
         proc.send_signal(signal.SIGINT)
         code = proc.wait(timeout=120)
