@@ -243,7 +243,6 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     if record is not None:
         record.begin([[images[i][lv].shape for lv in range(n_levels)] if active[i] else None for i in range(n_views)],
                      1 + options.geom_passes)
-        on_iter = _recording_iterations(on_iter, record)
     for level in range(n_levels - 1, -1, -1):
         coarsest = level == n_levels - 1
         pool.clear()  # a new level's arrays have other shapes
@@ -291,10 +290,13 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
                 elif active[i]:
                     if record is not None:
                         record.state(i, level, pass_index, states[i].depth, states[i].normal)
-                    step = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index, detail,
-                                          options, on_iter, step, done, random_start=coarsest and pass_index == 0,
-                                          pool=pool, on_stage=on_stage,
-                                          probe=_pass_probe(probe, i, states[i], level, pass_index, detail))
+                    step, ran = _run_view_pass(i, v, states[i], images, cameras, snapshot, level, pass_index,
+                                               detail, options, on_iter, step, done,
+                                               random_start=coarsest and pass_index == 0, pool=pool,
+                                               on_stage=on_stage,
+                                               probe=_pass_probe(probe, i, states[i], level, pass_index, detail))
+                    if record is not None:  # a converged pass ends early, and a probe must replay it as long
+                        record.ran(i, level, pass_index, ran)
                 if record is not None and active[i] and pass_index == options.geom_passes:
                     record.state(i, level, "end", states[i].depth, states[i].normal)
                 if checkpoint is not None and saved is None:
@@ -314,16 +316,6 @@ def _run(views: list[PatchMatchView], options: PatchMatchOptions, active: list[b
     if on_stage is not None:
         on_stage("patchmatch_done", levels=n_levels, views=n_views)
     return out
-
-
-def _recording_iterations(on_iter: Callable | None, record: Any) -> Callable:
-    """``on_iter`` that also tells ``record`` how many iterations each view's pass ran (a converged pass ends
-    early, and a probe must replay it as long)."""
-    def on_iteration(event: IterationEvent) -> None:
-        record.ran(event.view, event.level, event.pass_index, event.iteration + 1)
-        if on_iter is not None:
-            on_iter(event)
-    return on_iteration
 
 
 def level_start_state(i: int, v: PatchMatchView, prev: ViewState | None, image: np.ndarray, cam: Camera, level: int,
@@ -404,10 +396,10 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
                    step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
                    on_stage: Callable | None = None, probe: PassProbe | None = None, iterations: int | None = None,
-                   box: Box | Callable[[int], Box] | None = None) -> int:
+                   box: Box | Callable[[int], Box] | None = None) -> tuple[int, int]:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
-    counter after it."""
+    counter after it and the iterations the pass ran."""
     src_idx = list(v.source_views)
     widest = box(0) if callable(box) else box  # the pass's initial cost covers the widest box
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
@@ -441,7 +433,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                  iterations=ran, planned=planned)
     # steps stay reserved for the planned iterations: a view's n-th iteration has the same step however its
     # earlier passes ended
-    return step + planned
+    return step + planned, ran
 
 def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, options: PatchMatchOptions | None = None,
                 probe: PixelProbe | None = None, on_pass: PassFn | None = None,

@@ -157,8 +157,8 @@ class RunStates:
     of a view traces from them instead of replaying the whole view (module doc).
 
     ``engine.patchmatch.multiscale`` calls :meth:`begin` (not on a resumed run: its earlier passes are not
-    recorded), :meth:`state` before each view's pass and after its level's last pass, and :meth:`ran` after each
-    iteration. Each state is packed and written at once under ``parts/`` (nothing accumulates in memory);
+    recorded), :meth:`state` before each view's pass and after its level's last pass, and :meth:`ran` after the
+    pass. Each state is packed and written at once under ``parts/`` (nothing accumulates in memory);
     :meth:`finish`, once the run has written its depth maps, turns each view's complete set of parts into its
     :class:`StateStore` file under the key a probe computes. Views whose states would not fit ``store.cap_bytes``
     are not recorded (a first probe then replays the view whole)."""
