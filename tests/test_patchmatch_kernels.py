@@ -550,6 +550,38 @@ class FixedBlocks:
                 call(a, b)
 
 
+def test_a_diamond_updates_its_pixels_as_the_whole_view_does_and_leaves_the_others() -> None:
+    """The initial cost and a half-step with ``KernelParams.box_r`` (the probe's dependency cone of one pixel):
+    inside the diamond the same maps as a whole-view call (a pixel's update reads only the start state), outside
+    it nothing written."""
+    opts = PatchMatchOptions(k_update=10, k_viewsel=6, fine_window=5, init_top_k=2)
+    ctx, _, st = _tiny_problem(9, False, opts)
+    pat = pattern_of(opts)
+    h, w = st.depth.shape
+    cx, cy, r = w // 2, h // 2, 5
+    ys, xs = np.mgrid[:h, :w]
+    inside = (np.abs(xs - cx) + np.abs(ys - cy) <= r) & (xs >= cx - 4)  # the box cuts the diamond's left tip
+    whole = kernel_params(opts, 2.0, 5.0, 1, False, False, n_regions(pat))
+    part = kernel_params(opts, 2.0, 5.0, 1, False, False, n_regions(pat), box=(cx - 4, 0, w, h, cx, cy, r))
+    start = (st.depth.copy(), st.normal.copy())
+    init_cost(st, ctx, whole)
+    whole_cost = st.cost.copy()
+    st.cost[:] = -1.0
+    init_cost(st, ctx, part)
+    assert np.array_equal(st.cost[inside], whole_cost[inside]) and np.all(st.cost[~inside] == -1.0)
+    st.cost[:] = whole_cost
+    key = np.uint64(stream_key(3, 0, 0, 0, 1, 0))
+    half_step(st, ctx, 0, whole_cost.copy(), pat, key, whole)
+    after = st.depth.copy()
+    st.depth[:], st.normal[:] = start
+    init_cost(st, ctx, whole)
+    counts = half_step(st, ctx, 0, whole_cost.copy(), pat, key, part)
+    red = (xs + ys) % 2 == 0
+    assert np.array_equal(st.depth[inside], after[inside])
+    assert np.array_equal(st.depth[~inside], start[0][~inside])
+    assert counts[K.CNT_PIXELS] == (inside & red).sum()
+
+
 @pytest.mark.parametrize("geometric", [False, True])
 def test_a_block_of_rows_matches_the_reference_and_leaves_the_other_rows(geometric: bool) -> None:
     """The initial cost and a half-step over one block of rows: the block as the reference computes those rows,
@@ -1006,10 +1038,12 @@ def test_window_terms_are_the_same_in_any_row_blocks_and_a_stop_request_ends_the
         parts = window_terms(*args, min_ratio_fine=0.1, pacer=pacer)
         for a, b in zip(whole, parts, strict=True):
             assert a.tobytes() == b.tobytes()
-        # the probe's partial replay asks for the rows of its box only: those are the whole build's, bit for bit
-        band = window_terms(*args, min_ratio_fine=0.1, pacer=pacer, rows=(31, 52))
+        # the probe's partial replay asks for the pixels of its box only: those are the whole build's, bit for bit
+        band = window_terms(*args, min_ratio_fine=0.1, pacer=pacer, box=(5, 31, 30, 52))
+        inside = np.zeros(img.shape, bool)
+        inside[31:52, 5:30] = True
         for a, b in zip(whole, band, strict=True):
-            assert a[31:52].tobytes() == b[31:52].tobytes() and not b[:31].any() and not b[52:].any()
+            assert a[inside].tobytes() == b[inside].tobytes() and not b[~inside].any()
     stopper = StopAfterFirstBlock()
     with pytest.raises(KeyboardInterrupt), deferred_interrupts():
         window_terms(*args, min_ratio_fine=0.1, pacer=stopper)

@@ -83,11 +83,14 @@ def load_run(run_dir: str | Path, scene: Scene | None = None, label_px: float = 
     return samples
 
 
-def view_labels(scene: Scene, index: int, depth: np.ndarray, label_px: float = 2.0) -> np.ndarray | None:
-    """Label map (Kuhn et al. 2020, §3.2) of ``depth`` estimated for view ``index``; None without GT depth."""
+def view_labels(scene: Scene, index: int, depth: np.ndarray, label_px: float = 2.0, gt: np.ndarray | None = None
+                ) -> np.ndarray | None:
+    """Label map (Kuhn et al. 2020, §3.2) of ``depth`` estimated for view ``index``; None without GT depth.
+    ``gt``: the view's GT depth, if already read (read from the scene otherwise)."""
 
     v = scene.views[index]
-    gt = scene.gt_depth(index)
+    if gt is None:
+        gt = scene.gt_depth(index)
     if gt is None:
         return None
     h, w = depth.shape

@@ -117,16 +117,16 @@ def weighting_sigma(options: PatchMatchOptions) -> float:
 def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarray], src_cams: list[Camera],
                   options: PatchMatchOptions, src_depths: list[np.ndarray] | None = None,
                   fine_allowed: np.ndarray | None = None, pool: BufferPool | None = None,
-                  rows: tuple[int, int] | None = None) -> ViewContext:
+                  box: tuple[int, int, int, int] | None = None) -> ViewContext:
     """Precompute the :class:`ViewContext` of one reference view (images float32 in [0, 1]).
 
     ``fine_allowed`` (H, W) bool or uint8 region codes (``fine_window_region``) restricts the fine window to
     those pixels (None = no restriction); the
-    window terms' arrays come from ``pool`` when given (see :meth:`ViewContext.release`); ``rows`` (y0, y1): the
-    reference window terms of those rows only (kernels run on a box of pixels within them)."""
+    window terms' arrays come from ``pool`` when given (see :meth:`ViewContext.release`); ``box`` (x0, y0, x1, y1):
+    the reference window terms of those pixels only (kernels that update only them)."""
     ref_img = np.ascontiguousarray(ref_img, dtype=np.float32)
     mu_a, var_a, wset, offs_sets, sigmas = reference_terms(ref_img, options, fine_allowed,
-                                                           np.empty if pool is None else pool.take, rows)
+                                                           np.empty if pool is None else pool.take, box)
     offs = offs_sets[0]
     src, sizes = pad_sources(src_imgs)
     geo = relative_geometry(ref_cam, src_cams)
@@ -148,7 +148,7 @@ def build_context(ref_img: np.ndarray, ref_cam: Camera, src_imgs: list[np.ndarra
 
 
 def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowed: np.ndarray | None = None,
-                    alloc: Callable[..., np.ndarray] = np.empty, rows: tuple[int, int] | None = None
+                    alloc: Callable[..., np.ndarray] = np.empty, box: tuple[int, int, int, int] | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Reference-side NCC terms with the per-pixel window choice.
 
@@ -160,8 +160,8 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     ``fine_crease_min_var_ratio`` times the standard window's: on piecewise-constant texture the sharp colour
     weight keeps little more than the centre's colour and the small window is nearly flat, while the large
     one still sees the pattern.
-    Returns mu_a, var_a (H, W) f32, wset (H, W) u8 (of ``rows`` (y0, y1) only when given, 0 elsewhere), the offset
-    sets and their (spatial, colour) sigmas (n_sets, 2) f64.
+    Returns mu_a, var_a (H, W) f32, wset (H, W) u8 (of ``box`` (x0, y0, x1, y1) only when given, 0 elsewhere),
+    the offset sets and their (spatial, colour) sigmas (n_sets, 2) f64.
     """
     offs = window_offsets_2d(options.window_offsets())
     sigma_c = weighting_sigma(options)
@@ -170,7 +170,7 @@ def reference_terms(ref_img: np.ndarray, options: PatchMatchOptions, fine_allowe
     fine_c = options.fine_sigma_color if options.ncc_weighting == "colmap" else sigma_c
     mu_a, var_a, wset = window_terms(ref_img, offs, offs_f, options.ncc_weighting, options.sigma_spatial, sigma_c,
                                      options.fine_sigma_spatial, fine_c, options.fine_min_var, fine_allowed, alloc,
-                                     options.fine_crease_min_var_ratio, rows=rows)
+                                     options.fine_crease_min_var_ratio, box=box)
     sigmas = [(options.sigma_spatial, sigma_c), (options.fine_sigma_spatial, fine_c)]
     n_sets = 2 if use_fine else 1
     return mu_a, var_a, wset, [offs, offs_f][:n_sets], np.array(sigmas[:n_sets], np.float64)

@@ -329,6 +329,19 @@ def box_bounds(params, h, w):
     return max(params.box_x0, 0), max(params.box_y0, 0), x1, y1
 
 
+@njit(cache=True, _nrt=False, inline="always")
+def row_span(params, y, x_lo, x_hi):
+    """[a, b): the pixels of row ``y`` within [x_lo, x_hi) a kernel updates: all of them, or with
+    ``params.box_r`` >= 0 those within L1 distance box_r of (box_cx, box_cy) (a == b: none)."""
+    if params.box_r < 0:
+        return x_lo, x_hi
+    d = params.box_r - abs(y - params.box_cy)
+    if d < 0:
+        return x_lo, x_lo
+    a = min(max(x_lo, params.box_cx - d), x_hi)
+    return a, max(a, min(x_hi, params.box_cx + d + 1))
+
+
 @njit(cache=True, parallel=True)
 def random_init_kernel(depth, normal, kinv, zmin, zmax, key, only_invalid):
     """Random hypotheses (the random initialisation of ACMM and COLMAP): depth (H, W) f32 ~ U[zmin, zmax],
@@ -383,7 +396,8 @@ def init_cost_kernel(maps, view_costs, store, known, known_wset, ref, sources, p
         costs = np.empty(n_views, np.float64)
         order = np.empty(n_views, np.float64)
         win, sidx = ncc_work(ox.shape[1])
-        for x in range(x_lo, x_hi):
+        a, b = row_span(params, y, x_lo, x_hi)
+        for x in range(a, b):
             reuse = have_known and known_wset[y, x] == wset[y, x]
             z = Z[y, x]
             rp = ray(kinv, x, y)
@@ -519,7 +533,8 @@ def half_step_kernel(colour, maps, caches, Cpre, ref, sources, pattern, key, par
         hn = np.empty((8, 3), np.float64)
         win, sidx = ncc_work(ox.shape[1])
         n_rows = n_cur = n_rem = n_ref = n_px = n_skip = 0
-        for x in range(x_lo + (x_lo + y + colour) % 2, x_hi, 2):  # (x + y) % 2 == colour
+        a, b = row_span(params, y, x_lo, x_hi)
+        for x in range(a + (a + y + colour) % 2, b, 2):  # (x + y) % 2 == colour
             pk = combine(key, y * w + x)
             if track:
                 # active set: a pixel whose own last update and whose neighbours' last updates changed nothing

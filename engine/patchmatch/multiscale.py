@@ -396,17 +396,22 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
                    level: int, pass_index: int, detail: bool, options: PatchMatchOptions, on_iter: Callable | None,
                    step: int, done_before: int = 0, random_start: bool = False, pool: BufferPool | None = None,
                    on_stage: Callable | None = None, probe: PassProbe | None = None, iterations: int | None = None,
-                   box: Box | Callable[[int], Box] | None = None) -> tuple[int, int]:
+                   box: Box | Callable[[int], Box] | None = None, regions: dict | None = None) -> tuple[int, int]:
     """Pass ``pass_index`` of view ``i`` at ``level`` (:func:`view_pass.run_view_level`) with its context built
     from the level's images and, in geometric passes, the ``snapshot`` of every view's depth; returns the step
-    counter after it and the iterations the pass ran."""
+    counter after it and the iterations the pass ran. ``regions``: the passes' fine-window regions by (level,
+    pass), filled on first use (a function of the pass's start state alone: replays of one view share them)."""
     src_idx = list(v.source_views)
     widest = box(0) if callable(box) else box  # the pass's initial cost covers the widest box
+    if regions is not None and (level, pass_index) in regions:
+        region = regions[(level, pass_index)]
+    else:
+        region = fine_window_region(st.depth, st.normal, cameras[i][level], options, random_start, level)
+        if regions is not None:
+            regions[(level, pass_index)] = region
     ctx = build_context(images[i][level], cameras[i][level], [images[j][level] for j in src_idx],
                         [cameras[j][level] for j in src_idx], options,
-                        [snapshot[j] for j in src_idx] if snapshot is not None else None,
-                        fine_window_region(st.depth, st.normal, cameras[i][level], options, random_start, level), pool,
-                        rows=None if widest is None else (widest[1], widest[3]))
+                        [snapshot[j] for j in src_idx] if snapshot is not None else None, region, pool, box=widest)
     kind = "geometric" if pass_index > 0 else "photometric"
     first_step = step
     ran = 0
@@ -501,14 +506,15 @@ def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: li
                   snapshot: list | None, level: int, pass_index: int, n_levels: int, options: PatchMatchOptions,
                   done_before: int, probe: PixelProbe | None = None, pool: BufferPool | None = None,
                   origin: tuple[int, int] = (0, 0), on_iter: Callable | None = None, iterations: int | None = None,
-                  box: Box | Callable[[int], Box] | None = None) -> None:
+                  box: Box | Callable[[int], Box] | None = None, regions: dict | None = None) -> None:
     """Pass ``pass_index`` of view ``i`` at ``level`` on ``st`` in place, as :func:`run_patchmatch` runs it (detail
     restorer in a finer level's photometric pass, random start at the coarsest's): ``images``, ``cameras``: every
     view's pyramid (``images[i][level]`` may be a crop of the level's image at ``origin`` (x, y), with its camera;
     ``probe`` then traces the probed pixels inside it); ``snapshot``: the views' depth maps a geometric pass reads;
     ``done_before``: iterations of all earlier passes; ``on_iter(event)`` after each iteration; ``iterations``: run
     exactly this many (the count a converged pass of the run ran; None: the schedule's, ended by convergence);
-    ``box`` (x0, y0, x1, y1), or ``box(j)`` per half-step: update only those pixels (``view_pass.run_view_level``)."""
+    ``box`` (x0, y0, x1, y1), or ``box(j)`` per half-step: update only those pixels (``view_pass.run_view_level``);
+    ``regions``: the fine-window regions of the view's passes, kept across calls (:func:`_run_view_pass`)."""
     coarsest = level == n_levels - 1
     detail = pass_index == 0 and not coarsest and options.detail_restorer
     pass_probe = None
@@ -517,4 +523,4 @@ def run_view_pass(views: list[PatchMatchView], i: int, st: ViewState, images: li
         pass_probe = probe.pass_probe(level, pass_index, w, h, detail, origin, st.depth.shape)
     _run_view_pass(i, views[i], st, images, cameras, snapshot, level, pass_index, detail, options, on_iter, 0,
                    done_before, random_start=coarsest and pass_index == 0, pool=pool, probe=pass_probe,
-                   iterations=iterations, box=box)
+                   iterations=iterations, box=box, regions=regions)

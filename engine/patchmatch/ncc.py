@@ -72,12 +72,12 @@ def _pixel_moments(img, x, y, offs, n_off, mode, sigma_s, sigma_c, wrow, warow):
 
 @njit(cache=True, parallel=True, fastmath=True)
 def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, sigma_c_f, min_var_f, min_ratio_f,
-                         allowed, mu_a, var_a, wset, y_start, y_stop):
+                         allowed, mu_a, var_a, wset, y_start, y_stop, x_start, x_stop):
     """Per pixel: the fine window where ``allowed`` (code > FINE_OFF) and its variance test (fine offsets,
     sigma_s_f, the standard sigma_c) reaches ``min_var_f`` and, at FINE_CREASE with ``min_ratio_f`` > 0, its
     variance under its own weights reaches ``min_ratio_f`` times the standard window's; else the standard
-    window. Writes the chosen window's weighted mean and variance and the choice (1 = fine) of rows [y_start, y_stop)
-    (every pixel is independent of the others)."""
+    window. Writes the chosen window's weighted mean and variance and the choice (1 = fine) of the pixels
+    [x_start, x_stop) x [y_start, y_stop) (every pixel is independent of the others)."""
     h, w = img.shape
     n_std = offs.shape[0]
     n_fine = offs_f.shape[0]
@@ -85,7 +85,7 @@ def _window_terms_kernel(img, offs, offs_f, mode, sigma_s, sigma_c, sigma_s_f, s
     for y in prange(max(y_start, 0), min(y_stop, h)):
         wrow = np.empty(s_max, np.float32)  # the weights and w·a: scratch here, recomputed by load_window
         warow = np.empty(s_max, np.float32)
-        for x in range(w):
+        for x in range(max(x_start, 0), min(x_stop, w)):
             fine = False
             done = False  # the chosen window's moments are already in m, v
             m = v = 0.0
@@ -161,7 +161,7 @@ def window_weight_maps(img: np.ndarray, offsets: np.ndarray, n_samples: np.ndarr
 def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weighting: str, sigma_s: float,
                  sigma_c: float, sigma_s_fine: float, sigma_c_fine: float, min_var_fine: float,
                  allowed: np.ndarray | None, alloc: Callable[..., np.ndarray] = np.empty, min_ratio_fine: float = 0.0,
-                 pacer: RowPacer | None = PACER, rows: tuple[int, int] | None = None
+                 pacer: RowPacer | None = PACER, box: tuple[int, int, int, int] | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference-side NCC terms with a per-pixel choice between two windows (see
     ``context.reference_terms``): mu_a, var_a (H, W) f32 the chosen window's weighted mean and variance and
@@ -169,8 +169,9 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     codes (FINE_OFF, FINE_EDGE, FINE_CREASE: subject to ``min_ratio_fine`` too, its variance under its own weights
     must reach that fraction of the standard window's) or None (everywhere, FINE_EDGE). ``alloc(shape, dtype)``
     gives the output arrays (``np.empty`` or a ``buffers.BufferPool``'s take); ``pacer``: the row blocks
-    (``engine.core.blocks``; None: one call); ``rows`` (y0, y1): only those rows' terms (the others 0), for
-    kernels that update a box of pixels within them (the probe's partial replay)."""
+    (``engine.core.blocks``; None: one call); ``box`` (x0, y0, x1, y1): only the terms of the pixels
+    [x0, x1) x [y0, y1) (the others 0), for kernels that update only those pixels (the probe's partial replay:
+    a pixel's NCC reads its own reference terms alone)."""
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
     mu_a = alloc((h, w), np.float32)
@@ -181,14 +182,16 @@ def window_terms(img: np.ndarray, offs: np.ndarray, offs_fine: np.ndarray, weigh
     args = (img, offs, np.ascontiguousarray(offs_fine, dtype=np.int32), WEIGHTING_CODES[weighting], float(sigma_s),
             float(sigma_c), float(sigma_s_fine), float(sigma_c_fine), np.float32(min_var_fine),
             np.float32(min_ratio_fine), np.ascontiguousarray(allowed, dtype=np.uint8), mu_a, var_a, wset)
-    y0, y1 = (0, h) if rows is None else (max(0, int(rows[0])), min(h, int(rows[1])))
-    for a in (mu_a, var_a, wset):
-        a[:y0] = 0
-        a[y1:] = 0
+    x0, y0, x1, y1 = (0, 0, w, h) if box is None else (max(0, int(box[0])), max(0, int(box[1])),
+                                                        min(w, int(box[2])), min(h, int(box[3])))
+    if box is not None:
+        for a in (mu_a, var_a, wset):
+            a[:] = 0
     if pacer is None:
-        _window_terms_kernel(*args, y0, y1)
+        _window_terms_kernel(*args, y0, y1, x0, x1)
     else:  # blocks of rows, a stop request honoured between them (one call took seconds at 768x512, loaded)
-        pacer.run("window_terms", y1 - y0, w, lambda start, stop: _window_terms_kernel(*args, y0 + start, y0 + stop))
+        pacer.run("window_terms", y1 - y0, x1 - x0,
+                  lambda start, stop: _window_terms_kernel(*args, y0 + start, y0 + stop, x0, x1))
     return mu_a, var_a, wset
 
 

@@ -55,11 +55,16 @@ class KernelParams(NamedTuple):
     track_changes: bool  # write CostCaches.changed (the active set is on in this pass)
     change_depth: float  # active set: a hypothesis has changed when its depth moves more than this (relative)
     # the box of pixels a kernel updates, [box_x0, box_x1) x [box_y0, box_y1) in the maps' coordinates (an end < 0:
-    # the image's edge): the pixel probe replays only the pixels a traced pixel depends on (engine/run/probe_replay.py)
+    # the image's edge): the pixel probe replays only the pixels a traced pixel depends on (probe/partial.py)
     box_x0: int = 0
     box_y0: int = 0
     box_x1: int = -1
     box_y1: int = -1
+    # and inside the box only the pixels within L1 distance box_r of (box_cx, box_cy) (box_r < 0: the whole box):
+    # the probe's dependency cone of one pixel, a diamond under a pattern of samples along the axes
+    box_cx: int = 0
+    box_cy: int = 0
+    box_r: int = -1
 
 
 def good_threshold(options: PatchMatchOptions, iteration: int) -> float:
@@ -83,14 +88,15 @@ def active_share(options: PatchMatchOptions, iteration: int, last: bool = False)
 
 def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteration: int = 0, geometric: bool = False,
                   detail: bool = False, n_regions: int = 24, perturbation: float | None = None,
-                  last: bool = False, box: tuple[int, int, int, int] | None = None) -> KernelParams:
+                  last: bool = False, box: tuple[int, ...] | None = None) -> KernelParams:
     """The :class:`KernelParams` of iteration ``iteration`` of a pass over a view with depth range [zmin, zmax].
 
     ``perturbation`` defaults to 2^-iteration; ``last``: the pass's last iteration, where any lower cost
     replaces a hypothesis (``PatchMatchOptions.min_improvement`` does not apply); ``n_regions``: regions of the
     sampling pattern (``propagation.sampling_pattern``); ``box``: (x0, y0, x1, y1), the pixels the kernels update
-    (None: all; see :class:`KernelParams`)."""
-    x0, y0, x1, y1 = (0, 0, -1, -1) if box is None else (int(c) for c in box)
+    (None: all), optionally followed by (cx, cy, r): only those within L1 distance r of (cx, cy) (see
+    :class:`KernelParams`)."""
+    x0, y0, x1, y1, cx, cy, r = (0, 0, -1, -1, 0, 0, -1) if box is None else (*(int(c) for c in box), 0, 0, -1)[:7]
     return KernelParams(
         zmin=float(zmin), zmax=float(zmax),
         perturbation=float(2.0 ** (-iteration) if perturbation is None else perturbation),
@@ -106,7 +112,8 @@ def kernel_params(options: PatchMatchOptions, zmin: float, zmax: float, iteratio
         plane_propagation=bool(options.plane_propagation), geometric=bool(geometric), detail_restorer=bool(detail),
         deterministic=options.view_sampling == "deterministic", all8=options.combos == "all8",
         active_share=active_share(options, iteration, last), track_changes=bool(options.active_share >= 0),
-        change_depth=float(options.converge_depth), box_x0=x0, box_y0=y0, box_x1=x1, box_y1=y1)
+        change_depth=float(options.converge_depth), box_x0=x0, box_y0=y0, box_x1=x1, box_y1=y1, box_cx=cx, box_cy=cy,
+        box_r=r)
 
 
 class HypothesisMaps(NamedTuple):

@@ -31,8 +31,9 @@ from engine.patchmatch.state import ViewState
 RESTORER_ITERATION = (1 << 20) + 1  # stream id of the detail restorer's random reference normals
 
 IterationFn = Callable[[int, np.ndarray, float], object]
-# (x0, y0, x1, y1): the pixels [x0, x1) x [y0, y1) a kernel updates
-Box = tuple[int, int, int, int]
+# (x0, y0, x1, y1): the pixels [x0, x1) x [y0, y1) a kernel updates; optionally followed by (cx, cy, r): only those
+# within L1 distance r of (cx, cy) (records.KernelParams)
+Box = tuple[int, ...]
 PACER = RowPacer()  # the row blocks of this process's kernel calls (only their time depends on it)
 
 

@@ -37,7 +37,7 @@ from engine.patchmatch.state import ViewState
 from engine.run.folder import map_path, read_map, read_run_metrics, run_scene
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, patchmatch_views
-from engine.run.probe_output import final_entries, write_traces
+from engine.run.probe_output import final_entries, view_gt_depth, write_traces
 from engine.run.probe_states import StateStore, ViewStates
 
 ProgressFn = Callable[[str, int, int], Any]
@@ -56,17 +56,49 @@ class _Run:
     options: PipelineOptions
     n_levels: int
     history: PassHistory
+    # (level, pass) -> {view: the depth map that geometric pass read}, as the probes of this run have loaded them
+    snapshots: dict[tuple[int, int], dict[int, np.ndarray]] = dataclasses.field(default_factory=dict)
+    gt: dict[int, np.ndarray | None] = dataclasses.field(default_factory=dict)  # view -> GT depth at the maps' size
+    # view -> (images, cameras) of its pyramid: a probe of any view needs its sources' too, so they are made once
+    pyramid: dict[int, tuple[list, list]] = dataclasses.field(default_factory=dict)
+
+    def gt_depth(self, i: int, shape: tuple[int, int]) -> np.ndarray | None:
+        """View ``i``'s GT depth at its maps' ``shape`` (H, W) (``probe_output.view_gt_depth``), read once."""
+        if i not in self.gt:
+            self.gt[i] = view_gt_depth(self.scene, i, shape)
+        return self.gt[i]
+
+    def pyramids(self, needed: set[int]) -> tuple[list, list]:
+        """``multiscale.view_pyramids`` of the views ``needed`` (None for the others), each made once."""
+        missing = sorted(j for j in needed if j not in self.pyramid)
+        if missing:
+            images, cameras = view_pyramids([u if j in missing else None for j, u in enumerate(self.views)],
+                                            self.n_levels)
+            for j in missing:
+                self.pyramid[j] = (images[j], cameras[j])
+        return ([self.pyramid[j][0] if j in needed else None for j in range(len(self.views))],
+                [self.pyramid[j][1] if j in needed else None for j in range(len(self.views))])
+
+    def load_snapshot(self, level: int, pass_index: int, indices: list[int]) -> dict[int, np.ndarray]:
+        """``PassHistory.load_snapshot``, each view's map read from disk once."""
+        kept = self.snapshots.setdefault((level, pass_index), {})
+        missing = [j for j in indices if j not in kept]
+        if missing:
+            kept.update(self.history.load_snapshot(level, pass_index, missing))
+        return {j: kept[j] for j in indices}
 
 
 @dataclasses.dataclass
 class _Replay:
     """One view's replay: its state at every pass start (level, pass) and level end (level, 'end'), the
-    iterations each pass ran, and the pyramids of the view and its sources."""
+    iterations each pass ran, the pyramids of the view and its sources, and the fine-window regions of its passes
+    (made by the first trace from these states)."""
 
     states: dict[tuple[int, Any], tuple[np.ndarray, np.ndarray]]
     iterations: dict[tuple[int, int], int]
     images: list
     cameras: list
+    regions: dict = dataclasses.field(default_factory=dict)
 
 
 _replays: collections.OrderedDict[tuple, _Replay] = collections.OrderedDict()
@@ -185,7 +217,7 @@ def _stored_replay(run: _Run, i: int) -> _Replay | None:
         return None
     v = run.views[i]
     needed = {i, *v.source_views}
-    images, cameras = view_pyramids([u if j in needed else None for j, u in enumerate(run.views)], run.n_levels)
+    images, cameras = run.pyramids(needed)
     return _remember(key, _Replay(got.states, got.iterations, images, cameras))
 
 
@@ -213,7 +245,7 @@ def _replay(run: _Run, i: int, probe: PixelProbe | None = None, progress: Progre
     def on_iter(event: Any) -> None:  # a converged pass ends early: its length is part of the replay
         iterations[(event.level, event.pass_index)] = event.iteration + 1
 
-    maps = replay_view(run.views, i, run.history.load_snapshot, pm, probe=probe, on_pass=on_pass, on_iter=on_iter)
+    maps = replay_view(run.views, i, run.load_snapshot, pm, probe=probe, on_pass=on_pass, on_iter=on_iter)
     stored = read_map(run.run_dir, "depth", run.views[i].name)
     if stored is None or not np.array_equal(maps.depth, stored):
         raise DeepCError(f"replaying view {run.views[i].name} does not give the run's depth map (the run was made "
@@ -235,8 +267,8 @@ def _traced_from_states(run: _Run, i: int, probe: PixelProbe) -> bool:
     rep = _stored_replay(run, i)
     if rep is None:
         return False
-    trace_from_states(run.views, i, rep.states, rep.iterations, run.history.load_snapshot, run.options.patchmatch,
-                      probe)
+    trace_from_states(run.views, i, rep.states, rep.iterations, run.load_snapshot, run.options.patchmatch, probe,
+                      (rep.images, rep.cameras), rep.regions)
     stored = read_map(run.run_dir, "depth", run.views[i].name)
     for t in probe.traces():
         if not t["iterations"] or stored is None or t["iterations"][-1]["after"]["depth"] != float(
@@ -272,7 +304,7 @@ def probe_run(run_dir: str | Path, view: str | int, pixels: list[tuple[int, int]
         _replay(run, i, probe, progress, keep=stored_states)
     depths, maps = _stored_maps(run, i)
     finals = final_entries(run.scene, i, run.views, depths, maps["normal"], maps["cost"], maps["counter"],
-                           maps["confidence"], probe.pixels, run.options.counter)
+                           maps["confidence"], probe.pixels, run.options.counter, run.gt_depth(i, depths[i].shape))
     for p, f in zip(probe.pixels, finals, strict=True):
         probe.set_final(p, f)
     traces = probe.traces()
@@ -377,7 +409,7 @@ def rerun_region(run_dir: str | Path, view: str | int, box: tuple[int, int, int,
         for p in range(first, 1 + pm.geom_passes):
             snapshot = None
             if p > 0:
-                got = run.history.load_snapshot(lv, p, list(v.source_views))
+                got = run.load_snapshot(lv, p, list(v.source_views))
                 snapshot = [got.get(j) for j in range(len(run.views))]
             run_view_pass(run.views, i, st, images, cameras, snapshot, lv, p, run.n_levels, options, done, probe,
                           origin=(cx0, cy0))
@@ -394,7 +426,7 @@ def rerun_region(run_dir: str | Path, view: str | int, box: tuple[int, int, int,
     depth_after = np.array(st.depth[iy0:iy0 + bh, ix0:ix0 + bw], np.float32)
     stored = read_map(run.run_dir, "depth", v.name)
     depth_before = np.array(stored[y0:y0 + bh, x0:x0 + bw], np.float32)
-    gt = run.scene.gt_depth(i) if run.scene.has_gt_depth else None
+    gt = run.gt_depth(i, stored.shape)
     gt_box = None if gt is None else np.asarray(gt, np.float32)[y0:y0 + bh, x0:x0 + bw]
     err_b, pct_b = _errors(depth_before, gt_box)
     err_a, pct_a = _errors(depth_after, gt_box)

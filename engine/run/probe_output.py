@@ -63,9 +63,13 @@ def counter_verdicts(views: list[PatchMatchView], index: int, depths: list[np.nd
     names = [views[j].name for j in src]
     if not src:
         return [{} for _ in pixels]
+    # a pixel's NCC reads its own reference terms alone: those of the probed pixels' bounding box suffice
+    box = (min(p[0] for p in pixels), min(p[1] for p in pixels), max(p[0] for p in pixels) + 1,
+           max(p[1] for p in pixels) + 1) if pixels else (0, 0, 0, 0)
     ctx = build_context(np.asarray(v.image_gray, np.float32), v.camera,
                         [np.asarray(views[j].image_gray, np.float32) for j in src], [views[j].camera for j in src],
-                        ncc_options, [depths[j] for j in src], fine_window_region(depth, normal, v.camera, ncc_options))
+                        ncc_options, [depths[j] for j in src], fine_window_region(depth, normal, v.camera, ncc_options),
+                        box=box)
     cos_tri_max = math.cos(math.radians(options.tri_angle_min_deg))
     max_cost = 1.0 - float(options.ncc_min)
     win, sidx = ncc_work(ctx.ox.shape[1])
@@ -109,24 +113,25 @@ def counter_verdicts(views: list[PatchMatchView], index: int, depths: list[np.nd
 def final_entries(scene: Any, index: int, views: list[PatchMatchView], depths: list[np.ndarray],
                   normal: np.ndarray, cost: np.ndarray | None, counter: np.ndarray | None,
                   confidence: np.ndarray | None, pixels: list[tuple[int, int]],
-                  counter_options: CounterOptions | None = None) -> list[dict[str, Any]]:
+                  counter_options: CounterOptions | None = None, gt: np.ndarray | None = None
+                  ) -> list[dict[str, Any]]:
     """The ``final`` dict of each probed pixel (x, y) of view ``index``: ``depth``, ``normal``, ``cost`` (the
     written maps), ``counter`` and ``counter_verdicts`` (:func:`counter_verdicts`; the verdict strings, with
     the numbers under ``counter_details``), ``confidence`` (or None), ``gt_depth``, ``label`` (1 inlier, 0
     outlier, -1 unlabelled; Kuhn et al. 2020, §3.2) and ``error`` (relative |z - z_gt| / z_gt), None without
-    GT or without an estimate."""
+    GT or without an estimate. ``gt``: the view's GT depth at the maps' size (:func:`view_gt_depth`), if
+    already read."""
     depth = depths[index]
     verdicts = counter_verdicts(views, index, depths, normal, pixels, counter_options)
-    gt = scene.gt_depth(index) if scene is not None and scene.has_gt_depth else None
+    if gt is None:
+        gt = view_gt_depth(scene, index, depth.shape)
     labels = None
     if gt is not None:
-        if gt.shape != depth.shape:
-            gt = resample_depth(gt, (depth.shape[1], depth.shape[0]))
         # a label is a function of its own pixel's depth alone (Kuhn et al. 2020, §3.2): label the probed ones only
         probed = np.zeros_like(depth)
         cols, rows = np.array([p[0] for p in pixels], np.intp), np.array([p[1] for p in pixels], np.intp)
         probed[rows, cols] = depth[rows, cols]
-        labels = view_labels(scene, index, probed)
+        labels = view_labels(scene, index, probed, gt=gt)
     out = []
     for (x, y), ver in zip(pixels, verdicts, strict=True):
         z = float(depth[y, x])
@@ -140,6 +145,14 @@ def final_entries(scene: Any, index: int, views: list[PatchMatchView], depths: l
                     "gt_depth": g, "label": int(labels[y, x]) if labels is not None else None,
                     "error": abs(z - g) / g if g is not None and z > 0 else None})
     return out
+
+
+def view_gt_depth(scene: Any, index: int, shape: tuple[int, int]) -> np.ndarray | None:
+    """View ``index``'s GT depth (H, W) resampled to ``shape`` (H, W) of its maps; None without GT depth."""
+    gt = scene.gt_depth(index) if scene is not None and scene.has_gt_depth else None
+    if gt is not None and gt.shape != tuple(shape):
+        gt = resample_depth(gt, (shape[1], shape[0]))
+    return gt
 
 
 def finish_probe(probe: Any, scene: Any, views: list[PatchMatchView], maps: list[Any], counter: list[np.ndarray] | None,

@@ -12,8 +12,10 @@ What one half-step at pixel p reads (``kernels.half_step_kernel``), and so how f
   the half-step only.
 
 So after k half-steps of a pass, pixel p depends on the pass's start state within k · reach pixels (Chebyshev),
-and nothing else of the pass. Of the pass's K = 2T half-steps (T: its iterations), the j-th need only be right
-within (K - j) · reach of the traced pixels, since the K - j half-steps after it read no farther: by induction,
+and within k · reach_l1 in L1 distance (each read moves along a pattern offset or to a 4-neighbour: for the
+'deepc' patterns, samples on the axes, a diamond of half the square's pixels), and nothing else of the pass. Of
+the pass's K = 2T half-steps (T: its iterations), the j-th need only be right within (K - j) · reach of the
+traced pixels, since the K - j half-steps after it read no farther: by induction,
 if every pixel within (K - j + 1) · reach is right before it, every pixel it updates within (K - j) · reach reads
 only right values, and the other colour's are unchanged. So the pass's initial cost covers a box of radius
 K · reach and its j-th half-step one of radius (K - j) · reach (the last: the traced pixels alone), about a third
@@ -21,7 +23,8 @@ of the work of one box of radius K · reach throughout, and the traced pixels ge
 pass gives them (a bound: in practice a change travels only as far as it keeps winning, and the tests' traces
 stay the same with half that radius, so the tests cannot show that the bound is tight). The box is applied
 inside the kernels (``KernelParams.box_*``), with every map kept at full level size, so coordinates, random
-streams and ray directions are the full level's.
+streams and ray directions are the full level's. Tracing one pixel, each box is cut to its diamond
+(``KernelParams.box_r``; the same induction in L1 distance).
 
 What is whole-view, and so needs the stored states rather than a band from scratch: a pass's length (the
 convergence test counts the whole level's changed pixels: the first replay records how many iterations each pass
@@ -59,6 +62,25 @@ def pattern_reach(options: PatchMatchOptions) -> int:
     return max(1, int(np.abs(offsets).max()))
 
 
+def pattern_reach_l1(options: PatchMatchOptions) -> int:
+    """Pixels (L1 distance) one half-step reads around a pixel: the sampling pattern's largest |dx| + |dy|, and
+    at least 1 (the 4-neighbours)."""
+    offsets, _ = sampling_pattern(options.pattern)
+    return max(1, int(np.abs(offsets).sum(axis=1).max()))
+
+
+def dependency_region(points: list[tuple[int, int]], half_steps: int, reach: int, reach_l1: int, width: int,
+                      height: int) -> tuple[int, ...]:
+    """The pixels ``points`` depend on over ``half_steps`` half-steps (:func:`dependency_box`), as
+    ``KernelParams``' box: (x0, y0, x1, y1), and for a single point also (x, y, r), the diamond of L1 radius
+    ``half_steps * reach_l1`` around it (``reach_l1``: :func:`pattern_reach_l1`). A pattern of samples along the
+    axes reaches a diamond, half the box's pixels."""
+    box = dependency_box(points, half_steps, reach, width, height)
+    if len(points) != 1:
+        return box
+    return (*box, points[0][0], points[0][1], half_steps * reach_l1)
+
+
 def dependency_box(points: list[tuple[int, int]], half_steps: int, reach: int, width: int, height: int
                    ) -> tuple[int, int, int, int]:
     """(x0, y0, x1, y1): the pixels of a (width, height) level that ``points`` ((x, y) at that level) depend on
@@ -93,19 +115,24 @@ def schedule_cone(options: PatchMatchOptions, width: int, height: int, n_levels:
 
 def trace_from_states(views: list[PatchMatchView], view: int, states: StartStates,
                       iterations: dict[tuple[int, int], int], snapshots: SnapshotFn, options: PatchMatchOptions,
-                      probe: PixelProbe) -> None:
+                      probe: PixelProbe, pyramids: tuple[list, list] | None = None, regions: dict | None = None
+                      ) -> None:
     """Trace ``probe``'s pixels of view ``view`` through every level and pass from ``states`` (the view's state
     at the start of every pass, from a full replay) and ``iterations`` (how many each pass ran there), updating
     only the :func:`dependency_box` of the probed pixels in each pass: the traces are those of the full replay,
     entry for entry (module doc). ``snapshots``: the source depth maps of the geometric passes
-    (``engine.run.pass_history``)."""
+    (``engine.run.pass_history``). ``pyramids`` (images, cameras): the views' pyramids
+    (``multiscale.view_pyramids``), if already made; ``regions``: the passes' fine-window regions kept between
+    traces of this view (``multiscale.run_view_pass``)."""
     n_levels = effective_levels(views, options)
     v = views[view]
-    needed = {view, *v.source_views}
-    images, cameras = view_pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    if pyramids is None:
+        needed = {view, *v.source_views}
+        pyramids = view_pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    images, cameras = pyramids
     probe.bind([u.name for u in views], [(u.camera.width, u.camera.height) for u in views],
                [list(u.source_views) for u in views])
-    reach = pattern_reach(options)
+    reach, reach_l1 = pattern_reach(options), pattern_reach_l1(options)
     W, H = v.camera.width, v.camera.height
     pool = BufferPool()
     done = 0
@@ -124,6 +151,7 @@ def trace_from_states(views: list[PatchMatchView], view: int, states: StartState
                 snapshot = [got.get(j) for j in range(len(views))]
             # the pass's j-th half-step only needs to be right where the remaining 2 n_iter - j can still reach
             run_view_pass(views, view, st, images, cameras, snapshot, level, pass_index, n_levels, options, done,
-                          probe, pool, iterations=n_iter,
-                          box=lambda j, n=2 * n_iter, p=points, w=lw, h=lh: dependency_box(p, n - j, reach, w, h))
+                          probe, pool, iterations=n_iter, regions=regions,
+                          box=lambda j, n=2 * n_iter, p=points, w=lw, h=lh: dependency_region(p, n - j, reach,
+                                                                                               reach_l1, w, h))
             done += options.pass_iterations(pass_index)
