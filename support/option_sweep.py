@@ -8,6 +8,7 @@ Each configuration runs ``deepc run --pipeline vanilla --schedule S --seed S`` i
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -19,26 +20,45 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
 def scene_path(name: str, work: Path) -> Path:
-    """A sample scene by name, or ``synth_NNNNN``: that held-out synthetic scene, rendered into ``work``."""
+    """A sample scene by name, ``synth_NNNNN`` (that held-out synthetic scene, rendered into ``work``) or a path
+    with a '/' (relative to the repository root); a ``@PX`` suffix (the working size) is not part of it."""
+    name = name.split("@")[0]
     if name.startswith("synth_"):
         from engine.synthetic.dataset import write_training_scenes
 
         return write_training_scenes(work / "scenes", [int(name.split("_")[1])])[0]
+    if "/" in name:
+        return (REPO_ROOT / name).resolve()
     return REPO_ROOT / "sample_scenes" / name
 
 
-def run(scene: Path, config: str, options: dict[str, float], work: Path, seed: int = 0, schedule: str = "acmm") -> dict:
+def scene_size(name: str) -> int | None:
+    """The working size (``--max-image-size``) a scene name's ``@PX`` suffix asks for; None: the default."""
+    return int(name.split("@")[1]) if "@" in name else None
+
+
+def run(scene: Path, config: str, options: dict[str, float], work: Path, seed: int = 0, schedule: str = "acmm",
+        max_image_size: int | None = None) -> dict:
     """``deepc run --pipeline vanilla`` of ``scene`` with PatchMatch ``options`` (kept in ``work`` under the
-    configuration's name and reused when its metrics.json exists); its depth metrics, F1 and seconds."""
+    configuration's name and reused when its metrics.json exists); its depth metrics, F1 and seconds (the CPU
+    seconds of the whole run's process, None for a run made earlier). ``max_image_size``: the working size (None:
+    the default)."""
     out = work / "runs" / (f"{scene.name}_{config}" + (f"_seed{seed}" if seed else "")
-                           + (f"_{schedule}" if schedule != "acmm" else ""))
+                           + (f"_{schedule}" if schedule != "acmm" else "")
+                           + (f"_{max_image_size}" if max_image_size is not None else ""))
+    cpu = None
     if not (out / "metrics.json").exists():
         cmd = [sys.executable, "-m", "workbench.cli", "run", str(scene), "--out", str(out), "--pipeline", "vanilla",
                "--headless", "--schedule", schedule, "--seed", str(seed)]
+        if max_image_size is not None:
+            cmd += ["--max-image-size", str(max_image_size)]
         for key, value in options.items():
             cmd += ["--set", f"patchmatch.{key}={value}"]
         env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         proc = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
         if proc.returncode != 0:
             lines = proc.stderr.strip().splitlines() or ["(no message)"]
             raise SystemExit(f"{scene} ({config}): deepc run failed: {lines[-1]}")
@@ -48,7 +68,7 @@ def run(scene: Path, config: str, options: dict[str, float], work: Path, seed: i
     return {"within_1pct": metrics["depth"]["within_1pct"], "within_5pct": metrics["depth"]["within_5pct"],
             "valid_fraction": metrics["depth"]["valid_fraction"],
             "f1_1cm": f1.get(0.01), "f1_2cm": f1.get(0.02), "f1_5cm": f1.get(0.05),
-            "patchmatch_seconds": metrics["seconds"]["patchmatch"]}
+            "patchmatch_seconds": metrics["seconds"]["patchmatch"], "cpu_seconds": cpu}
 
 
 def _num(x: float | None) -> str:
@@ -66,9 +86,11 @@ def metrics_text(r: dict) -> str:
 
 
 def sweep(scenes: list[str], configs: dict[str, dict[str, float]], seeds: list[int], schedule: str,
-          work: Path | None) -> list[dict]:
-    """Run every configuration ({name: PatchMatch options}) on every scene for every seed, printing a table row per run
-    (in a temporary folder when ``work`` is None); returns the rows."""
+          work: Path | None, schedules: dict[str, str] | None = None) -> list[dict]:
+    """Run every configuration ({name: PatchMatch options}) on every scene (:func:`scene_path`, :func:`scene_size`)
+    for every seed, printing a table row per run (in a temporary folder when ``work`` is None); returns the rows.
+    ``schedules``: a configuration's own schedule (others: ``schedule``)."""
+    schedules = schedules or {}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         work = work or Path(tmp)
@@ -78,7 +100,8 @@ def sweep(scenes: list[str], configs: dict[str, dict[str, float]], seeds: list[i
             for config, options in configs.items():
                 for seed in seeds:
                     r = {"scene": name, "config": config, "seed": seed, "options": options,
-                         **run(scene, config, options, work, seed, schedule)}
+                         **run(scene, config, options, work, seed, schedules.get(config, schedule),
+                               scene_size(name))}
                     rows.append(r)
                     print(f"{name:12s} {config:24s} {seed:4d} {metrics_text(r)}", flush=True)
     return rows
