@@ -109,9 +109,9 @@ def synthetic_scene(seed: int, work: Path) -> Path:
 
 def resolution_level(scene_dir: Path, max_image_size: int) -> tuple[int, int]:
     """(L, our --max-image-size) so that the peer's images at 1/2^L are ours."""
-    from engine.scene import load_scene
+    from engine.scene import SceneOptions, load_scene
 
-    camera = load_scene(scene_dir).views[0].camera
+    camera = load_scene(scene_dir, SceneOptions(max_image_size=0)).views[0].camera  # full size: the peer's input
     longest = max(camera.width, camera.height)
     target = min(max_image_size or longest, longest)
     level = round(math.log2(longest / target))
