@@ -20,6 +20,7 @@ from engine.core.resample import resample_depth
 from engine.io.ply import read_ply, read_points
 from engine.scene import load_scene
 from support.fake_run import make_fake_run
+from workbench.viewer.compare import CompareApp, open_comparison
 
 TINY = SAMPLES / "tiny"
 REAL = Path(__file__).parent / "data" / "openmvs_tiny"
@@ -79,6 +80,23 @@ def test_a_densify_folder_with_an_interrupted_runs_leftovers_compares_its_final_
     gt = resample_depth(scene.gt_depth(scene.views[0].index), SIZE)
     known = (gt > 0) & (depth > 0)
     assert counts.b_right == int((np.abs(depth[known] - gt[known]) < 0.01 * gt[known]).sum()) > 0.25 * counts.gt
+
+
+def test_the_viewer_compares_ours_with_the_real_openmvs_map(tmp_path):
+    folder = tmp_path / "openmvs"
+    folder.mkdir()
+    shutil.copy(REAL / "depth0000.dmap", folder / "depth0000.dmap")
+    comparison = open_comparison(make_fake_run(TINY, tmp_path / "ours"), folder, maps="raw")
+    app = CompareApp(comparison, port=0, max_points=5_000)
+    try:
+        assert app.selected.name == VIEW and app.pixel_x.disabled  # the probe replays our PatchMatch only
+        assert comparison.b.kind == "openmvs" and comparison.b.fused is None  # no cloud: nothing to score
+        cases = app.clouds["b"].case
+        assert len(cases) and (app.clouds["b"].view == comparison.views[0].index).all()
+        app.set_colouring("A / B")
+        assert app.switch_seconds and "A right, B wrong" in app.metrics.content
+    finally:
+        app.stop()
 
 
 # OpenMVS v2.3.0's scene_dense.ply vertex element (its header, as DensifyPointCloud writes it)
