@@ -218,19 +218,27 @@ def _ply_files(tmp: Path) -> None:
     table["x"], table["y"], table["z"] = xyz[:6].T
     big = header.replace("element face 1\nproperty list uchar int vertex_indices\n", "").format("binary_big_endian")
     (tmp / "big.ply").write_bytes(big.encode() + table.tobytes())
+    # OpenMVS's dense cloud: per-point lists of view indices and weights after the scalars
+    lists = (b"ply\nformat binary_little_endian 1.0\nelement vertex 6\nproperty float x\nproperty float y\n"
+             b"property float z\nproperty list uint8 uint32 view_indices\nproperty list uint8 float32 view_weights\n"
+             b"end_header\n")
+    for i, point in enumerate(xyz[:6].astype("<f4")):
+        lists += point.tobytes() + bytes([i % 4]) + np.arange(i % 4, dtype="<u4").tobytes() \
+            + bytes([i % 4]) + np.full(i % 4, 0.5, "<f4").tobytes()
+    (tmp / "lists.ply").write_bytes(lists)
 
 
 def ply_target(tmp: Path) -> FuzzTarget:
-    """PLY: binary little endian (as we write), ASCII and big-endian binary."""
+    """PLY: binary little endian (as we write), ASCII, big-endian binary and OpenMVS's vertex lists."""
     from engine.io.ply import read_ply
 
     _ply_files(tmp)
 
     def read(root: Path) -> None:
-        for name in ("binary.ply", "ascii.ply", "big.ply"):
+        for name in ("binary.ply", "ascii.ply", "big.ply", "lists.ply"):
             read_ply(root / name)
 
-    return FuzzTarget("ply", tmp, ["binary.ply", "ascii.ply", "big.ply"], read)
+    return FuzzTarget("ply", tmp, ["binary.ply", "ascii.ply", "big.ply", "lists.ply"], read)
 
 
 def _scene_copy(tmp: Path, scene: str) -> Path:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -153,3 +154,25 @@ def test_bad_arguments_are_one_line_and_exit_2(runs, tmp_path):
     assert "usage: deepc compare" in deepc("compare", "--help").stdout
     _one_line_error(deepc("compare", a, a, "--tolerance", "0"), "--tolerance")
     _one_line_error(deepc("compare", a, a, "--scene", tmp_path / "nowhere"), "nowhere")
+
+
+def test_a_deepc_runs_saved_score_of_its_cloud_stands_while_it_holds(runs, tmp_path):
+    from engine.compare.comparison import fused_scores, score_clouds
+    from engine.evaluation import EvaluationOptions
+
+    a = shutil.copytree(runs[0], tmp_path / "a")
+    write_ply(a / "fused.ply", read_points(TINY / "ground_truth" / "points.ply")[::3])
+    run = _raw(a)
+    scene = reference_scene(run, run)
+    computed = score_clouds({"a": a / "fused.ply"}, scene)["a"]
+    metrics = json.loads((a / "metrics.json").read_text())
+    saved = {**computed, "f1": [-1.0] * len(computed["f1"])}  # no scoring gives this: seen only when reused
+    metrics["eval"], metrics["options"]["evaluation"] = saved, EvaluationOptions().to_dict()
+    (a / "metrics.json").write_text(json.dumps(metrics))
+    assert fused_scores(run, run, scene)[0] == {"a": saved, "b": saved}
+    # other evaluation options, or a cloud written after metrics.json: scored again
+    other = EvaluationOptions(tolerances=(0.01, 0.05))
+    assert fused_scores(run, run, scene, other)[0]["a"]["f1"] == [computed["f1"][0], computed["f1"][2]]
+    later = (a / "metrics.json").stat().st_mtime + 10
+    os.utime(a / "fused.ply", (later, later))
+    assert fused_scores(run, run, scene)[0]["a"] == computed

@@ -58,7 +58,7 @@ def test_a_depth_only_dmap_and_the_quantized_layout_read():
     depth = np.array([[1.0, 2.0], [0.0, 3.5]], np.float32)
     plain = decode_dmap(encode_dmap("x.png", depth))
     assert plain.normal is None and plain.confidence is None and plain.views is None
-    # newer OpenMVS: 40-byte header (depth exponent, confidence scale), half depths scaled by 2^-exponent, uint8 conf
+    # newer OpenMVS: 32-byte header (depth exponent, confidence scale), half depths scaled by 2^-exponent, uint8 conf
     header = struct.pack("<2sBb4I3f", b"DR", 1 | 4, 2, 2, 2, 2, 2, 0.5, 4.0, 2.0)
     body = (struct.pack("<H", 5) + b"x.png" + struct.pack("<I", 1) + struct.pack("<I", 0) + bytes(8 * 21)
             + (depth / 4).astype("<f2").tobytes() + np.array([255, 0, 51, 102], "u1").tobytes())

@@ -10,13 +10,13 @@ COLMAP workspace with ground truth (``images/``, ``sparse/`` as text, ``ground_t
 views at 480x360 drawn from ``--synthetic SEED`` (``engine.synthetic.layout.random_scene``; the shipped
 networks trained on seeds 0-5 and 2000-2009: take one from 10000 on).
 
-Each repeat runs the peer, then ours once per ``--ours-args`` (``deepc run --pipeline vanilla --headless`` with our
-default options and those arguments; default: our defaults alone), each in its own process under ``/usr/bin/time``:
-wall and CPU seconds and peak RSS of the process. The peer works at the scene's resolution divided by 2^L
-(``--resolution-level L``), chosen so that both work on the same pixels; both use ``--num-source-views`` source views
-(the peer's ``--number-views``). Both clouds are scored by the same code: ETH3D-style F1 against the scene's GT points
-with the unobserved-space rule (what ``deepc run`` reports) at 1, 2 and 5 cm. Ratios: peer / ours of the median wall
-and CPU seconds (above 1: ours faster), ours / peer of the peak RSS.
+Each repeat runs the peer, then (unless ``--no-ours``) ours once per ``--ours-args`` (``deepc run --pipeline vanilla
+--headless`` with our default options and those arguments; default: our defaults alone), each in its own process
+under ``/usr/bin/time``: wall and CPU seconds and peak RSS of the process. The peer works at the scene's resolution
+divided by 2^L (``--resolution-level L``), chosen so that both work on the same pixels; both use
+``--num-source-views`` source views (the peer's ``--number-views``). Both clouds are scored by the same code:
+ETH3D-style F1 against the scene's GT points with the unobserved-space rule (what ``deepc run`` reports) at 1, 2 and
+5 cm. Ratios: peer / ours of the median wall and CPU seconds (above 1: ours faster), ours / peer of the peak RSS.
 """
 
 from __future__ import annotations
@@ -109,9 +109,9 @@ def synthetic_scene(seed: int, work: Path) -> Path:
 
 def resolution_level(scene_dir: Path, max_image_size: int) -> tuple[int, int]:
     """(L, our --max-image-size) so that the peer's images at 1/2^L are ours."""
-    from engine.scene import load_scene
+    from engine.scene import SceneOptions, load_scene
 
-    camera = load_scene(scene_dir).views[0].camera
+    camera = load_scene(scene_dir, SceneOptions(max_image_size=0)).views[0].camera  # full size: the peer's input
     longest = max(camera.width, camera.height)
     target = min(max_image_size or longest, longest)
     level = round(math.log2(longest / target))
@@ -132,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--ours-args", action="append", default=None,
                     help="extra 'deepc run' arguments of one configuration (repeatable; default: our defaults)")
+    ap.add_argument("--no-ours", action="store_true",
+                    help="run the peer alone (its folder and F1 for deepc compare / eval; no ratios)")
     ap.add_argument("--peer-args", default=PEER_DEFAULT_ARGS, help="extra DensifyPointCloud arguments")
     ap.add_argument("--work", type=Path, default=None, help="runs go here (default: a temporary folder)")
     ap.add_argument("--timeout", type=float, default=3600, help="seconds per run")
@@ -154,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
                  *shlex.split(args.peer_args)]
     ours_cmd = [sys.executable, "-m", "workbench.cli", "run", str(scene_dir), "--pipeline", "vanilla", "--headless",
                 "--max-image-size", str(size), "--num-source-views", str(args.num_source_views)]
-    configs = {f"ours {a}".strip(): shlex.split(a) for a in (args.ours_args or [""])}
+    configs = {} if args.no_ours else {f"ours {a}".strip(): shlex.split(a) for a in (args.ours_args or [""])}
     runs: dict[str, list[dict]] = {"peer": [], **{name: [] for name in configs}}
     for k in range(args.repeats):
         # a fresh folder per repeat: the peer reuses depth maps it finds in its working folder

@@ -11,6 +11,7 @@ by our fusion (:mod:`engine.compare.our_fusion`).
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from engine.core.resample import resample_depth
 from engine.evaluation import EvaluationOptions, PointIndex, evaluate_points
 from engine.io.dense import read_depth_map
 from engine.io.ply import read_points
+from engine.run.folder import read_run_metrics
 from engine.scene import Scene, SceneOptions, load_scene
 
 
@@ -143,16 +145,35 @@ def score_clouds(clouds: dict[str, Path | np.ndarray], scene: Scene, options: Ev
                                  gt_views).to_dict() for key, c in clouds.items()}
 
 
+def saved_score(run: SourceRun, scene: Scene, options: EvaluationOptions) -> dict[str, list[float]] | None:
+    """A deepc run's own score of its fused cloud (``metrics.json``'s ``eval``) when it is what
+    :func:`score_clouds` would compute: the same evaluation options, the run's scene at the options the run used,
+    and ``fused.ply`` not written after ``metrics.json``; else None (scoring a 768 px cloud takes seconds)."""
+    if run.kind != "deepc" or run.fused is None:
+        return None
+    metrics = read_run_metrics(run.path)
+    if metrics.eval is None or metrics.options.get("evaluation") != json.loads(json.dumps(options.to_dict())):
+        return None
+    if Path(metrics.scene_path).resolve() != Path(scene.root).resolve() or \
+            SceneOptions.from_dict(run.scene_options) != scene.options:
+        return None
+    if run.fused.stat().st_mtime > (run.path / "metrics.json").stat().st_mtime:
+        return None
+    return metrics.eval
+
+
 def fused_scores(a: SourceRun, b: SourceRun, scene: Scene, options: EvaluationOptions | None = None
                  ) -> tuple[dict[str, dict[str, list[float]] | None], list[str]]:
-    """The ``eval`` block of each run's own fused cloud ("a" / "b" -> block or None) and a note for each run not
-    scored."""
+    """The ``eval`` block of each run's own fused cloud ("a" / "b" -> block or None; a deepc run's saved one when
+    it holds, :func:`saved_score`) and a note for each run not scored."""
     if not scene.has_gt_points:
         return {"a": None, "b": None}, [f"scene {scene.name} has no GT points: fused clouds not scored"]
     runs = {"a": a, "b": b}
     notes = [f"{key.upper()} ({run.path}) has no fused cloud" for key, run in runs.items() if run.fused is None]
-    scores = score_clouds({key: run.fused for key, run in runs.items() if run.fused is not None}, scene, options)
-    return {key: scores.get(key) for key in runs}, notes
+    saved = {key: saved_score(run, scene, options or EvaluationOptions()) for key, run in runs.items()}
+    scores = score_clouds({key: run.fused for key, run in runs.items() if run.fused is not None and saved[key] is None},
+                          scene, options)
+    return {key: saved[key] or scores.get(key) for key in runs}, notes
 
 
 def ours_fused_scores(a: SourceRun, b: SourceRun, scene: Scene, options: EvaluationOptions | None = None

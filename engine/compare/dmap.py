@@ -4,14 +4,15 @@ The layout, from OpenMVS's published format (``HeaderDepthDataRaw``, ``ExportDep
 little-endian:
 
     header     "DR" (2 bytes), uint8 flags (1 depth, 2 normal, 4 confidence, 8 views), one byte (0, padding),
-               uint32 image width, height, uint32 depth-map width, height, float32 depth min, max   (36 bytes)
+               uint32 image width, height, uint32 depth-map width, height, float32 depth min, max   (28 bytes)
     name       uint16 length, then the image file name (relative to the .dmap's folder, or absolute)
     views      uint32 count, then the uint32 ids of the reference view and its neighbours
     camera     float64 K[3][3], R[3][3] (row-major), C[3]
     maps       float32 depth[h][w]; float32 normal[h][w][3] (camera frame) if flag 2; float32 confidence[h][w]
                if flag 4; uint8 views[h][w][4] if flag 8
 
-Newer OpenMVS writes a quantized variant: a 40-byte header whose padding byte is a power-of-two depth exponent
+OpenMVS v2.3.0's DensifyPointCloud writes this layout (checked on its files; it writes no views map by default).
+The reader also takes a quantized variant: a 32-byte header whose padding byte is a power-of-two depth exponent
 and which ends with a float32 confidence scale, then half-float depth (times 2^exponent), two int16 per normal
 (octahedral), uint8 confidence (times scale / 255) and the same views map. Which of the two a file holds follows
 from its size; the quantized normals are not decoded (``normal`` is None), depth and confidence are.
@@ -31,7 +32,7 @@ from engine.io.binary import ByteReader
 
 MAGIC = b"DR"
 HAS_DEPTH, HAS_NORMAL, HAS_CONF, HAS_VIEWS = 1, 2, 4, 8
-HEADER = struct.Struct("<2sBB4I2f")  # 36 bytes
+HEADER = struct.Struct("<2sBB4I2f")  # 28 bytes
 HEADER_QUANTIZED = struct.Struct("<2sBb4I3f")  # 40 bytes
 CAMERA_BYTES = 8 * (9 + 9 + 3)
 _MAX_DIM = 1 << 16

@@ -17,6 +17,7 @@ the size the run made it. A folder of none of these kinds, or one with a malform
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -32,6 +33,9 @@ KINDS = ("deepc", "colmap", "openmvs")
 MAPS = ("fused", "raw")
 COLMAP_DEPTH = Path("stereo") / "depth_maps"
 COLMAP_TYPES = ("geometric", "photometric")  # preferred first
+#: DensifyPointCloud's final maps; mid-run it also writes depthNNNN.geo.dmap (geometric passes) and
+#: depthNNNN.filtered.dmap (another format), which an interrupted run leaves behind
+DMAP_NAME = re.compile(r"depth\d+\.dmap")
 
 
 @dataclasses.dataclass
@@ -82,7 +86,7 @@ def open_run(path: str | Path, maps: str = "fused") -> SourceRun:
         return _deepc_run(path, maps)
     if (path / COLMAP_DEPTH).is_dir():
         return _colmap_run(path)
-    if any(path.glob("depth*.dmap")):
+    if dmap_files(path):
         return _openmvs_run(path)
     raise DeepCError("not a deepc run (metrics.json), a COLMAP dense workspace (stereo/depth_maps/) or an OpenMVS "
                      "densify folder (depthNNNN.dmap)", path)
@@ -157,10 +161,15 @@ def _dmap_normal(file: str) -> np.ndarray:
     return np.where(np.isfinite(normal), normal, np.float32(0)).astype(np.float32)
 
 
+def dmap_files(path: Path) -> list[Path]:
+    """The final depth maps of an OpenMVS densify folder (``depthNNNN.dmap``, :data:`DMAP_NAME`), sorted."""
+    return sorted(f for f in path.glob("depth*.dmap") if DMAP_NAME.fullmatch(f.name))
+
+
 def _openmvs_run(path: Path) -> SourceRun:
     keys: dict[str, str] = {}
     sizes = {}
-    for file in sorted(path.glob("depth*.dmap")):
+    for file in dmap_files(path):
         data = read_dmap(file)
         name = data.image_name.replace("\\", "/")
         if name in keys:

@@ -90,7 +90,8 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
     """Read the ``vertex`` element of a PLY file: ``{property name: (N,) array}``.
 
     Raises :class:`DeepCError` naming the file for anything that is not a readable PLY with a
-    vertex element holding x, y and z. Elements after ``vertex`` are ignored.
+    vertex element holding x, y and z. Elements after ``vertex`` are ignored, and so are list properties of the
+    vertex element (:mod:`engine.io.ply_lists`: OpenMVS's dense clouds have two).
     """
     path = Path(path)
     try:
@@ -125,8 +126,10 @@ def _read_binary(data, offset, elements, vertex, order, path) -> dict[str, np.nd
             raise DeepCError(f"PLY element {element.name!r} with list properties before 'vertex' is not supported",
                              path)
         offset += element.count * sum(np.dtype(p[1]).itemsize for p in element.properties)
-    if any(p[2] is not None for p in vertex.properties):
-        raise DeepCError("PLY vertex element with list properties is not supported", path)
+    if any(p[2] is not None for p in vertex.properties):  # e.g. OpenMVS's per-point view lists
+        from engine.io.ply_lists import read_binary_with_lists  # lazy: numba
+
+        return read_binary_with_lists(data, offset, vertex.count, vertex.properties, order, path)
     dtype = np.dtype([(name, order + kind) for name, kind, _ in vertex.properties])
     needed = vertex.count * dtype.itemsize
     if len(data) - offset < needed:
@@ -146,6 +149,10 @@ def _read_ascii(body: bytes, elements, vertex, path) -> dict[str, np.ndarray]:
     rows = lines[skip:skip + vertex.count]
     if len(rows) < vertex.count:
         raise DeepCError(f"truncated PLY: {vertex.count} vertices declared, {len(rows)} lines present", path)
+    if any(p[2] is not None for p in vertex.properties):
+        from engine.io.ply_lists import read_ascii_with_lists  # lazy: numba
+
+        return read_ascii_with_lists(rows, vertex.properties, path)
     width = len(vertex.properties)
     try:
         values = np.array([r.split()[:width] for r in rows], dtype=np.float64).reshape(vertex.count, width)
