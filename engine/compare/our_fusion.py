@@ -10,13 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from engine.compare.sources import SourceRun, match_names
-from engine.fusion import FusedCloud, FusionOptions, fuse, views_from_scene
+from engine.fusion import DEFAULT_PRESET, FUSION_PRESETS, FusedCloud, FusionOptions, fuse, views_from_scene
 from engine.scene import Scene
 
 
 def fuse_run(run: SourceRun, scene: Scene, options: FusionOptions | None = None) -> FusedCloud:
-    """``run``'s maps of ``scene``'s views fused with ``options`` (default: our fusion's defaults)."""
-    options = options or FusionOptions()
+    """``run``'s maps of ``scene``'s views fused with ``options`` (default: what every pipeline of ours fuses with,
+    ``FUSION_PRESETS[DEFAULT_PRESET]``: our own vanilla maps give the run's own cloud)."""
+    options = options or FUSION_PRESETS[DEFAULT_PRESET]
     keys = match_names(list(run.keys), [v.name for v in scene.views])
     depths, normals = [], []
     for v in scene.views:
