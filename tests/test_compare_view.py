@@ -22,7 +22,7 @@ from engine.scene import load_scene
 from support.browser import dismiss_software_webgl_notice
 from support.probe_traces import HandProbe
 from workbench.compare.colours import CASE_COLOURS, colour_arrays
-from workbench.viewer.compare import CompareApp, open_comparison
+from workbench.viewer.compare import CompareApp, metrics_table_html, open_comparison
 
 SHIFT = 0.03  # B's fused cloud is off by 3 cm: it fails the 1 cm tolerance, passes the largest
 
@@ -110,6 +110,24 @@ def test_the_inspector_probes_the_same_pixel_in_a_and_in_b(comparison, pair):
         assert f"pixel ({col}, {row})" in app.inspect_text["b"].content
     finally:
         app.stop()
+
+
+def test_the_viewer_opens_before_the_fused_clouds_are_scored_and_shows_their_f1_when_they_are(comparison, pair):
+    """``deepc view A --compare B`` opens on the pixel comparison (scoring a foreign cloud takes seconds), says the
+    clouds are being scored, then shows the same F1s ``deepc compare`` gives."""
+    unscored = open_comparison(*pair, maps="raw", evaluate_fused=False)
+    assert unscored.fused == {"a": None, "b": None}
+    app = CompareApp(unscored, port=0, max_points=5_000, score_fused=True)
+    try:
+        assert app.wait_scored(120)
+        table = app.metrics.content
+        assert "scoring" not in table
+        assert unscored.fused["a"]["f1"] == comparison.fused["a"]["f1"]
+        assert f"{comparison.fused['b']['f1'][0]:.2f}" in table
+    finally:
+        app.stop()
+    pending = metrics_table_html(unscored, unscored.views[0], scoring=True)
+    assert "scoring both clouds" in pending
 
 
 def test_view_compare_with_a_missing_run_is_one_line_and_exit_2(pair, tmp_path):

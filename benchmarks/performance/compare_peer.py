@@ -47,6 +47,20 @@ def summary(result: dict) -> list[dict]:
     return rows
 
 
+def _viewer_open_seconds(ours: Path, peer: Path) -> float:
+    """Seconds ``deepc view OURS --compare PEER`` takes from its start to a viewer ready to interact: the runs
+    opened and compared pixel by pixel, the clouds and colourings made, the server up (the fused clouds' scores
+    arrive after it; the browser's drawing is not counted)."""
+    from workbench.viewer.compare import CompareApp, open_comparison
+
+    start = time.perf_counter()
+    app = CompareApp(open_comparison(ours, peer, evaluate_fused=False), port=0, score_fused=True)
+    seconds = time.perf_counter() - start
+    app.wait_scored(600)
+    app.stop()
+    return seconds
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("ours", type=Path, help="a deepc run folder")
@@ -69,10 +83,12 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     peer_eval = run_eval(b.fused, scene.gt_points_path, options).to_dict()
     eval_s = time.perf_counter() - start
+    viewer_s = _viewer_open_seconds(args.ours, args.peer)
     summary_dict = comparison.to_dict()
     result = {"scene": scene.name, "size": list(scene.views[0].camera.size), "ours": summary_dict["a"],
               "peer": summary_dict["b"], "tolerance": comparison.tolerance,
-              "seconds": {"compare": compare_s, "our_fusion": fuse_s, "peer_deepc_eval": eval_s},
+              "seconds": {"compare": compare_s, "our_fusion": fuse_s, "peer_deepc_eval": eval_s,
+                          "viewer_open": viewer_s},
               "overall": summary_dict["overall"], "views": summary_dict["views"], "fused": comparison.fused,
               "ours_fused": ours_fused, "notes": comparison.fused_notes + fuse_notes, "peer_deepc_eval": peer_eval}
     if args.peer_json is not None:
@@ -90,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     print("peer cloud, deepc eval F1: " + " / ".join(f"{f:.2f}" for f in peer_eval["f1"]))
     for run in result.get("peer_script_f1", []):
         print(f"peer cloud, bench_peer.py F1: {run['f1']} at {run['tolerances']} m")
-    print(f"deepc compare {compare_s:.1f} s, our fusion of both {fuse_s:.1f} s; wrote {path}")
+    print(f"deepc compare {compare_s:.1f} s, our fusion of both {fuse_s:.1f} s, the compare viewer open in "
+          f"{viewer_s:.1f} s; wrote {path}")
     return 0
 
 

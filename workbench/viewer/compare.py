@@ -10,6 +10,7 @@ colouring are made once (:func:`workbench.compare.colours.colour_arrays`), so a 
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -56,12 +57,14 @@ def _pct(value: float | None) -> str:
     return "–" if value is None or value != value else f"{value:.2f}"
 
 
-def metrics_table_html(comparison: Comparison, view: ViewComparison) -> str:
+def metrics_table_html(comparison: Comparison, view: ViewComparison, scoring: bool = False) -> str:
     """A | B | change (B − A): each run's fused cloud F1 (and its maps fused by ours, when scored) at every
     tolerance, then the share of GT pixels within the tolerance over all views and in ``view``; then the shares
-    of the cases where the runs differ."""
+    of the cases where the runs differ. ``scoring``: the fused clouds are being scored (said in their place)."""
     style = 'style="padding:0 0.4em;text-align:right"'
     rows = [f"<tr><th {style}></th><th {style}>A</th><th {style}>B</th><th {style}>change</th></tr>"]
+    if scoring:
+        rows.append(f'<tr><td {style} colspan="4"><i>fused F1: scoring both clouds…</i></td></tr>')
 
     def row(label: str, a: float | None, b: float | None) -> None:
         rows.append(f"<tr><td {style}>{label}</td><td {style}>{_pct(a)}</td><td {style}>{_pct(b)}</td>"
@@ -109,8 +112,10 @@ class CompareApp:
 
     def __init__(self, comparison: Comparison, host: str = "127.0.0.1", port: int = 8080,
                  server: viser.ViserServer | None = None, max_points: int = MAX_POINTS,
-                 probe: Callable | None = None):
+                 probe: Callable | None = None, score_fused: bool = False):
         self.comparison = c = comparison
+        # the fused clouds' scores (seconds each for a foreign cloud) arrive after the viewer opens
+        self.scoring = score_fused
         self.server = viser.ViserServer(host=host, port=port, verbose=False) if server is None else server
         self.port = self.server.get_port()
         self.probe_fn = probe or _probe
@@ -135,6 +140,28 @@ class CompareApp:
         self.select_view(self.selected.index)
         if c.a.kind == c.b.kind == "deepc":
             self.server.scene.on_click()(lambda event: self.pick(event.ray_origin, event.ray_direction))
+        self._scorer = threading.Thread(target=self._score_fused, name="deepc-compare-score", daemon=True)
+        if score_fused:
+            self._scorer.start()
+
+    def _score_fused(self) -> None:
+        """Score both runs' fused clouds (``comparison.fused_scores``) and show them in the metrics table."""
+        from engine.compare.comparison import fused_scores  # lazy: evaluation
+
+        c = self.comparison
+        try:
+            c.fused, notes = fused_scores(c.a, c.b, c.scene)
+            c.fused_notes.extend(notes)
+        except Exception as exc:  # shown in the table: the pixel comparison stays usable
+            c.fused_notes.append(f"fused clouds not scored: {' '.join(str(exc).split())}")
+        self.scoring = False
+        self.metrics.content = metrics_table_html(c, self.selected, self.scoring)
+
+    def wait_scored(self, timeout: float = 120.0) -> bool:
+        """Whether the fused clouds' scores arrived within ``timeout`` seconds (tests)."""
+        if self._scorer.is_alive():
+            self._scorer.join(timeout)
+        return not self.scoring
 
     # ---- GUI -------------------------------------------------------------------------------------
     def _build_gui(self) -> None:
@@ -217,7 +244,7 @@ class CompareApp:
         with self.server.atomic():
             self.depth_image.image = subsample(self._view_pictures(view).depth, 2 * PANEL_IMAGE)
             self._show_cases()
-            self.metrics.content = metrics_table_html(self.comparison, view)
+            self.metrics.content = metrics_table_html(self.comparison, view, self.scoring)
             for i, frustum in enumerate(self.frustums):
                 frustum.color = (230, 60, 40) if i == index else (60, 60, 200)
         self._suggest_pixel(view)
@@ -289,18 +316,20 @@ class CompareApp:
 
 
 def open_comparison(path_a: str | Path, path_b: str | Path, scene: str | Path | None = None, maps: str = "fused",
-                    tolerance: float = 0.01) -> Comparison:
-    """Runs ``path_a`` and ``path_b`` compared as ``deepc compare`` compares them (their fused clouds scored)."""
+                    tolerance: float = 0.01, evaluate_fused: bool = True) -> Comparison:
+    """Runs ``path_a`` and ``path_b`` compared as ``deepc compare`` compares them (their fused clouds scored, with
+    ``evaluate_fused``)."""
     from engine.compare.comparison import compare_runs, reference_scene  # lazy: scenes, evaluation
     from engine.compare.sources import open_run
 
     a, b = open_run(path_a, maps), open_run(path_b, maps)
-    return compare_runs(a, b, reference_scene(a, b, scene), tolerance)
+    return compare_runs(a, b, reference_scene(a, b, scene), tolerance, evaluate_fused=evaluate_fused)
 
 
 def serve_compare(path_a: str, path_b: str, host: str = "127.0.0.1", port: int = 8080, scene: str | None = None,
                   maps: str = "fused", tolerance: float = 0.01) -> None:
     """Compare the runs, serve the compare mode until interrupted (``deepc view A --compare B``), then stop."""
-    comparison = open_comparison(path_a, path_b, scene, maps, tolerance)  # bad runs fail before a port is taken
-    hold(open_server(host, port), lambda server: CompareApp(comparison, host=host, server=server),
+    # bad runs fail before a port is taken; the fused clouds are scored once the viewer is open
+    comparison = open_comparison(path_a, path_b, scene, maps, tolerance, evaluate_fused=False)
+    hold(open_server(host, port), lambda server: CompareApp(comparison, host=host, server=server, score_fused=True),
          "viewer (compare)", host, port)
