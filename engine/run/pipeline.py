@@ -24,7 +24,7 @@ from engine.core.heap_trim import release_free_memory
 from engine.core.interrupt import check_interrupt
 from engine.core.observer import ObserverList
 from engine.core.options import Options, option
-from engine.evaluation import EvaluationOptions, evaluate_point_chunks, evaluate_points
+from engine.evaluation import EvaluationOptions, PointIndex, evaluate_point_chunks, evaluate_points
 from engine.fusion import (
     DEFAULT_PRESET,
     FUSION_PRESETS,
@@ -358,7 +358,7 @@ def evaluate_cloud(scene: Scene, cloud: FusedCloud, options: EvaluationOptions):
     # each GT depth map is read while it is packed for the free-space rule, not all held at once besides the pack
     gt_views = [(v.camera, functools.partial(scene.gt_depth, v.index)) for v in scene.views
                 if scene.gt_depth_paths[v.index] is not None] or None
-    gt = read_points(scene.gt_points_path)
+    gt = PointIndex(read_points(scene.gt_points_path))  # the index holds its own copy: the array read goes now
     if isinstance(cloud, DiskCloud):
         return evaluate_point_chunks(len(cloud), cloud.read_xyz, gt, options, gt_views, scratch=cloud.path.parent)
     return evaluate_points(np.asarray(cloud.xyz, np.float64), gt, options, gt_views)
