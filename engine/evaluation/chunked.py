@@ -163,6 +163,7 @@ def evaluate_point_chunks(n: int, read: Callable[[int, int], np.ndarray], gt_xyz
         xyz = a = b = packed = None  # the last chunk's arrays and the GT views go before the voxel grids are made
         release_free_memory()
         comp = voxel_completeness(gt_index.points, complete.first, n_tol, options.voxel_size)
+        release_free_memory()  # the GT voxels' arrays, before the cloud's slabs
         if n == 0:
             zeros = np.zeros(n_tol)
             return make_result(tol, zeros, comp, 0, len(gt_index), zeros, overlap_notes(zeros, comp, 0, tol))

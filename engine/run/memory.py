@@ -16,7 +16,8 @@ not guessed) plus the arrays each stage holds at its worst moment, counted from 
   view in its slots (23 B/px: depth, normal, colour, confidence) and one output chunk with its PLY records (the cloud
   is written into ``fused.ply`` as it is made and stays there: ``engine/fusion/stream.py``), then, the images
   forgotten, the evaluation a chunk of points at a time (``engine/evaluation/chunked.py``: a chunk and a slab of
-  voxels, about 60 MiB, besides the GT points' index, ~44 B each, and ~60 B each while their voxels are counted).
+  voxels, about 60 MiB, and the GT views packed, 4 B/px, besides the GT points' index, ~44 B each, and ~44 B
+  each while their voxels are counted).
 
 The compiled kernels (numba, and the LLVM runtime it links them with) take tens of MiB the first time
 one runs; :func:`load_kernels` runs a 2-view 24×24 PatchMatch first so that this is part of the measured
@@ -150,7 +151,8 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     patchmatch += (4 * sources + 5) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
     fusion = 23 * total + 98 * min(total, _FUSION_CHUNK)  # at most a point a pixel
-    evaluation = 44 * gt_points + max(120 * min(total, _EVALUATION_CHUNK), 60 * gt_points)
+    # the GT points' index; then the GT views packed (4 B/px) and a chunk, or the GT points' voxels
+    evaluation = 44 * gt_points + max(4 * total + 120 * min(total, _EVALUATION_CHUNK), 44 * gt_points)
     after = (24 + 1) * total + max(colour + fusion, evaluation)
     baseline = current_rss() if baseline is None else baseline
     if available == -1:
