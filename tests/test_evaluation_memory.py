@@ -136,6 +136,8 @@ def test_chunked_scores_equal_the_whole_array_reference_with_a_small_completenes
         at_completeness.append(tracemalloc.get_traced_memory()[1])
         return voxel_completeness(*args)
 
+    # the kernels compiled (or loaded from numba's cache) before the allocations are traced
+    chunked.evaluate_point_chunks(len(recon[:100]), lambda s, c: recon[s:s + c].copy(), gt[:100], options)
     monkeypatch.setattr(chunked, "voxel_completeness", spy)
     tracemalloc.start()
     try:
