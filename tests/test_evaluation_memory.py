@@ -66,7 +66,9 @@ def test_chunked_queries_and_trees_find_the_same_nearest_points(monkeypatch):
     monkeypatch.setattr(P, "QUERY_CHUNK", 997)
     monkeypatch.setattr(P, "TREE_CHUNK", 3001)
     assert np.array_equal(P.first_within(queries, data, tol), expected)  # 7 trees, 6 query chunks
-    assert np.array_equal(P.first_within(PointIndex(queries), PointIndex(data), tol), expected)
+    # a PointIndex answers in its own (Morton) order
+    assert np.array_equal(P.first_within(PointIndex(queries), PointIndex(data), tol),
+                          expected[_spatial_order_numpy(queries)])
     assert np.array_equal(P.first_within(queries.astype(np.float32), data, tol),
                           _first_within_one_tree(queries.astype(np.float32).astype(np.float64), data, tol))
 
@@ -80,3 +82,67 @@ def test_scores_do_not_depend_on_the_chunk_sizes(monkeypatch):
     monkeypatch.setattr(P, "QUERY_CHUNK", 1000)
     monkeypatch.setattr(P, "TREE_CHUNK", 2500)
     assert evaluate_points(recon, gt, options).to_dict() == whole
+
+
+def test_the_gt_index_holds_one_copy_of_the_points():
+    """A PointIndex keeps its points once, in Morton order, as its tree's own data: the array given can be freed
+    (the scoring of a run then holds 32 bytes a GT point, not the given order, its permutation and a sorted copy)."""
+    pts = CLOUDS["float64"]
+    index = PointIndex(pts)
+    assert np.array_equal(index.points, pts[_spatial_order_numpy(pts)])
+    assert index.points is index.tree.data and not np.shares_memory(index.points, pts)
+    assert index.tree.leafsize == P.INDEX_LEAF_SIZE
+
+
+def _old_chunked_completeness(gt, chunks, tol):
+    """The chunked completeness as it was (nearest float64 distance per GT point, in the given order)."""
+    from scipy.spatial import cKDTree
+
+    nearest = np.full(len(gt), np.inf)
+    for xyz in chunks:
+        dist, _ = cKDTree(xyz).query(gt, k=1, distance_upper_bound=float(tol[-1]) * (1 + 1e-6))
+        nearest = np.minimum(nearest, dist)
+    return np.searchsorted(tol, nearest, side="left")
+
+
+def test_chunked_scores_equal_the_whole_array_reference_with_a_small_completeness_memory(monkeypatch):
+    """evaluate_point_chunks's scores are the one-tree, given-order reference's to the last bit, and while the chunks
+    are scored it holds a byte per GT point for completeness besides a query's points (it held 32 bytes a GT point,
+    and a 24-byte copy of those near each chunk)."""
+    import tracemalloc
+
+    from engine.evaluation import chunked
+
+    rng = np.random.default_rng(6)
+    gt = rng.random((200_000, 3)) * [3.0, 1.0, 1.0]
+    recon = np.concatenate([gt[::8] + rng.normal(0, 0.01, (len(gt[::8]), 3)), rng.random((2_000, 3)) * 3])
+    tol = np.array([0.01, 0.02, 0.05])
+    options = EvaluationOptions(tolerances=tuple(tol), voxel_size=0.05)
+    monkeypatch.setattr(chunked, "CHUNK_POINTS", 5_000)
+    monkeypatch.setattr(chunked, "QUERY_CHUNK", 10_000)  # the GT points a query takes at once
+    first_ok = _first_within_one_tree(recon, gt, tol)
+    inaccurate = first_ok[:, None] > np.arange(len(tol))[None, :]
+    acc = V.voxel_accuracy(recon, first_ok, inaccurate, 0.05)
+    chunks = [recon[s:s + 5_000] for s in range(0, len(recon), 5_000)]
+    comp = V.voxel_completeness(gt, _old_chunked_completeness(gt, chunks, tol), len(tol), 0.05)
+    want = chunked.make_result(tol, acc, comp, len(recon), len(gt), np.zeros(len(tol)),
+                               chunked.overlap_notes(acc, comp, len(recon), tol))
+
+    index = PointIndex(gt)
+    at_completeness = []
+    voxel_completeness = chunked.voxel_completeness
+
+    def spy(*args):
+        at_completeness.append(tracemalloc.get_traced_memory()[1])
+        return voxel_completeness(*args)
+
+    # the kernels compiled (or loaded from numba's cache) before the allocations are traced
+    chunked.evaluate_point_chunks(len(recon[:100]), lambda s, c: recon[s:s + c].copy(), gt[:100], options)
+    monkeypatch.setattr(chunked, "voxel_completeness", spy)
+    tracemalloc.start()
+    try:
+        got = chunked.evaluate_point_chunks(len(recon), lambda s, c: recon[s:s + c].copy(), index, options)
+    finally:
+        tracemalloc.stop()
+    assert got == want
+    assert at_completeness[0] < 8 * len(gt), at_completeness  # 5.5 here; the old code held 32 and copied 24

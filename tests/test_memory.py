@@ -105,3 +105,23 @@ def test_a_file_read_through_a_map_leaves_the_resident_set(tmp_path) -> None:
     assert _rss_file_mb() - before > 48
     assert release_mapped_pages(mapped["source_view"])
     assert _rss_file_mb() - before < 8
+
+
+def test_patchmatch_runs_without_the_colour_images_cached(tmp_path, monkeypatch):
+    """The run's colour images (12 bytes a pixel) are not held while PatchMatch runs (its grey images are made
+    before); fusion reads them again, so the cloud keeps its colours."""
+    from engine.run import pipeline
+
+    scene = load_scene(SAMPLES / "tiny")
+    cached_during_patchmatch = []
+    run_patchmatch = pipeline.run_patchmatch
+
+    def spy(*args, **kwargs):
+        cached_during_patchmatch.append(scene._image.cache_info().currsize)
+        return run_patchmatch(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "run_patchmatch", spy)
+    options = PipelineOptions(patchmatch=PatchMatchOptions(iterations=1, levels=1, geom_passes=0))
+    result = pipeline.run_pipeline(scene, tmp_path, options)
+    assert cached_during_patchmatch == [0]
+    assert len(result.cloud) and np.asarray(result.cloud.rgb).any()

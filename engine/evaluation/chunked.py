@@ -5,10 +5,11 @@ ground truth and one slab of voxels, not by the cloud (Schöps et al. 2017's sco
 - Accuracy: every point's first accurate tolerance (nearest GT point, the GT's k-d tree) and free-space margin are
   the point's own, so chunks change nothing; a point's classification at every tolerance is two small numbers,
   ``a`` (accurate from tolerance ``a`` on) and ``b`` (inaccurate below ``b`` <= ``a``), kept in a temporary file.
-- Completeness: each GT point's nearest distance (up to the largest tolerance) is the minimum over the chunks of
-  the distance to each chunk's nearest point (a k-d tree of the chunk, queried by the GT points within the chunk's
-  bounding box grown by the largest tolerance: the others have no point of the chunk within it). The distance of
-  a pair is the same float whatever tree finds it (as :func:`engine.evaluation.point_index.first_within`'s pieces).
+- Completeness: each GT point's first tolerance within its nearest distance is the smallest over the chunks of the
+  first tolerance within the distance to each chunk's nearest point (a k-d tree of the chunk, queried by the GT
+  points within the chunk's bounding box grown by the largest tolerance: the others have no point of the chunk
+  within it). The distance of a pair is the same float whatever tree finds it (as
+  :func:`engine.evaluation.point_index.first_within`'s pieces).
 - The voxel means: accuracy averages accurate / classified over occupied voxels in the order of their cells
   (lexicographic), summed pairwise by numpy. The cloud is cut into slabs of consecutive x cells of at most
   :data:`SLAB_POINTS` points; a slab's voxels follow the previous slab's in that order, so the ratios of the
@@ -48,30 +49,30 @@ SLAB_POINTS = 1 << 19  # points of one slab of the voxel grid (about 30 MiB whil
 
 
 class _Completeness:
-    """Every GT point's nearest reconstructed point's distance (inf beyond ``bound``), a chunk at a time."""
+    """Every GT point's first tolerance within which a reconstructed point lies (``n_tol``: none), in the index's
+    (Morton) order, a chunk at a time: the smallest over the chunks, as the tolerance of the smallest distance is
+    (the first tolerance >= a distance grows with the distance). One byte a GT point; the GT points near a chunk
+    are found a :data:`QUERY_CHUNK` slice of the index at a time (no sorted copy of a coordinate, no permutation)."""
 
-    def __init__(self, gt: PointIndex, bound: float):
-        self.gt, self.bound = gt.points, bound
-        self.by_x = np.argsort(self.gt[:, 0], kind="stable")
-        self.x = self.gt[self.by_x, 0]
-        self.rank = np.empty(len(self.gt), np.int64)  # Morton rank: queries in that order are faster
-        self.rank[gt.order] = np.arange(len(self.gt))
-        self.nearest = np.full(len(self.gt), np.inf)
+    def __init__(self, gt: PointIndex, tolerances: np.ndarray, code: type):
+        self.gt, self.tolerances = gt.points, tolerances
+        self.bound = float(tolerances[-1]) * (1 + 1e-6)  # first_within's bound
+        self.first = np.full(len(self.gt), len(tolerances), code)
 
     def add(self, xyz: np.ndarray) -> None:
         margin = 2 * self.bound  # twice: no rounding of the box can leave out a GT point within the bound
         lo, hi = xyz.min(axis=0) - margin, xyz.max(axis=0) + margin
-        near = self.by_x[np.searchsorted(self.x, lo[0], "left"):np.searchsorted(self.x, hi[0], "right")]
-        yz = self.gt[near, 1:]
-        near = near[((yz >= lo[1:]) & (yz <= hi[1:])).all(axis=1)]
-        if not len(near):
-            return
-        near = near[np.argsort(self.rank[near])]
-        tree = cKDTree(xyz, balanced_tree=False, compact_nodes=False)
-        for start in range(0, len(near), QUERY_CHUNK):
-            part = near[start:start + QUERY_CHUNK]
-            dist, _ = tree.query(self.gt[part], k=1, distance_upper_bound=self.bound, workers=-1)
-            self.nearest[part] = np.minimum(self.nearest[part], dist)
+        tree = None
+        for start in range(0, len(self.gt), QUERY_CHUNK):
+            piece = self.gt[start:start + QUERY_CHUNK]
+            near = np.flatnonzero(((piece >= lo) & (piece <= hi)).all(axis=1))
+            if not len(near):
+                continue
+            if tree is None:
+                tree = cKDTree(xyz, balanced_tree=False, compact_nodes=False)
+            dist, _ = tree.query(piece[near], k=1, distance_upper_bound=self.bound, workers=-1)
+            first = self.first[start:start + QUERY_CHUNK]
+            first[near] = np.minimum(first[near], np.searchsorted(self.tolerances, dist, side="left"))
 
 
 class _Slabs:
@@ -138,11 +139,14 @@ def evaluate_point_chunks(n: int, read: Callable[[int, int], np.ndarray], gt_xyz
     tol = options.sorted_tolerances()
     n_tol = len(tol)
     gt_index = gt_xyz if isinstance(gt_xyz, PointIndex) else PointIndex(gt_xyz, "ground truth")
-    complete = _Completeness(gt_index, float(tol[-1]) * (1 + 1e-6))  # first_within's bound
+    code = np.uint8 if n_tol < 255 else np.uint16
+    complete = _Completeness(gt_index, tol, code)
     packed = pack_gt_views(gt_views) if gt_views else None
+    # reading and resampling each GT depth map leaves tens of MiB free on the heap; returned, they do not stay
+    # resident under the chunks' arrays (engine/core/heap_trim.py)
+    release_free_memory()
     slabs = [_Slabs(options.voxel_size, shift) for shift in GRID_SHIFTS]
     unobserved = np.zeros(n_tol, np.int64)
-    code = np.uint8 if n_tol < 255 else np.uint16
     with tempfile.TemporaryFile(dir=scratch) as classes:
         for start in range(0, n, CHUNK_POINTS):
             xyz = as_points(read(start, CHUNK_POINTS), "reconstruction")
@@ -156,8 +160,10 @@ def evaluate_point_chunks(n: int, read: Callable[[int, int], np.ndarray], gt_xyz
             classes.write(np.stack([a, b], axis=1).astype(code).tobytes())
             for grid in slabs:
                 grid.add(xyz)
-        comp = voxel_completeness(gt_index.points, np.searchsorted(tol, complete.nearest, side="left"), n_tol,
-                                  options.voxel_size)
+        xyz = a = b = packed = None  # the last chunk's arrays and the GT views go before the voxel grids are made
+        release_free_memory()
+        comp = voxel_completeness(gt_index.points, complete.first, n_tol, options.voxel_size)
+        release_free_memory()  # the GT voxels' arrays, before the cloud's slabs
         if n == 0:
             zeros = np.zeros(n_tol)
             return make_result(tol, zeros, comp, 0, len(gt_index), zeros, overlap_notes(zeros, comp, 0, tol))

@@ -3,19 +3,21 @@
 The estimate is the process's resident memory now (interpreter, libraries, the loaded scene: measured,
 not guessed) plus the arrays each stage holds at its worst moment, counted from the code:
 
-- inputs: RGB float32 cache of every view (12 B/px, at most 64 views cached), the grey images
-  PatchMatch takes (4 B/px), and decoding the largest original image (uint8 RGB + two float32 copies);
+- inputs: the grey images PatchMatch takes (4 B/px) and decoding the largest original image (uint8 RGB + two float32
+  copies); the RGB float32 cache of every view (12 B/px, at most 64 views cached) is emptied before PatchMatch and
+  filled again by the stages after it (``engine.run.pipeline``);
 - PatchMatch (Xu & Tao 2019): image pyramids (4 B/px × 4/3), every view's depth (4 B/px; a view's normal, cost and
   selected views, 20 B/px, are parked in the checkpoint between its passes: ``engine.patchmatch.multiscale``),
   the geometric-pass depth snapshot (4 B/px), the coarser level's states during upsampling (24/4 B/px),
   and for the view being processed its context (window moments and choice, padded source images and
   source depths: 4·(2 + 2·sources) + 1 B/px) and its cost caches (``ViewState.prepare_caches``: float32 costs
   of the stored hypotheses, stamps and flags, 4·sources + 5 B/px, and the candidate rows);
-- after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px); fusion's copy of every view in its
-  slots (23 B/px: depth, normal, colour, confidence) and one output chunk with its PLY records (the cloud is
-  written into ``fused.ply`` as it is made and stays there: ``engine/fusion/stream.py``), then the evaluation
-  a chunk of points at a time (``engine/evaluation/chunked.py``: a chunk and a slab of voxels, about 60 MiB,
-  besides the GT points' index, ~64 B each).
+- after PatchMatch: every view's maps (24 B/px) and counter map (1 B/px); the RGB cache again, fusion's copy of every
+  view in its slots (23 B/px: depth, normal, colour, confidence) and one output chunk with its PLY records (the cloud
+  is written into ``fused.ply`` as it is made and stays there: ``engine/fusion/stream.py``), then, the images
+  forgotten, the evaluation a chunk of points at a time (``engine/evaluation/chunked.py``: a chunk and a slab of
+  voxels, about 60 MiB, and the GT views packed, 4 B/px, besides the GT points' index, ~44 B each, and ~44 B
+  each while their voxels are counted).
 
 The compiled kernels (numba, and the LLVM runtime it links them with) take tens of MiB the first time
 one runs; :func:`load_kernels` runs a 2-view 24×24 PatchMatch first so that this is part of the measured
@@ -136,7 +138,8 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     sources = max((len(v.source_views) for v in scene.views), default=0)
 
     cached = sum(sorted(pixels, reverse=True)[:_MAX_CACHED_VIEWS])
-    inputs = 12 * cached + 4 * total + 27 * original_largest
+    inputs = 4 * total + 27 * original_largest
+    colour = 12 * cached  # the RGB cache, filled again after PatchMatch
     # the window's mean and variance, its choice, padded source images and source depths (the weights themselves
     # are computed per pixel visit: ncc.load_window)
     per_view_context = (4 * (2 + 2 * sources) + 1) * largest
@@ -148,8 +151,9 @@ def estimate_run_memory(scene: Any, options: Any, max_image_size: int | None = N
     patchmatch += (4 * sources + 5) * largest + (rows if rows <= ROW_CACHE_MAX_BYTES else 0)
     gt_points = _ply_vertex_count(getattr(scene, "gt_points_path", None))
     fusion = 23 * total + 98 * min(total, _FUSION_CHUNK)  # at most a point a pixel
-    evaluation = 64 * gt_points + 120 * min(total, _EVALUATION_CHUNK)
-    after = (24 + 1) * total + max(fusion, evaluation)
+    # the GT points' index; then the GT views packed (4 B/px) and a chunk, or the GT points' voxels
+    evaluation = 44 * gt_points + max(4 * total + 120 * min(total, _EVALUATION_CHUNK), 44 * gt_points)
+    after = (24 + 1) * total + max(colour + fusion, evaluation)
     baseline = current_rss() if baseline is None else baseline
     if available == -1:
         free = available_memory()
