@@ -11,8 +11,6 @@ import pytest
 from engine.core.camera import Camera
 from engine.patchmatch import PatchMatchOptions
 from engine.run.eta import (
-    DEFAULT_SPARE,
-    CpuShare,
     PlannedPass,
     RunEta,
     eta_seconds,
@@ -58,7 +56,7 @@ def test_run_eta_follows_the_engines_events_and_announces_the_calibration() -> N
     plan = [PlannedPass(1, 0, (100, 100), 2), PlannedPass(1, 1, (100, 100), 2), PlannedPass(0, 0, (400, 400), 2)]
     now = [0.0]
     announced: list[float] = []
-    eta = RunEta(plan, 0.0, on_first_view=announced.append, clock=lambda: now[0], spare=lambda: 0.0)
+    eta = RunEta(plan, 0.0, on_first_view=announced.append, clock=lambda: now[0])
     assert eta.seconds_left() is None and eta.text() == ""
     depth = np.zeros((10, 10), np.float32)
     eta.on_stage("patchmatch_pass", level=1, pass_index=0, iterations=2)
@@ -102,17 +100,17 @@ def test_a_view_pass_that_converged_counts_at_its_plan() -> None:
     after 2 of its 4 planned iterations counts as its 4, so the time it took sets the rate of the plan."""
     plan = [PlannedPass(1, 0, (100, 100), 4), PlannedPass(0, 0, (400, 400), 4)]
     now = [0.0]
-    eta = RunEta(plan, 0.0, clock=lambda: now[0], spare=lambda: 0.0)
+    eta = RunEta(plan, 0.0, clock=lambda: now[0])
     depth = np.zeros((10, 10), np.float32)
     eta.on_stage("patchmatch_pass", level=1, pass_index=0, iterations=4)
     for t in range(2):  # view 0 stops after 2 of its 4 iterations: 1 s per iteration
         now[0] += 1.0
         eta.on_iteration(SimpleNamespace(view=0, iteration=t, depth=depth))
-    assert eta.units_done() == 200  # running: its iterations so far
+    assert eta.units_done == 200  # running: its iterations so far
     assert eta.seconds_left() == pytest.approx((200 + 400 + 3200) / 100)
     now[0] += 1.0
     eta.on_iteration(SimpleNamespace(view=1, iteration=0, depth=depth))  # view 0's pass is finished
-    assert eta.units_done() == 400 + 100  # view 0 at its plan, view 1's first iteration
+    assert eta.units_done == 400 + 100  # view 0 at its plan, view 1's first iteration
     assert eta.seconds_left() == pytest.approx(3.0 / 500 * (300 + 3200))
     assert eta_seconds(plan, 0, 1, 1, 500, 3.0, 0.0) == eta.seconds_left()
 
@@ -134,7 +132,7 @@ def _timeline(plan: list[PlannedPass], seconds_per_unit: dict[tuple[int, int], f
 def _eta_after_level(plan: list[PlannedPass], events: list, level: int) -> float:
     """RunEta's seconds left when the passes of ``level`` are done (the next pass about to start)."""
     now = [0.0]
-    eta = RunEta(plan, 0.0, clock=lambda: now[0], spare=lambda: 0.0)
+    eta = RunEta(plan, 0.0, clock=lambda: now[0])
     for t, kind, what in events:
         now[0] = t
         if kind == "pass":
@@ -170,30 +168,3 @@ def test_pass_weights_take_the_coarsest_entry_beyond_the_table() -> None:
     assert pass_weight(4, 0, weights) == 2.0  # coarser than the table: its coarsest level
     assert pass_weight(2, 1, weights) == pass_weight(0, 2, weights) == 3.0  # every geometric pass alike
     assert pass_weight(3, 1, {}) == 1.0  # no table: every pixel-iteration alike
-
-
-def test_the_weights_move_from_busy_to_free_with_the_spare_share() -> None:
-    """A run that has a core to spare takes the free-machine weights, one other jobs keep busy the busy ones,
-    geometrically between; the spare share comes from the run (here given) and moves the ETA."""
-    p = PlannedPass(0, 1, (100,), 2, weight=2.0, free_weight=0.5)
-    assert p.weight_at(0.0) == 2.0 and p.weight_at(1.0) == 0.5 and p.weight_at(0.5) == pytest.approx(1.0)
-    plan = [PlannedPass(1, 0, (100,), 1), p]
-    spare = [0.0]
-    now = [0.0]
-    eta = RunEta(plan, 0.0, clock=lambda: now[0], spare=lambda: spare[0])
-    eta.on_stage("patchmatch_pass", level=1, pass_index=0)
-    now[0] = 1.0
-    eta.on_iteration(SimpleNamespace(view=0, iteration=0, depth=np.zeros(100, np.float32)))
-    assert eta.seconds_left() == pytest.approx(4.0)  # 200 pixel-iterations left at weight 2, 1 s per 100
-    spare[0] = 1.0
-    assert eta.seconds_left() == pytest.approx(1.0)
-    spare[0] = None
-    assert eta.spare() == DEFAULT_SPARE
-
-
-def test_cpu_share_is_a_share() -> None:
-    share = CpuShare(threads=2)
-    sum(i * i for i in range(200_000))  # some CPU time of this process
-    value = share.share()
-    assert value is None or 0.0 <= value <= 1.0
-    assert CpuShare(threads=1).share() in (0.0, None)

@@ -13,12 +13,12 @@ From that timeline:
   iterations, snapshots and checkpoints), the view-iterations it ran against its plan (passes end by convergence)
   and microseconds per planned pixel-iteration;
 - ``weights``: per level and pass kind, the cost of a planned pixel-iteration relative to the finest level's
-  photometric pass, from wall seconds (engine/run/eta.py's ``BUSY_WEIGHTS`` when other jobs keep the machine busy)
-  and from CPU seconds;
+  photometric pass, from wall seconds (what engine/run/eta.py's ``PASS_WEIGHTS`` are made of) and from CPU
+  seconds;
 - ``replay``: the recorded events fed again into :class:`engine.run.eta.RunEta` on a clock that replays the
   recorded wall times, at the end of every pass: seconds left predicted and actual and the relative error, with
   every pixel-iteration alike (``unweighted``), with this run's wall weights (``this_runs_wall_weights``: in
-  sample) and with the shipped tables at the spare share of the recorded /proc/stat samples (``shipped``).
+  sample) and with the shipped ``PASS_WEIGHTS`` (``shipped``).
   ``benchmarks/reliability/first_try.py`` measures the ETA `deepc run` prints, out of sample.
 """
 
@@ -33,20 +33,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numba
-
 from engine.core.observer import ObserverList
 from engine.run.checkpoint import CHECKPOINT_DIR, PatchMatchCheckpoint
-from engine.run.eta import (
-    BUSY_WEIGHTS,
-    FREE_WEIGHTS,
-    LATER_SHARE,
-    CpuShare,
-    PlannedPass,
-    RunEta,
-    pass_plan,
-    spare_share,
-)
+from engine.run.eta import LATER_SHARE, PASS_WEIGHTS, PlannedPass, RunEta, pass_plan
 from engine.run.memory import load_kernels
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.per_view import SceneView
@@ -79,16 +68,13 @@ class Timeline:
 
     def __init__(self) -> None:
         self.start, self.cpu_start = time.perf_counter(), time.process_time()
-        self.events: list[tuple[float, float, str, dict[str, Any], list[float] | None]] = []
+        self.events: list[tuple[float, float, str, dict[str, Any]]] = []
 
     def now(self) -> float:
         return time.perf_counter() - self.start
 
     def _add(self, kind: str, info: dict[str, Any]) -> None:
-        """The event with its times and a /proc/stat sample (CpuShare.sample, on this timeline's clock)."""
-        sample = CpuShare.sample(self.now)
-        self.events.append((self.now(), time.process_time() - self.cpu_start, kind, info,
-                            None if sample is None else list(sample)))
+        self.events.append((self.now(), time.process_time() - self.cpu_start, kind, info))
 
     def on_stage(self, name: str, **info: Any) -> None:
         self._add("stage", {"name": name, **{k: v for k, v in info.items() if isinstance(v, (int, float, str))}})
@@ -111,32 +97,20 @@ def _name(level: int, pass_index: int) -> str:
     return f"level {level} {'geometric' if pass_index else 'photometric'} {pass_index}"
 
 
-def replay(events: list, plan: list[PlannedPass], later_share: float, end: float,
-           threads: int | None = None) -> list[dict[str, Any]]:
+def replay(events: list, plan: list[PlannedPass], later_share: float, end: float) -> list[dict[str, Any]]:
     """The recorded events fed into a fresh RunEta on a replayed clock: its seconds left at the end of every pass
-    (when the next pass starts, or PatchMatch ends) against the recorded time left, with the spare share of the
-    recorded /proc/stat samples (``threads``: the run's; None: weights at spare 0, for a plan whose two weight
-    tables are one)."""
+    (when the next pass starts, or PatchMatch ends) against the recorded time left."""
     clock = [0.0]
-    samples: dict[str, Any] = {"start": None, "now": None}
-
-    def spare() -> float | None:
-        return 0.0 if threads is None else spare_share(samples["start"], samples["now"], threads, os.cpu_count() or 1)
-
-    eta = RunEta(plan, later_share, clock=lambda: clock[0], spare=spare)
+    eta = RunEta(plan, later_share, clock=lambda: clock[0])
     rows, current = [], None
-    for t, _cpu, kind, info, sample in events:
+    for t, _cpu, kind, info in events:
         clock[0] = t
-        samples["now"] = sample
         if kind == "stage" and info["name"] in ("patchmatch_pass", "patchmatch_done") and current is not None:
             predicted = eta.seconds_left()
             if predicted is not None:
                 rows.append({"pass": current, "ended_at_s": round(t, 2), "eta_s": round(predicted, 1),
-                             "actual_left_s": round(end - t, 1), "error": round(predicted / (end - t) - 1, 3),
-                             "spare": None if threads is None else round(eta.spare(), 3)})
+                             "actual_left_s": round(end - t, 1), "error": round(predicted / (end - t) - 1, 3)})
         if kind == "stage":
-            if samples["start"] is None and info["name"] == "patchmatch_pass":
-                samples["start"] = sample
             eta.on_stage(info["name"], **{k: v for k, v in info.items() if k != "name"})
             if info["name"] == "patchmatch_pass":
                 current = _name(info["level"], info["pass_index"])
@@ -148,12 +122,12 @@ def replay(events: list, plan: list[PlannedPass], later_share: float, end: float
 def passes(events: list, plan: list[PlannedPass], pm_end: tuple[float, float]) -> list[dict[str, Any]]:
     """Per pass: its wall and CPU seconds (from its start to the next pass's), view-iterations ran and planned,
     pixel-iterations planned, and microseconds (wall and CPU) per planned pixel-iteration."""
-    starts = [(t, cpu, info) for t, cpu, kind, info, _s in events
+    starts = [(t, cpu, info) for t, cpu, kind, info in events
               if kind == "stage" and info["name"] == "patchmatch_pass"]
     rows = []
     for k, (t, cpu, info) in enumerate(starts):
         t_end, cpu_end = (starts[k + 1][0], starts[k + 1][1]) if k + 1 < len(starts) else pm_end
-        ran = sum(1 for s, _c, kind, i, _s in events if kind == "iteration" and t <= s <= t_end
+        ran = sum(1 for s, _c, kind, i in events if kind == "iteration" and t <= s <= t_end
                   and (i["level"], i["pass_index"]) == (info["level"], info["pass_index"]))
         p = next(q for q in plan if (q.level, q.pass_index) == (info["level"], info["pass_index"]))
         rows.append({"pass": _name(p.level, p.pass_index), "level": p.level, "pass_index": p.pass_index,
@@ -216,22 +190,20 @@ def main() -> None:
     events = timeline.events
     if args.save_timeline:
         Path(args.save_timeline).write_text(json.dumps({"events": events, "end": end}))
-    pm_end = next((t, cpu) for t, cpu, kind, info, _s in events
+    pm_end = next((t, cpu) for t, cpu, kind, info in events
                   if kind == "stage" and info["name"] == "patchmatch_done")
-    pm_start = next(t for t, _c, kind, info, _s in events if kind == "stage" and info["name"] == "patchmatch_pass")
+    pm_start = next(t for t, _c, kind, info in events if kind == "stage" and info["name"] == "patchmatch_pass")
     plan = pass_plan(views, options.patchmatch, weights={})
     by_pass = passes(events, plan, pm_end)
     weights = {"cpu": cost_weights(by_pass, "cpu_us_per_planned_pixel_iteration"),
                "wall": cost_weights(by_pass, "us_per_planned_pixel_iteration")}
-    plans = {"unweighted": (plan, None),
-             "this_runs_wall_weights": (pass_plan(views, options.patchmatch, table(weights["wall"])), None),
-             "shipped": (pass_plan(views, options.patchmatch), numba.get_num_threads())}
+    plans = {"unweighted": plan, "this_runs_wall_weights": pass_plan(views, options.patchmatch, table(weights["wall"])),
+             "shipped": pass_plan(views, options.patchmatch)}
     result = {"scene": Path(args.scene).name, "size": [scene.views[0].camera.width, scene.views[0].camera.height],
               "views": len(scene.views), "pipeline": options.pipeline, "run_seconds": round(end - pm_start, 2),
               "patchmatch_seconds": round(pm_end[0] - pm_start, 2), "by_pass": by_pass, "weights": weights,
-              "shipped_weights": {name: {f"L{level}_{kind}": w for (level, kind), w in table_.items()}
-                                  for name, table_ in (("busy", BUSY_WEIGHTS), ("free", FREE_WEIGHTS))},
-              "replay": {name: replay(events, p, later, end, threads) for name, (p, threads) in plans.items()},
+              "shipped_weights": {f"L{level}_{kind}": w for (level, kind), w in PASS_WEIGHTS.items()},
+              "replay": {name: replay(events, p, later, end) for name, p in plans.items()},
               "load_average": load}
     bench.print_table(summary(result), title=f"eta costs: {result['scene']}")
     bench.write_result(result, args.json)
