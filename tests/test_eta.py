@@ -10,7 +10,15 @@ import pytest
 
 from engine.core.camera import Camera
 from engine.patchmatch import PatchMatchOptions
-from engine.run.eta import PlannedPass, RunEta, eta_seconds, format_minutes, pass_plan, units_left
+from engine.run.eta import (
+    PlannedPass,
+    RunEta,
+    eta_seconds,
+    format_minutes,
+    pass_plan,
+    pass_weight,
+    units_left,
+)
 from workbench.cli.progress import PassProgress
 
 
@@ -21,7 +29,7 @@ def _view(w: int, h: int, sources: list[int]) -> SimpleNamespace:
 
 def test_the_plan_has_every_level_and_pass_with_each_views_pixels() -> None:
     views = [_view(320, 240, [1]), _view(320, 240, [0]), _view(320, 240, [])]  # the third has no source: skipped
-    plan = pass_plan(views, PatchMatchOptions(schedule="acmm", levels=3, geom_passes=2))
+    plan = pass_plan(views, PatchMatchOptions(schedule="acmm", levels=3, geom_passes=2), weights={})
     assert [(p.level, p.pass_index, p.iterations) for p in plan] == [
         (2, 0, 3), (2, 1, 2), (2, 2, 2), (1, 0, 3), (1, 1, 2), (1, 2, 2), (0, 0, 3), (0, 1, 2), (0, 2, 2)]
     assert plan[0].view_pixels == (80 * 60, 80 * 60, 0) and plan[-1].view_pixels == (320 * 240, 320 * 240, 0)
@@ -87,20 +95,76 @@ def test_the_progress_line_shows_the_runs_eta(capsys) -> None:
     assert "estimated 12 min on this machine" in err
 
 
-def test_what_is_left_is_counted_at_the_share_of_the_plan_finished_view_passes_ran() -> None:
-    """A view pass that ends by convergence (2 of 4 planned iterations) halves the estimate of what is left."""
+def test_a_view_pass_that_converged_counts_at_its_plan() -> None:
+    """The weights are per planned pixel-iteration (what convergence saves is in them): a view pass that ended
+    after 2 of its 4 planned iterations counts as its 4, so the time it took sets the rate of the plan."""
     plan = [PlannedPass(1, 0, (100, 100), 4), PlannedPass(0, 0, (400, 400), 4)]
     now = [0.0]
     eta = RunEta(plan, 0.0, clock=lambda: now[0])
     depth = np.zeros((10, 10), np.float32)
     eta.on_stage("patchmatch_pass", level=1, pass_index=0, iterations=4)
-    for t in range(2):  # view 0 stops after 2 of its 4 iterations: 1 s per 100 px
+    for t in range(2):  # view 0 stops after 2 of its 4 iterations: 1 s per iteration
         now[0] += 1.0
         eta.on_iteration(SimpleNamespace(view=0, iteration=t, depth=depth))
-    assert eta.run_share == 1.0  # nothing finished yet: the plan as it is
+    assert eta.units_done == 200  # running: its iterations so far
     assert eta.seconds_left() == pytest.approx((200 + 400 + 3200) / 100)
     now[0] += 1.0
     eta.on_iteration(SimpleNamespace(view=1, iteration=0, depth=depth))  # view 0's pass is finished
-    assert eta.run_share == pytest.approx(0.5)
-    assert eta.seconds_left() == pytest.approx(0.5 * (300 + 3200) / 100)
-    assert eta_seconds(plan, 0, 1, 1, 300, 3.0, 0.0, run_share=0.5) == eta.seconds_left()
+    assert eta.units_done == 400 + 100  # view 0 at its plan, view 1's first iteration
+    assert eta.seconds_left() == pytest.approx(3.0 / 500 * (300 + 3200))
+    assert eta_seconds(plan, 0, 1, 1, 500, 3.0, 0.0) == eta.seconds_left()
+
+
+def _timeline(plan: list[PlannedPass], seconds_per_unit: dict[tuple[int, int], float]) -> tuple[list, float]:
+    """A synthetic run of ``plan``: every view runs its planned iterations, a pixel-iteration of pass (level,
+    pass_index) takes ``seconds_per_unit`` of it; the events with their times, and the run's end."""
+    events, t = [], 0.0
+    for p in plan:
+        events.append((t, "pass", p))
+        for view, pixels in enumerate(p.view_pixels):
+            for it in range(p.iterations):
+                t += pixels * seconds_per_unit[(p.level, p.pass_index)]
+                events.append((t, "iteration", SimpleNamespace(view=view, iteration=it,
+                                                               depth=np.zeros(pixels, np.float32))))
+    return events, t
+
+
+def _eta_after_level(plan: list[PlannedPass], events: list, level: int) -> float:
+    """RunEta's seconds left when the passes of ``level`` are done (the next pass about to start)."""
+    now = [0.0]
+    eta = RunEta(plan, 0.0, clock=lambda: now[0])
+    for t, kind, what in events:
+        now[0] = t
+        if kind == "pass":
+            if what.level < level:
+                return eta.seconds_left()
+            eta.on_stage("patchmatch_pass", level=what.level, pass_index=what.pass_index)
+        else:
+            eta.on_iteration(what)
+    raise AssertionError("no pass after the level")
+
+
+def test_per_level_and_pass_costs_weigh_what_is_left() -> None:
+    """A coarse level that costs 2x per pixel-iteration and geometric passes 1.5x: the plain pixel-iteration
+    count (the ETA before the weights) extrapolates the coarse level's rate over the finer ones, 100 % long after
+    the first level here; with the run's cost ratios as weights it is exact."""
+    views = [_view(64, 48, [1]), _view(64, 48, [0])]
+    options = PatchMatchOptions(schedule="acmm", levels=2, geom_passes=1)
+    cost = {(1, 0): 2.0e-3, (1, 1): 3.0e-3, (0, 0): 1.0e-3, (0, 1): 1.5e-3}  # s per pixel-iteration
+    plain = pass_plan(views, options, weights={})
+    events, end = _timeline(plain, cost)
+    after_first = next(t for t, kind, p in events if kind == "pass" and p.level == 0)
+    actual = end - after_first
+    assert _eta_after_level(plain, events, 1) / actual - 1 == pytest.approx(1.0)
+    weights = {(lv, "geometric" if p else "photometric"): c / cost[(0, 0)] for (lv, p), c in cost.items()}
+    weighted = pass_plan(views, options, weights=weights)
+    assert [p.weight for p in weighted] == [2.0, 3.0, 1.0, 1.5]
+    assert _eta_after_level(weighted, events, 1) == pytest.approx(actual)
+
+
+def test_pass_weights_take_the_coarsest_entry_beyond_the_table() -> None:
+    weights = {(0, "photometric"): 1.0, (1, "photometric"): 2.0, (0, "geometric"): 3.0}
+    assert pass_weight(0, 0, weights) == 1.0 and pass_weight(1, 0, weights) == 2.0
+    assert pass_weight(4, 0, weights) == 2.0  # coarser than the table: its coarsest level
+    assert pass_weight(2, 1, weights) == pass_weight(0, 2, weights) == 3.0  # every geometric pass alike
+    assert pass_weight(3, 1, {}) == 1.0  # no table: every pixel-iteration alike
