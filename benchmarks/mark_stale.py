@@ -37,8 +37,6 @@ from support import bench
 BY = "benchmarks/mark_stale.py"
 # Results stale for a reason no rule above finds: file name -> reason.
 KNOWN = {
-    "bench_peer_fountain_p11.json": "mixes two code revisions under one recorded revision: by its own note, the "
-                                    "'ours' row ran on main before the memory cuts, the other two rows after them",
     "peer_fountain.json": "peer_openmvs holds OpenMVS numbers that were hard-coded in the script, not measured "
                           "(peer numbers come from benchmarks/performance/bench_peer.py)",
 }
