@@ -442,7 +442,7 @@ def _run_view_pass(i: int, v: PatchMatchView, st: ViewState, images: list, camer
 
 def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, options: PatchMatchOptions | None = None,
                 probe: PixelProbe | None = None, on_pass: PassFn | None = None,
-                on_iter: Callable | None = None) -> ViewMaps:
+                on_iter: Callable | None = None, pyramids: tuple[list, list] | None = None) -> ViewMaps:
     """Re-run the PatchMatch of view ``view`` alone: the same passes, random streams and kernels as
     :func:`run_patchmatch`, with every geometric pass reading the source depth maps ``snapshots`` gives
     (``engine.run.pass_history``). Given the snapshots the full run's geometric passes read, the result is that run's
@@ -452,7 +452,8 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
     phase, state, images, cameras)``: called with phase "start" before each pass (the state the pass starts
     from) and "end" after each level's last pass (``images``, ``cameras``: every view's pyramid, None for views
     the replay does not need); the state must not be kept without a copy. ``on_iter(event)``: after every
-    red-black iteration (an ``IterationEvent``; its ``iteration`` tells how many a converged pass ran)."""
+    red-black iteration (an ``IterationEvent``; its ``iteration`` tells how many a converged pass ran).
+    ``pyramids`` (images, cameras): the views' pyramids (:func:`view_pyramids`), if already made."""
     options = (options or PatchMatchOptions()).validate()
     active = check_views(views, options)
     if not 0 <= view < len(views):
@@ -466,8 +467,10 @@ def replay_view(views: list[PatchMatchView], view: int, snapshots: SnapshotFn, o
                    [list(v.source_views) for v in views])
     n_levels = effective_levels(views, options)
     v = views[view]
-    needed = {view, *v.source_views}
-    images, cameras = view_pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    if pyramids is None:
+        needed = {view, *v.source_views}
+        pyramids = view_pyramids([u if j in needed else None for j, u in enumerate(views)], n_levels)
+    images, cameras = pyramids
     old_threads = numba.get_num_threads()
     if options.num_threads > 0:
         numba.set_num_threads(min(options.num_threads, numba.config.NUMBA_NUM_THREADS))

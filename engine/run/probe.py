@@ -245,7 +245,8 @@ def _replay(run: _Run, i: int, probe: PixelProbe | None = None, progress: Progre
     def on_iter(event: Any) -> None:  # a converged pass ends early: its length is part of the replay
         iterations[(event.level, event.pass_index)] = event.iteration + 1
 
-    maps = replay_view(run.views, i, run.load_snapshot, pm, probe=probe, on_pass=on_pass, on_iter=on_iter)
+    maps = replay_view(run.views, i, run.load_snapshot, pm, probe=probe, on_pass=on_pass, on_iter=on_iter,
+                       pyramids=run.pyramids({i, *run.views[i].source_views}))
     stored = read_map(run.run_dir, "depth", run.views[i].name)
     if stored is None or not np.array_equal(maps.depth, stored):
         raise DeepCError(f"replaying view {run.views[i].name} does not give the run's depth map (the run was made "
