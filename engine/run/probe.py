@@ -37,7 +37,7 @@ from engine.patchmatch.state import ViewState
 from engine.run.folder import map_path, read_map, read_run_metrics, run_scene
 from engine.run.pass_history import HISTORY_DIR, PassHistory
 from engine.run.pipeline import PipelineOptions, patchmatch_views
-from engine.run.probe_output import final_entries, view_gt_depth, write_traces
+from engine.run.probe_output import final_entries, final_region, view_gt_depth, write_traces
 from engine.run.probe_states import StateStore, ViewStates
 
 ProgressFn = Callable[[str, int, int], Any]
@@ -61,6 +61,10 @@ class _Run:
     gt: dict[int, np.ndarray | None] = dataclasses.field(default_factory=dict)  # view -> GT depth at the maps' size
     # view -> (images, cameras) of its pyramid: a probe of any view needs its sources' too, so they are made once
     pyramid: dict[int, tuple[list, list]] = dataclasses.field(default_factory=dict)
+    # the run's final maps as written (every view's depth; per view its other maps and final_region), read once
+    final_depths: list[np.ndarray] | None = None
+    final_maps: dict[int, dict[str, np.ndarray | None]] = dataclasses.field(default_factory=dict)
+    final_regions: dict[int, np.ndarray | None] = dataclasses.field(default_factory=dict)
 
     def gt_depth(self, i: int, shape: tuple[int, int]) -> np.ndarray | None:
         """View ``i``'s GT depth at its maps' ``shape`` (H, W) (``probe_output.view_gt_depth``), read once."""
@@ -280,12 +284,28 @@ def _traced_from_states(run: _Run, i: int, probe: PixelProbe) -> bool:
 
 
 def _stored_maps(run: _Run, i: int) -> tuple[list[np.ndarray], dict[str, np.ndarray | None]]:
-    depths = []
-    for v in run.views:
-        d = read_map(run.run_dir, "depth", v.name)
-        depths.append(d if d is not None else np.zeros((v.camera.height, v.camera.width), np.float32))
-    name = run.views[i].name
-    return depths, {kind: read_map(run.run_dir, kind, name) for kind in ("normal", "cost", "counter", "confidence")}
+    """Every view's written depth (zeros where none) and view ``i``'s other maps, each read once per run (a
+    re-run rewrites metrics.json, which opens the run anew)."""
+    if run.final_depths is None:
+        depths = []
+        for v in run.views:
+            d = read_map(run.run_dir, "depth", v.name)
+            depths.append(d if d is not None else np.zeros((v.camera.height, v.camera.width), np.float32))
+        run.final_depths = depths
+    if i not in run.final_maps:
+        name = run.views[i].name
+        run.final_maps[i] = {kind: read_map(run.run_dir, kind, name)
+                             for kind in ("normal", "cost", "counter", "confidence")}
+    return run.final_depths, run.final_maps[i]
+
+
+def _final_region(run: _Run, i: int, depths: list[np.ndarray], normal: np.ndarray | None) -> np.ndarray | None:
+    """View ``i``'s ``final_region`` (for the counter verdicts), made once per run; None without a normal map."""
+    if normal is None:
+        return None
+    if i not in run.final_regions:
+        run.final_regions[i] = final_region(depths[i], normal, run.views[i])
+    return run.final_regions[i]
 
 
 def probe_run(run_dir: str | Path, view: str | int, pixels: list[tuple[int, int]],
@@ -305,7 +325,8 @@ def probe_run(run_dir: str | Path, view: str | int, pixels: list[tuple[int, int]
         _replay(run, i, probe, progress, keep=stored_states)
     depths, maps = _stored_maps(run, i)
     finals = final_entries(run.scene, i, run.views, depths, maps["normal"], maps["cost"], maps["counter"],
-                           maps["confidence"], probe.pixels, run.options.counter, run.gt_depth(i, depths[i].shape))
+                           maps["confidence"], probe.pixels, run.options.counter, run.gt_depth(i, depths[i].shape),
+                           _final_region(run, i, depths, maps["normal"]))
     for p, f in zip(probe.pixels, finals, strict=True):
         probe.set_final(p, f)
     traces = probe.traces()

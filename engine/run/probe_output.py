@@ -47,13 +47,14 @@ def write_traces(out_dir: str | Path, traces: list[dict[str, Any]]) -> list[Path
 
 def counter_verdicts(views: list[PatchMatchView], index: int, depths: list[np.ndarray], normal: np.ndarray,
                      pixels: list[tuple[int, int]], options: CounterOptions | None = None,
-                     ncc_options: PatchMatchOptions | None = None) -> list[dict[str, dict[str, Any]]]:
+                     ncc_options: PatchMatchOptions | None = None, region: np.ndarray | None = None
+                     ) -> list[dict[str, dict[str, Any]]]:
     """Per pixel (x, y) of view ``index``: per source view name, ``verdict`` — "consistent", or the first check
     that failed: "geometric" (forward-backward reprojection error above ``reproj_px``, or no reprojection, or
     the relative depth check), "angle" (triangulation angle), "facing", "photometric" (NCC) — or "none" (no
     estimate) — with ``reprojection_px``, ``angle_deg`` and ``ncc_cost`` where computed. Same checks, order
     and inputs as ``consistency.compute_counter_maps`` (``depths``: every view's final depth, ``normal`` this
-    view's)."""
+    view's). ``region``: :func:`final_region` of the view, if already made."""
     options = (options or CounterOptions()).validate()
     ncc_options = (ncc_options or PatchMatchOptions()).validate()
     v = views[index]
@@ -68,8 +69,8 @@ def counter_verdicts(views: list[PatchMatchView], index: int, depths: list[np.nd
            max(p[1] for p in pixels) + 1) if pixels else (0, 0, 0, 0)
     ctx = build_context(np.asarray(v.image_gray, np.float32), v.camera,
                         [np.asarray(views[j].image_gray, np.float32) for j in src], [views[j].camera for j in src],
-                        ncc_options, [depths[j] for j in src], fine_window_region(depth, normal, v.camera, ncc_options),
-                        box=box)
+                        ncc_options, [depths[j] for j in src],
+                        final_region(depth, normal, v, ncc_options) if region is None else region, box=box)
     cos_tri_max = math.cos(math.radians(options.tri_angle_min_deg))
     max_cost = 1.0 - float(options.ncc_min)
     win, sidx = ncc_work(ctx.ox.shape[1])
@@ -110,19 +111,28 @@ def counter_verdicts(views: list[PatchMatchView], index: int, depths: list[np.nd
     return out
 
 
+def final_region(depth: np.ndarray, normal: np.ndarray, view: PatchMatchView,
+                 ncc_options: PatchMatchOptions | None = None) -> np.ndarray | None:
+    """Where the counter maps' NCC of ``view``'s final maps (depth (H, W), normal (H, W, 3)) may use the fine
+    window (``context.fine_window_region`` of the final map), as :func:`counter_verdicts` reads it."""
+    options = (ncc_options or PatchMatchOptions()).validate()
+    return fine_window_region(np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(normal, np.float32),
+                              view.camera, options)
+
+
 def final_entries(scene: Any, index: int, views: list[PatchMatchView], depths: list[np.ndarray],
                   normal: np.ndarray, cost: np.ndarray | None, counter: np.ndarray | None,
                   confidence: np.ndarray | None, pixels: list[tuple[int, int]],
-                  counter_options: CounterOptions | None = None, gt: np.ndarray | None = None
-                  ) -> list[dict[str, Any]]:
+                  counter_options: CounterOptions | None = None, gt: np.ndarray | None = None,
+                  region: np.ndarray | None = None) -> list[dict[str, Any]]:
     """The ``final`` dict of each probed pixel (x, y) of view ``index``: ``depth``, ``normal``, ``cost`` (the
     written maps), ``counter`` and ``counter_verdicts`` (:func:`counter_verdicts`; the verdict strings, with
     the numbers under ``counter_details``), ``confidence`` (or None), ``gt_depth``, ``label`` (1 inlier, 0
     outlier, -1 unlabelled; Kuhn et al. 2020, §3.2) and ``error`` (relative |z - z_gt| / z_gt), None without
-    GT or without an estimate. ``gt``: the view's GT depth at the maps' size (:func:`view_gt_depth`), if
-    already read."""
+    GT or without an estimate. ``gt``: the view's GT depth at the maps' size (:func:`view_gt_depth`), and
+    ``region`` its :func:`final_region`, if already made."""
     depth = depths[index]
-    verdicts = counter_verdicts(views, index, depths, normal, pixels, counter_options)
+    verdicts = counter_verdicts(views, index, depths, normal, pixels, counter_options, region=region)
     if gt is None:
         gt = view_gt_depth(scene, index, depth.shape)
     labels = None
