@@ -80,7 +80,7 @@ class MeshPanel:
                                          hint="no mesh yet: make one below, or run deepc mesh on the run")
             self.triangle_budget = gui.add_number("Triangle budget (triangles)", initial_value=TRIANGLE_BUDGET,
                                                   min=MIN_TRIANGLE_BUDGET, max=10_000_000, step=1_000,
-                                                  hint="most triangles sent to the browser (quadric decimation); "
+                                                  hint="most triangles sent to the browser (vertex clustering); "
                                                        "default from docs/decisions.md (software WebGL)")
             self.method = gui.add_dropdown("Method", options=("poisson", "tsdf"), initial_value="poisson",
                                            hint="poisson: the current cloud; tsdf: the maps the current filters keep")
