@@ -234,3 +234,15 @@ def test_decimate_keeps_a_mesh_within_its_triangle_budget():
     assert decimate(sphere, len(sphere)) is sphere  # within the budget: the mesh itself
     with pytest.raises(DeepCError):
         decimate(sphere, 0)
+
+
+def test_surface_area_of_a_sphere_and_its_sampled_estimate():
+    import open3d as o3d
+
+    from engine.meshing.decimate import surface_area
+
+    sphere = TriangleMesh.from_open3d(o3d.geometry.TriangleMesh.create_sphere(radius=2.0, resolution=60))
+    whole = surface_area(sphere)
+    assert abs(whole - 4 * np.pi * 4.0) / (4 * np.pi * 4.0) < 0.01  # a fine tessellation of 4πr²
+    assert abs(surface_area(sphere, sample=len(sphere) // 7) - whole) / whole < 0.05
+    assert surface_area(sphere, sample=len(sphere)) == whole  # a sample as large as the mesh is the mesh
