@@ -160,6 +160,7 @@ class ViewerApp(ControlPanel):
         self.inspector = InspectorPanel(self)  # click a point or a pixel: its PatchMatch trace
         if session.has_maps:
             self.request(self.params())
+        self.mesh_panel.preload()
 
     # ---- scene ----------------------------------------------------------------------------------
     def _build_scene(self, home: bool = True) -> None:

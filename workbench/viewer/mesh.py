@@ -105,6 +105,19 @@ class MeshPanel:
             self.show.disabled = False
             self.show.hint = "what the 3D view draws (the mesh is sent when first shown)"
 
+    def preload(self) -> None:
+        """With a run's mesh to show, import what reading and decimating it needs in the background once the
+        viewer is idle (call after the first cloud is requested): open3d takes ~1.7 s to import, which Show
+        would otherwise wait for."""
+        if self._run_mesh is None:
+            return
+
+        def load() -> None:
+            self.app.wait_idle(timeout=120)
+            import open3d  # noqa: F401  (lazy elsewhere: most sessions never show the mesh)
+
+        threading.Thread(target=load, name="deepc-mesh-import", daemon=True).start()
+
     @property
     def handle(self) -> Any:
         """The scene handle of the mesh sent, None before one is."""
