@@ -99,6 +99,8 @@ def test_layouts_name_the_chosen_view_and_say_what_is_missing(recording, tmp_pat
     assert "no GT depth" in docs[f"/missing/{entity_name(1, 'img/1.png')}/error"]
     assert f"/missing/{entity_name(0, 'img/0.png')}/error" not in docs  # view 0 has its error map
     assert "img/1.png (view 1)" in docs["/about"] and "view_iteration" in docs["/about"]
+    # a file replays paused; the latency rerun shows for a served file is not this replay's delay
+    assert "opened paused" in docs["/about"] and "latency" in docs["/about"]
     # the confidence layout: a tab per view (not only the first 4), each with confidence, labels and error
     titles = blueprint_titles(layout_files(recording, "confidence", tmp_path, view="img/0.png")[0])
     for view, short in (("img/0.png (view 0)", "000"), ("img/1.png (view 1)", "001")):

@@ -33,6 +33,10 @@ def about_markdown(contents: Contents, view: str, layout: str, live: bool = Fals
     lines = [f"# {layout} layout · {view_title(view)}", ""]
     if live:
         lines += ["What this run records (the maps arrive as the run goes).", ""]
+    else:
+        lines += ["A recording, opened paused at its start: press play or drag the time line. The *latency* rerun "
+                  "may show at the top counts from when the run logged each message, not a delay of this replay.",
+                  ""]
     if contents.timeline == "view_iteration":
         lines.append("Scrub **view_iteration** to watch one view converge (every view's n-th iteration sits at n); "
                      "**pass** jumps pass by pass over all levels, coarse to fine; **iteration** is the engine's "
