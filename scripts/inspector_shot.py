@@ -4,9 +4,9 @@
 
 RUN_DIR is the output folder of ``deepc run`` on a scene with GT depth (with its pass history). Without
 ``--pixel`` the script picks an estimated pixel more than 5 % off GT within 2 px of a GT depth edge (a depth
-jump of over 10 % between neighbours), nearest the image centre, and prints why it chose it. The other folders
-are closed so that the Inspector fills the (widened) panel; the map plane shows the GT error map in the 3-D view,
-the pixel marked.
+jump of over 10 % between neighbours), nearest the image centre, and prints why it chose it. The panel keeps the
+viewer's default width; the other folders are closed so that the Inspector fills it; the map plane shows the GT
+error map in the 3-D view, the pixel marked. The PNG's colours are quantized to a palette so that it stays small.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 from scipy import ndimage
 
 from support.browser import chromium, dismiss_software_webgl_notice
@@ -23,6 +24,7 @@ from workbench.viewer.app import ViewerApp
 from workbench.viewer.session import ViewerSession
 
 OTHER_FOLDERS = ("Pipeline", "Fusion", "Display", "Metrics", "View")
+COLOURS = 192  # palette entries of the PNG
 
 
 def occlusion_edge_pixel(session: ViewerSession, view: int) -> tuple[int, int]:
@@ -56,7 +58,6 @@ def main() -> None:
     try:
         app.wait_idle(600)
         app.select_view(args.view)
-        app.server.gui.configure_theme(control_width="large")  # the trace plots legible in the shot
         x, y = (int(v) for v in args.pixel.split(",")) if args.pixel else occlusion_edge_pixel(app.session, args.view)
         with chromium(1150, 1750, timeout_ms=120_000) as context:
             page = context.new_page()
@@ -79,9 +80,10 @@ def main() -> None:
             dismiss_software_webgl_notice(page)
             args.out.parent.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(args.out), timeout=120_000)
-            print(f"wrote {args.out}")
     finally:
         app.stop()
+    Image.open(args.out).convert("RGB").quantize(COLOURS).save(args.out, optimize=True)
+    print(f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KiB)")
 
 
 if __name__ == "__main__":
