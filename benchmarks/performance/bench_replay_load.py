@@ -1,7 +1,7 @@
 """What a user of rerun's web viewer waits for (chromium, software WebGL): a replay's last iteration, a live run.
 
     .venv/bin/python benchmarks/performance/bench_replay_load.py [--scene sample_scenes/small] [--rrd FILE]
-        [--only replay|live] [--settle 15] [--out benchmarks/results/bench_replay_load.json]
+        [--only replay|live] [--settle 15] [--live-flush-tick S] [--out benchmarks/results/bench_replay_load.json]
 
 Issue 47's targets: ``deepc replay`` of the demo's recording shows the last iteration's maps within 20 s, and the
 live stream is at most 5 s behind the run. Both are measured in one headless chromium (``support/browser.py``,
@@ -61,7 +61,8 @@ from support.rerun_panels import find_panel, map_problem, panels_match, settled_
 
 # Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?" may be
 # absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
-SCHEMA = {"scene": str, "recording_mb": float, "replay?": dict, "live?": dict, "targets": dict,
+SCHEMA = {"scene": str, "recording_mb": float, "recording_chunks": int, "live_flush_tick_s": float, "replay?": dict,
+          "live?": dict, "targets": dict,
           "load_average_before": list, "load_average_after": list, "load_average_1min": float, "cpus": int}
 
 TARGETS = {"replay_s": 20.0, "live_behind_s": 5.0}  # issue 47
@@ -77,12 +78,14 @@ def summary(result: dict) -> list[dict]:
     rows = []
     replay, live = result.get("replay"), result.get("live")
     if replay:
-        rows.append({"case": "replay", "recording MB": result["recording_mb"], "wait s": replay["total_s"],
+        rows.append({"case": "replay", "recording MB": result["recording_mb"],
+                     "chunks": result["recording_chunks"], "wait s": replay["total_s"],
                      "target s": result["targets"]["replay_s"], "met": replay["total_s"] <= TARGETS["replay_s"],
                      "server s": replay["server_s"], "shots": replay["shots"],
                      "shot interval s": replay["shot_interval_s"], "shows last": replay["final_matches_last"]})
     if live:
-        rows.append({"case": "live (behind run)", "recording MB": result["recording_mb"], "wait s": live["behind_s"],
+        rows.append({"case": f"live (behind run, flush {result['live_flush_tick_s']} s)",
+                     "recording MB": result["recording_mb"], "wait s": live["behind_s"],
                      "target s": result["targets"]["live_behind_s"],
                      "met": live["behind_s"] <= TARGETS["live_behind_s"], "run s": live["run_s"],
                      "shots": live["shots"], "shot interval s": live["shot_interval_s"],
@@ -97,14 +100,16 @@ def run_args(scene: Path, out: Path, rrd: Path) -> list[str]:
     return ["run", str(scene), "--out", str(out), "--record", str(rrd), "--schedule", "acmm"]
 
 
-def child_run(scene: Path, out: Path, rrd: Path, live_url: str | None, times: Path) -> None:
+def child_run(scene: Path, out: Path, rrd: Path, live_url: str | None, times: Path, flush_tick: float) -> None:
     """The demo's run, streamed to ``live_url`` (when given; else recorded only, counter and confidence scored every
-    third iteration as live) and recorded to ``rrd``; writes the wall times of its logged iterations to ``times``."""
+    third iteration as live) and recorded to ``rrd``, the live stream flushed every ``flush_tick`` s; writes the wall
+    times of its logged iterations to ``times``."""
     from engine.run.pipeline import run_pipeline
     from engine.scene import load_scene
     from layouts import DEFAULT, LAYOUTS
     from workbench.cli.main import build_parser
     from workbench.flags.run_options import run_options_from_args
+    from workbench.rerun import recording as recording_module
     from workbench.rerun.options import DEFAULT_CONFIDENCE_EVERY
     from workbench.rerun.run_recording import open_run_recording
 
@@ -113,6 +118,7 @@ def child_run(scene: Path, out: Path, rrd: Path, live_url: str | None, times: Pa
     if live_url is None:
         stream_options = stream_options.replace(confidence_every=DEFAULT_CONFIDENCE_EVERY)
     loaded = load_scene(args.scene, scene_options)
+    recording_module.LIVE_FLUSH_TICK_S = flush_tick
     layout = LAYOUTS[DEFAULT]
     LAYOUTS[DEFAULT] = lambda contents, _view: layout(contents, contents.views[-1])  # the last view's panels
     try:
@@ -256,6 +262,13 @@ def compare_with_maps(panel: np.ndarray | None, last: tuple, first: tuple) -> tu
     return distances["last"] < distances["first"], distances
 
 
+def chunks(rrd: Path) -> int:
+    """How many chunks the recording holds (the web viewer ingests about one a frame)."""
+    from rerun.chunk import RrdReader
+
+    return len(RrdReader(str(rrd)).stream().to_chunks())
+
+
 # ---- the two cases --------------------------------------------------------------------------------------------
 
 @contextlib.contextmanager
@@ -303,7 +316,7 @@ def measure_replay(context, rrd: Path, settle_s: float) -> dict:
         viewer.stop()
 
 
-def measure_live(context, scene: Path, folder: Path, settle_s: float) -> tuple[dict, Path]:
+def measure_live(context, scene: Path, folder: Path, settle_s: float, flush_tick: float) -> tuple[dict, Path]:
     from engine.scene import load_scene
     from layouts import LAYOUTS, MAP_LABELS, view_label
     from workbench.cli.main import build_parser
@@ -331,8 +344,8 @@ def measure_live(context, scene: Path, folder: Path, settle_s: float) -> tuple[d
             page.wait_for_timeout(2000)
             log = (folder / "child.log").open("w")
             child = subprocess.Popen([sys.executable, __file__, "--child", str(scene), str(folder / "out"), str(rrd),
-                                      viewer.grpc_url, str(times)], stdout=log, stderr=subprocess.STDOUT,
-                                     cwd=bench.REPO_ROOT, start_new_session=True,
+                                      viewer.grpc_url, str(times), str(flush_tick)], stdout=log,
+                                     stderr=subprocess.STDOUT, cwd=bench.REPO_ROOT, start_new_session=True,
                                      env={**os.environ, "PYTHONPATH": str(bench.REPO_ROOT)})
             watch = Watch()
             wait_settled(page, watch, blueprint, title, settle_s, time.time() + RUN_TIMEOUT_S,
@@ -363,8 +376,8 @@ def measure_live(context, scene: Path, folder: Path, settle_s: float) -> tuple[d
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":  # the live run, started by measure_live
-        scene, out, rrd, url, times = sys.argv[2:7]
-        child_run(Path(scene), Path(out), Path(rrd), url or None, Path(times))
+        scene, out, rrd, url, times, tick = sys.argv[2:8]
+        child_run(Path(scene), Path(out), Path(rrd), url or None, Path(times), float(tick))
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", type=Path, default=Path("sample_scenes/small"),
@@ -374,20 +387,27 @@ def main() -> None:
     parser.add_argument("--only", choices=("replay", "live"), default=None, help="measure one case only")
     parser.add_argument("--settle", type=float, default=15.0,
                         help="seconds without a change that make a panel's state final (default 15)")
+    parser.add_argument("--live-flush-tick", type=float, default=None,
+                        help="seconds the live stream gathers rows before sending them (default: the recording's "
+                             "LIVE_FLUSH_TICK_S; rerun's own default is 0.2)")
     parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
     args = parser.parse_args()
+    from workbench.rerun.recording import LIVE_FLUSH_TICK_S
+
+    tick = LIVE_FLUSH_TICK_S if args.live_flush_tick is None else args.live_flush_tick
     before = [round(v, 2) for v in os.getloadavg()]
-    record: dict = {"scene": str(args.scene), "targets": dict(TARGETS)}
+    record: dict = {"scene": str(args.scene), "targets": dict(TARGETS), "live_flush_tick_s": tick}
     with tempfile.TemporaryDirectory(prefix="bench-replay-load-") as tmp, \
             chromium(WIDTH, HEIGHT, timeout_ms=PAGE_TIMEOUT_MS) as context:
         rrd = args.rrd
         if args.only != "replay":
-            record["live"], made = measure_live(context, args.scene, Path(tmp), args.settle)
+            record["live"], made = measure_live(context, args.scene, Path(tmp), args.settle, tick)
             rrd = rrd or made
         if rrd is None:  # replay only: the demo's recording, made without a viewer
             rrd = Path(tmp) / "recording.rrd"
-            child_run(args.scene, Path(tmp) / "out", rrd, None, Path(tmp) / "times.json")
+            child_run(args.scene, Path(tmp) / "out", rrd, None, Path(tmp) / "times.json", tick)
         record["recording_mb"] = round(rrd.stat().st_size / 1e6, 3)
+        record["recording_chunks"] = chunks(rrd)
         if args.only != "live":
             record["replay"] = measure_replay(context, rrd, args.settle)
     record.update(load_average_before=before, load_average_after=[round(v, 2) for v in os.getloadavg()],
