@@ -15,8 +15,10 @@ of rerun's 1-px separator lines (light theme) on each side of that point. Then:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -246,3 +248,18 @@ def settled_from(shots: list[np.ndarray | None], **tolerance) -> int:
     while index > 0 and panels_match(shots[index - 1], final, **tolerance):
         index -= 1
     return index
+
+
+@contextlib.contextmanager
+def following(name: str = "iterations") -> Iterator[None]:
+    """While open, the layout ``name`` of ``layouts.LAYOUTS`` has a time panel that follows the newest data, as a live
+    run's does, instead of opening paused at the start as ``deepc replay`` does: for a benchmark or a screenshot of
+    a recording's last iteration (``WebViewer`` writes its layout files when it starts)."""
+    from layouts import LAYOUTS
+
+    layout = LAYOUTS[name]
+    LAYOUTS[name] = lambda contents, view: layout(dataclasses.replace(contents, live=True), view)
+    try:
+        yield
+    finally:
+        LAYOUTS[name] = layout

@@ -57,7 +57,7 @@ from PIL import Image
 
 from support import bench
 from support.browser import chromium, rerun_crashed
-from support.rerun_panels import find_panel, map_problem, panels_match, settled_from
+from support.rerun_panels import find_panel, following, map_problem, panels_match, settled_from
 
 # Top-level keys of this script's result JSON and their types (support/schema.py; a key ending in "?" may be
 # absent); the harness adds its own (script, argv, git, dirty, environment, inputs).
@@ -271,19 +271,6 @@ def chunks(rrd: Path) -> int:
 
 # ---- the two cases --------------------------------------------------------------------------------------------
 
-@contextlib.contextmanager
-def following_replay():
-    """``LAYOUTS["iterations"]`` with a time panel that follows the newest data, as a live layout does."""
-    from layouts import LAYOUTS
-
-    layout = LAYOUTS["iterations"]
-    LAYOUTS["iterations"] = lambda contents, view: layout(dataclasses.replace(contents, live=True), view)
-    try:
-        yield
-    finally:
-        LAYOUTS["iterations"] = layout
-
-
 def measure_replay(context, rrd: Path, settle_s: float) -> dict:
     from layouts import LAYOUTS, MAP_LABELS, view_label
     from workbench.rerun.replay import WebViewer, recording_contents
@@ -294,7 +281,7 @@ def measure_replay(context, rrd: Path, settle_s: float) -> dict:
     blueprint = LAYOUTS["iterations"](dataclasses.replace(contents, live=True), view)
     title = f"{view_label(view)} · {MAP_LABELS['depth']}"
     start = time.time()
-    with following_replay():
+    with following("iterations"):
         viewer = WebViewer(rrd, layout="iterations", view=view)
     try:
         server = time.time()
