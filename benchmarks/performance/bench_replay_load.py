@@ -8,13 +8,14 @@ live stream is at most 5 s behind the run. Both are measured in one headless chr
 SwiftShader WebGL, a 1280×800 page, ``&renderer=webgl``) by screenshots of one panel, the depth of the scene's
 last view (``NNN · depth (m)`` of the ``iterations`` layout, found with ``support/rerun_panels.py``), taken one
 after the other (about every 0.5 s when screenshots are quick, slower when the page is busy). A panel's final
-state is its last screenshot once it has not changed for ``--settle`` seconds (every wait bounded); the time it was
-reached is when the first screenshot from which every later one matches the final state returned
-(``final_at_s``; the one before it, which did not match, returned at ``final_after_s``: the state came between)
-(``support.rerun_panels.settled_from``: at most 0.2 % of its pixels differ by more than 8 levels), so a state shown
-briefly and replaced does not count. The final state must show a depth map (``map_problem``: mostly turbo
-colours, not one flat colour) and is compared with the recording's own last depth map of that view, coloured as
-rerun colours it (``final_matches_last``: nearer to it than to the view's first logged map).
+state is its last screenshot once it has not changed for ``--settle`` seconds (every wait bounded); it was reached
+when the first screenshot from which every later one matches the final state returned (``final_at_s``;
+``support.rerun_panels.settled_from``: at most 0.2 % of its pixels differ by more than 8 levels), so a state shown
+briefly and replaced does not count; the screenshot before it, which did not match, returned at ``final_after_s``:
+the state came between the two (a screenshot waits for the page, up to ~12 s while it ingests data). The final
+state must show a depth map (``map_problem``: mostly turbo colours, not one flat colour) and is compared with the
+recording's own last depth map of that view, coloured as rerun colours it (``final_matches_last``: nearer to it
+than to the view's first logged map).
 
 - ``live``: the demo's run (``scripts/demo.sh``: ``deepc run sample_scenes/small --record FILE --schedule acmm``,
   its options parsed by ``deepc``'s own parser, PatchMatch, fusion and the recording as ``deepc run`` makes them,
@@ -23,7 +24,9 @@ rerun colours it (``final_matches_last``: nearer to it than to the view's first 
   layout does); for this benchmark it shows the last view (its maps are logged last in each pass). The child notes
   the wall time of every logged iteration. ``behind_s``: from the run logging that view's last depth map to the
   page's panel reaching its final state: how far behind the run the page was at the end (the target: ≤ 5 s).
-  ``behind_run_end_s`` counts from the end of the run (fusion included) instead.
+  ``behind_run_end_s`` counts from the end of the run (fusion included) instead. The stream flushes every
+  ``LIVE_FLUSH_TICK_S`` (``workbench/rerun/recording.py``) or ``--live-flush-tick`` seconds; the finished file is
+  compacted as ``deepc run`` compacts it, and ``recording_chunks`` counts its chunks.
 - ``replay``: the recording the live run wrote (the demo's; or ``--rrd``), served as ``deepc replay --web`` serves
   it (``WebViewer``, the same layout files) except that the layout's time panel follows the newest data instead
   of opening paused at the start (replay opens paused by design; a user would press the end of the time line):
@@ -74,18 +77,22 @@ RUN_TIMEOUT_S = 900.0  # the live run, at most
 
 
 def summary(result: dict) -> list[dict]:
-    """The replay's wait for the last iteration and how far the live page was behind the run, against targets."""
+    """The replay's wait for the last iteration and how far the live page was behind the run, against targets; "wait s
+    (from)": the screenshot before showed something else then (the wait lies between the two)."""
     rows = []
     replay, live = result.get("replay"), result.get("live")
     if replay:
         rows.append({"case": "replay", "recording MB": result["recording_mb"],
-                     "chunks": result["recording_chunks"], "wait s": replay["total_s"],
+                     "chunks": result["recording_chunks"],
+                     "wait s (from)": replay.get("final_after_s"), "wait s": replay["total_s"],
                      "target s": result["targets"]["replay_s"], "met": replay["total_s"] <= TARGETS["replay_s"],
                      "server s": replay["server_s"], "shots": replay["shots"],
                      "shot interval s": replay["shot_interval_s"], "shows last": replay["final_matches_last"]})
     if live:
         rows.append({"case": f"live (behind run, flush {result['live_flush_tick_s']} s)",
-                     "recording MB": result["recording_mb"], "wait s": live["behind_s"],
+                     "recording MB": result["recording_mb"],
+                     "wait s (from)": live["final_after_s"] - live["last_depth_logged_s"] if "final_after_s" in live
+                     else None, "wait s": live["behind_s"],
                      "target s": result["targets"]["live_behind_s"],
                      "met": live["behind_s"] <= TARGETS["live_behind_s"], "run s": live["run_s"],
                      "shots": live["shots"], "shot interval s": live["shot_interval_s"],
