@@ -17,8 +17,8 @@ APP_ID = "deepc_workbench"
 #: seconds the SDK gathers rows before it sends them to a live viewer (rerun's default is 0.2 s). It sends a chunk per
 #: entity and flush, and the web viewer ingests about one chunk per frame (~23 chunks/s in software-WebGL chromium on
 #: 2 cores), whatever its size: at 0.2 s the demo's stream is ~2 250 chunks of about one row each; at 2 s, by the
-#: timing of its logged iterations, about half as many. It adds at most this much delay. (bench_replay_load.json and
-#: its _flush0.2 variant: the live page 5.4-6.3 s behind the run at the end with 2 s, 5.5-10.2 s with 0.2 s.)
+#: timing of its logged iterations, about half as many. It adds at most this much delay. The live page's lag at the
+#: run's end varies more from run to run than the tick changes it (docs/decisions.md, bench_replay_load.py).
 LIVE_FLUSH_TICK_S = 2.0
 #: seconds ``rerun rrd optimize`` may take on a finished recording before the file is kept as written
 COMPACT_TIMEOUT_S = 120
@@ -34,7 +34,7 @@ def compact(source: Path, target: Path) -> bool:
     stream logs a chunk per entity and flush, about one row each, and the web viewer's time to load a recording
     follows its chunks, not its bytes. The demo's recording: 2 248 chunks, whose replay showed the last iteration
     only after 99 s in software-WebGL chromium on a loaded machine (a layout of its depth alone); compacted, 295
-    chunks and 29 % fewer bytes, 13-25 s with the whole iterations layout (``bench_replay_load.py``). False (and no
+    chunks and 29 % fewer bytes, 10-25 s with the whole iterations layout (``bench_replay_load.py``). False (and no
     ``target``) when rerun could not."""
     try:
         done = subprocess.run([str(rerun_binary()), "rrd", "optimize", str(source), "-o", str(target)],
