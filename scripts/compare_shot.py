@@ -3,9 +3,11 @@
     .venv/bin/python scripts/compare_shot.py RUN_A RUN_B [--view NAME] [--out docs/compare.png] [--max-points N]
 
 RUN_A and RUN_B are any two runs ``deepc compare`` reads (for the README: our fountain_p11 768 run and the OpenMVS
-peer's densify folder of the same scene). The panel keeps its default width; the view shown is ``--view`` or the
-one where the runs differ most. Prints how long the comparison took to open and to appear in the browser, then
-writes a PNG of the page, colours quantized to a palette so that it stays small.
+peer's densify folder of the same scene). The panel names each run by the path given, so give neutral relative ones
+(the README's: links ``runs/ours`` and ``runs/openmvs`` in a temporary folder, the script run from there). The panel
+keeps its default width; the view shown is ``--view`` or the one where the runs differ most. Prints how long the
+comparison took to open and to appear in the browser, then writes a PNG of the page, colours quantized to a palette
+so that it stays small.
 """
 
 from __future__ import annotations

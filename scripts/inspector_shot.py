@@ -4,9 +4,11 @@
 
 RUN_DIR is the output folder of ``deepc run`` on a scene with GT depth (with its pass history). Without
 ``--pixel`` the script picks an estimated pixel more than 5 % off GT within 2 px of a GT depth edge (a depth
-jump of over 10 % between neighbours), nearest the image centre, and prints why it chose it. The other folders
-are closed so that the Inspector fills the (widened) panel; the map plane shows the GT error map in the 3-D view,
-the pixel marked.
+jump of over 10 % between neighbours), nearest the image centre, and prints why it chose it. The panel keeps the
+viewer's default width; the other folders are closed so that the Inspector fills it; the map plane shows the GT
+error map in the 3-D view, the pixel marked (``--pixel 81,90`` of a ``--pipeline fast --max-image-size 192
+--schedule acmm`` run for the README). The shot ends below the trace's figures; the PNG's colours are quantized to a
+palette so that it stays small.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 from scipy import ndimage
 
 from support.browser import chromium, dismiss_software_webgl_notice
@@ -23,6 +26,8 @@ from workbench.viewer.app import ViewerApp
 from workbench.viewer.session import ViewerSession
 
 OTHER_FOLDERS = ("Pipeline", "Fusion", "Display", "Metrics", "View")
+COLOURS = 128  # palette entries of the PNG
+WIDTH, HEIGHT = 1150, 2250  # tall enough for the whole Inspector folder at the default panel width
 
 
 def occlusion_edge_pixel(session: ViewerSession, view: int) -> tuple[int, int]:
@@ -56,9 +61,8 @@ def main() -> None:
     try:
         app.wait_idle(600)
         app.select_view(args.view)
-        app.server.gui.configure_theme(control_width="large")  # the trace plots legible in the shot
         x, y = (int(v) for v in args.pixel.split(",")) if args.pixel else occlusion_edge_pixel(app.session, args.view)
-        with chromium(1150, 1750, timeout_ms=120_000) as context:
+        with chromium(WIDTH, HEIGHT, timeout_ms=120_000) as context:
             page = context.new_page()
             page.goto(f"http://127.0.0.1:{app.port}/")
             deadline = time.monotonic() + 60
@@ -78,10 +82,15 @@ def main() -> None:
             page.wait_for_timeout(3000)
             dismiss_software_webgl_notice(page)
             args.out.parent.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=str(args.out), timeout=120_000)
-            print(f"wrote {args.out}")
+            # down to the iteration slider below the figures (the candidate table below it would be cut off)
+            slider = page.get_by_text("Iteration", exact=True).last.bounding_box()
+            bottom = min(HEIGHT, int(slider["y"] + slider["height"] + 8)) if slider else HEIGHT
+            page.screenshot(path=str(args.out), timeout=120_000,
+                            clip={"x": 0, "y": 0, "width": WIDTH, "height": bottom})
     finally:
         app.stop()
+    Image.open(args.out).convert("RGB").quantize(COLOURS).save(args.out, optimize=True)
+    print(f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KiB)")
 
 
 if __name__ == "__main__":

@@ -4,19 +4,26 @@
 
 RUN_DIR is the output folder of ``deepc run ... --record`` (it needs recording.rrd for the rerun
 shot). Writes ``viewer.png`` (the viser viewer) and ``rerun.png`` (the recording replayed in the
-rerun web viewer with the PatchMatch-iterations layout of the first view).
+rerun web viewer with the PatchMatch-iterations layout of the first view, at its last iteration).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import time
 from pathlib import Path
 
+import numpy as np
+from PIL import Image
+
 from support.browser import chromium, dismiss_software_webgl_notice, rerun_crashed
+from support.rerun_panels import following, panels_match
 from workbench.rerun.replay import WebViewer
 from workbench.viewer.app import ViewerApp
 from workbench.viewer.session import ViewerSession
+
+COLOURS = 192  # palette entries of the rerun PNG
 
 
 def viewer_shot(run_dir: Path, out: Path) -> None:
@@ -38,17 +45,28 @@ def viewer_shot(run_dir: Path, out: Path) -> None:
         app.stop()
 
 
-def rerun_shot(recording: Path, out: Path) -> None:
-    with WebViewer(recording, layout="iterations") as viewer, chromium(1280, 800, timeout_ms=90_000) as context:
+def rerun_shot(recording: Path, out: Path, settle_s: float = 20.0, timeout_s: float = 300.0) -> None:
+    """The recording in the rerun web viewer with the iterations layout of its first view, its time panel following
+    the newest data (``deepc replay`` opens paused at the start), shot once the page has not changed for
+    ``settle_s`` (at most ``timeout_s``); the PNG's colours quantized to a palette."""
+    with following("iterations"):
+        viewer = WebViewer(recording, layout="iterations")
+    with viewer, chromium(1280, 800, timeout_ms=90_000) as context:
         page = context.new_page()
         page.goto(viewer.url + "&renderer=webgl")
         page.wait_for_selector("canvas", state="attached")
-        # the web viewer (software rendering) takes minutes to load a 50 MB recording; the layout follows the latest
-        # data, so once loaded it shows the final maps, the counter included
-        page.wait_for_timeout(180_000)
+        last, since, deadline = None, time.monotonic(), time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            shot = np.asarray(Image.open(io.BytesIO(page.screenshot(timeout=90_000))).convert("RGB"))
+            if not panels_match(shot, last):
+                last, since = shot, time.monotonic()
+            elif time.monotonic() - since >= settle_s:
+                break
+            page.wait_for_timeout(2000)
         if rerun_crashed(page):
             raise RuntimeError("the rerun web viewer crashed")
         page.screenshot(path=str(out), timeout=90_000)
+    Image.open(out).convert("RGB").quantize(COLOURS).save(out, optimize=True)
 
 
 def main() -> None:

@@ -2,7 +2,8 @@
 
 egui draws the whole viewer into one canvas, so there is no DOM to query: a panel is found from the blueprint the
 viewer was given and the screenshot. The blueprint gives where the panel named ``003 · depth (m)`` lies as fractions of
-the panel area (egui_tiles' shares, a grid of ⌈√n⌉ columns, a tab container showing its active tab); the screenshot
+the panel area (egui_tiles' shares, an automatic grid's columns as egui_tiles chooses them, a tab container showing its
+active tab); the screenshot
 gives the panel area (between the top bar's and the time panel's separator lines) and the exact panel, the nearest
 of rerun's 1-px separator lines (light theme) on each side of that point. Then:
 
@@ -14,8 +15,10 @@ of rerun's 1-px separator lines (light theme) on each side of that point. Then:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -66,35 +69,58 @@ def _is_container(item) -> bool:
     return isinstance(getattr(item, "contents", None), (list, tuple)) and bool(getattr(item, "kind", None))
 
 
-def _place(item, box: Placement, out: dict[str, Placement]) -> None:
-    """Place ``item`` (an rrb container or view) in ``box``; a child not at the box's top loses its tab bars."""
+#: egui_tiles' automatic grid: the tile aspect ratio (width / height) it aims at (``Behavior::ideal_tile_aspect_ratio``)
+IDEAL_TILE_ASPECT = 4 / 3
+
+
+def grid_columns(count: int, aspect: float | None) -> int:
+    """Columns of egui_tiles' automatic grid of ``count`` tiles in a box of ``aspect`` (width / height, pixels): the
+    count whose tiles come nearest to :data:`IDEAL_TILE_ASPECT`, each empty cell costing as much as an aspect off by
+    2 / ``count`` (``num_columns_heuristic``; 8 maps in a wide box take 4 × 2, not 3 × 3); without an aspect,
+    ⌈√count⌉."""
+    if aspect is None:
+        return math.ceil(math.sqrt(count))
+    best, best_loss = 1, math.inf
+    for columns in range(1, count + 1):
+        rows = math.ceil(count / columns)
+        loss = abs(IDEAL_TILE_ASPECT - aspect * rows / columns) * count + 2.0 * (columns * rows - count)
+        if loss < best_loss:
+            best, best_loss = columns, loss
+    return best
+
+
+def _place(item, box: Placement, out: dict[str, Placement], aspect: float | None = None) -> None:
+    """Place ``item`` (an rrb container or view) in ``box``; a child not at the box's top loses its tab bars.
+    ``aspect``: the whole panel area's width / height in pixels (for an automatic grid's columns), if known."""
     if not _is_container(item):
         out[item.name] = box
         return
     contents, kind = item.contents, str(item.kind)
     if "Horizontal" in kind:
         for child, (a, b) in zip(contents, _split(box.x0, box.x1, item.column_shares, len(contents)), strict=True):
-            _place(child, Placement(a, box.y0, b, box.y1, box.tab_bars), out)
+            _place(child, Placement(a, box.y0, b, box.y1, box.tab_bars), out, aspect)
     elif "Vertical" in kind:
         for i, (child, (a, b)) in enumerate(zip(contents, _split(box.y0, box.y1, item.row_shares, len(contents)),
                                                 strict=True)):
-            _place(child, Placement(box.x0, a, box.x1, b, box.tab_bars if i == 0 else 0), out)
+            _place(child, Placement(box.x0, a, box.x1, b, box.tab_bars if i == 0 else 0), out, aspect)
     elif "Grid" in kind:
-        columns = item.grid_columns or math.ceil(math.sqrt(len(contents)))
+        box_aspect = None if aspect is None else aspect * (box.x1 - box.x0) / max(box.y1 - box.y0, 1e-9)
+        columns = item.grid_columns or grid_columns(len(contents), box_aspect)
         rows = math.ceil(len(contents) / columns)
         xs, ys = _split(box.x0, box.x1, None, columns), _split(box.y0, box.y1, None, rows)
         for i, child in enumerate(contents):
             (left, right), (top, bottom) = xs[i % columns], ys[i // columns]
-            _place(child, Placement(left, top, right, bottom, box.tab_bars if i < columns else 0), out)
+            _place(child, Placement(left, top, right, bottom, box.tab_bars if i < columns else 0), out, aspect)
     else:  # tabs: the active one fills the container; a view's tab is its title, a container's is one bar more
         child = contents[item.active_tab or 0]
-        _place(child, dataclasses.replace(box, tab_bars=box.tab_bars + _is_container(child)), out)
+        _place(child, dataclasses.replace(box, tab_bars=box.tab_bars + _is_container(child)), out, aspect)
 
 
-def layout_fractions(blueprint) -> dict[str, Placement]:
-    """The panels an ``rrb.Blueprint`` shows, by title, placed as fractions of the panel area."""
+def layout_fractions(blueprint, aspect: float | None = None) -> dict[str, Placement]:
+    """The panels an ``rrb.Blueprint`` shows, by title, placed as fractions of the panel area (``aspect``: its
+    width / height in pixels, for the columns of an automatic grid: :func:`grid_columns`)."""
     out: dict[str, Placement] = {}
-    _place(blueprint.root_container, Placement(0.0, 0.0, 1.0, 1.0), out)
+    _place(blueprint.root_container, Placement(0.0, 0.0, 1.0, 1.0), out, aspect)
     return out
 
 
@@ -125,9 +151,9 @@ def find_panel(shot: np.ndarray, blueprint, title: str) -> Box:
     """The box of the panel titled ``title``: the nearest separator lines around the point where the blueprint puts
     that panel's centre. Raises AssertionError when the blueprint has no such panel or the box found is not where
     the blueprint puts it (the viewer shows another layout, or none)."""
-    fractions = layout_fractions(blueprint)
-    assert title in fractions, f"no panel {title!r} in the layout (it shows {sorted(fractions)})"
     area = panel_area(shot)
+    fractions = layout_fractions(blueprint, (area.x1 - area.x0) / max(area.y1 - area.y0, 1))
+    assert title in fractions, f"no panel {title!r} in the layout (it shows {sorted(fractions)})"
     place = fractions[title]
     fx0, fy0, fx1, fy1 = place.x0, place.y0, place.x1, place.y1
     width, height = area.x1 - area.x0, area.y1 - area.y0
@@ -199,3 +225,41 @@ def explanation_problem(pixels: np.ndarray, min_lines: int = 2) -> str | None:
     if lines < min_lines or light < 0.7:
         return f"{lines} lines of text on a {light:.0%} light panel (want an explanation of {min_lines}+ lines)"
     return None
+
+
+def panels_match(a: np.ndarray | None, b: np.ndarray | None, level: int = 8, share: float = 0.002) -> bool:
+    """True when two screenshots of a panel (RGB arrays) show the same picture: the same size, and at most ``share``
+    of the pixels differ by more than ``level`` in a channel (egui draws the same state the same way; blending and a
+    blinking cursor aside). None (the panel was not on the page) matches only None."""
+    if a is None or b is None:
+        return a is None and b is None
+    if a.shape != b.shape:
+        return False
+    differs = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1) > level
+    return float(differs.mean()) <= share
+
+
+def settled_from(shots: list[np.ndarray | None], **tolerance) -> int:
+    """The index of the first of ``shots`` (a panel's screenshots in the order taken) from which every later one
+    matches the last (:func:`panels_match`): when the panel reached its final state, as far as these shots tell."""
+    if not shots:
+        raise ValueError("no screenshots")
+    final, index = shots[-1], len(shots) - 1
+    while index > 0 and panels_match(shots[index - 1], final, **tolerance):
+        index -= 1
+    return index
+
+
+@contextlib.contextmanager
+def following(name: str = "iterations") -> Iterator[None]:
+    """While open, the layout ``name`` of ``layouts.LAYOUTS`` has a time panel that follows the newest data, as a live
+    run's does, instead of opening paused at the start as ``deepc replay`` does: for a benchmark or a screenshot of
+    a recording's last iteration (``WebViewer`` writes its layout files when it starts)."""
+    from layouts import LAYOUTS
+
+    layout = LAYOUTS[name]
+    LAYOUTS[name] = lambda contents, view: layout(dataclasses.replace(contents, live=True), view)
+    try:
+        yield
+    finally:
+        LAYOUTS[name] = layout

@@ -13,6 +13,8 @@ from support.rerun_panels import (
     find_panel,
     layout_fractions,
     map_problem,
+    panels_match,
+    settled_from,
     text_lines,
 )
 from workbench.rerun.stream import entity_name
@@ -67,3 +69,22 @@ def test_an_explanation_is_lines_of_dark_text_on_a_light_panel():
     assert "1 lines" in explanation_problem(panel)
     panel[60:150, 20:180] = 0  # a dark picture is not an explanation
     assert explanation_problem(panel) is not None
+
+
+def test_a_panel_settles_at_the_first_shot_from_which_all_later_ones_match_the_last():
+    """bench_replay_load's detector: a state shown briefly and replaced does not count, a blend of a few pixels
+    (a blinking cursor, anti-aliasing) does not break a run of matches, and a panel not yet on the page (None) is no
+    state."""
+    rng = np.random.default_rng(0)
+    states = [rng.integers(0, 256, (40, 60, 3), dtype=np.uint8) for _ in range(3)]
+    final = states[2]
+    flicker = final.copy()
+    flicker[0, :4] ^= 0xFF  # 4 of 2400 pixels: within the tolerance
+    assert panels_match(final, flicker) and not panels_match(final, states[1])
+    assert not panels_match(final, final[:, :-1]) and not panels_match(final, None) and panels_match(None, None)
+    assert settled_from([None, states[0], states[1], final, flicker, final]) == 3
+    # the final state shown once before, then replaced: only the last run of matches counts
+    assert settled_from([None, final, states[1], final, final]) == 3
+    assert settled_from([final]) == 0 and settled_from([None, None]) == 0
+    with pytest.raises(ValueError):
+        settled_from([])

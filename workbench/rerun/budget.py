@@ -15,7 +15,9 @@ from collections.abc import Sequence
 #: compressed bytes per logged map pixel and iteration, all maps of a view together (depth, normal, cost, selected
 #: views, GT error, and counter / confidence / labels every third iteration), and per logged view iteration whatever
 #: its size (image headers, scalars, rerun's rows), fitted on the demo's recording (sample_scenes/small, ACMM
-#: schedule, live confidence: benchmarks/results/bench_recording.json): the estimate is within 1 % of the file
+#: schedule, live confidence: benchmarks/results/bench_recording.json): the estimate is within 1 % of the stream as
+#: logged, which is what a live viewer receives; the finished file is compacted (``workbench.rerun.recording.compact``),
+#: about 29 % smaller, so the budget bounds the file with room to spare
 BYTES_PER_PIXEL_ITERATION, BYTES_PER_VIEW_ITERATION = 5.5, 12_000.0
 #: compressed bytes per fused point logged (xyz float32, rgba) and per photograph pixel (a JPEG), the same way
 BYTES_PER_POINT, BYTES_PER_PHOTO_PIXEL = 15.0, 0.45

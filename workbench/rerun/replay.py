@@ -26,22 +26,17 @@ import time
 import urllib.parse
 from pathlib import Path
 
-import rerun_cli
 from rerun.chunk import RrdReader
 
 from engine.core.errors import DeepCError
 from layouts import LAYOUTS, Contents, compare, view_title
 from workbench.rerun.notes import log_notes
-from workbench.rerun.recording import APP_ID
+from workbench.rerun.recording import APP_ID, rerun_binary
 
 _URL = re.compile(r"(http://[^\s]+\?url=[^\s]+)")
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 # one line of ChunkStore.summary(): "/path rows=N static=B timelines=[...] cols=[...]" (escaped parts keep '\ ')
 _ENTITY = re.compile(r"^(/(?:\\.|\S)+) rows=\d+ static=\w+ timelines=\[([^\]]*)\] cols=\[(.*)\]", re.MULTILINE)
-
-
-def rerun_binary() -> Path:
-    return Path(rerun_cli.__file__).parent / "rerun"
 
 
 @dataclasses.dataclass
