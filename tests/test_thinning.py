@@ -75,3 +75,21 @@ def test_clouds_within_the_budget_are_whole():
     np.testing.assert_array_equal(thinning.select(mask), np.flatnonzero(mask))
     with pytest.raises(ValueError):
         voxel_size_for(xyz, 0)
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.02, 30.0])
+def test_a_start_voxel_is_kept_when_it_fits_and_searched_from_when_not(scale):
+    """A τ change's cloud starts from the previous cloud's voxel: kept as is when its grid fits the budget within
+    [FILL, 1], else the search from it still fits the budget, and the grid is the one of its voxel."""
+    from engine.core.thinning import FILL
+
+    xyz = _surface(20_000)
+    budget = 3_000
+    fitted = voxel_thinning(xyz, budget)
+    subset = xyz[np.random.default_rng(1).random(len(xyz)) < 0.95]  # the next setting's cloud: much the same
+    warm = voxel_thinning(subset, budget, start=fitted.voxel * scale)
+    assert len(warm.select()) <= budget and warm.voxels >= FILL * budget
+    if scale == 1.0 and FILL * budget <= voxel_thinning(subset, budget, voxel=fitted.voxel).voxels <= budget:
+        assert warm.voxel == fitted.voxel  # one sort: the start's grid
+    again = voxel_thinning(subset, budget, voxel=warm.voxel)
+    assert np.array_equal(again.select(), warm.select())

@@ -222,7 +222,10 @@ class ViewerApp(ControlPanel):
             for entry in self._thinnings:
                 if entry[0] is cloud and entry[1] == budget:
                     return entry[2]
-        thinning = voxel_thinning(np.asarray(cloud.xyz), budget)  # (outside the lock: a search over sizes)
+            # the newest cloud's voxel for this budget: a new setting's cloud is much like it, and the search
+            # over sizes (a sort of the cloud per size) is then one sort
+            start = next((t.voxel for _, b, t in reversed(self._thinnings) if b == budget and t.voxel > 0), None)
+        thinning = voxel_thinning(np.asarray(cloud.xyz), budget, start=start)  # (outside the lock)
         with self._thin_lock:
             self._thinnings = [*self._thinnings, (cloud, budget, thinning)][-THIN_CACHE:]
         return thinning
