@@ -79,20 +79,20 @@ def test_clouds_within_the_budget_are_whole():
 
 @pytest.mark.parametrize("scale", [1.0, 0.02, 30.0])
 def test_a_start_voxel_is_kept_when_it_fits_and_searched_from_when_not(scale):
-    """A τ change's cloud starts from the previous cloud's voxel: kept as is when its grid fits the budget within
-    [START_FILL, 1] (the same resolution, one sort), else the search from it fills the budget within [FILL, 1];
-    the grid is the one of its voxel."""
+    """A filtered cloud starts from its unfiltered cloud's voxel: kept when its grid fits the budget (the previews'
+    resolution, one sort), however sparse the filter left it; a start over the budget is searched from, filling
+    the budget within [FILL, 1]; the grid is the one of its voxel."""
     from engine.core.thinning import FILL
 
     xyz = _surface(20_000)
     budget = 3_000
     fitted = voxel_thinning(xyz, budget)
-    subset = xyz[np.random.default_rng(1).random(len(xyz)) < 0.8]  # the next setting's cloud: a stricter filter
+    subset = xyz[np.random.default_rng(1).random(len(xyz)) < 0.6]  # a strict filter's part of the cloud
     warm = voxel_thinning(subset, budget, start=fitted.voxel * scale)
     assert len(warm.select()) <= budget
-    if scale == 1.0:
-        assert warm.voxel == fitted.voxel  # the resolution kept: the start's grid
-    else:  # far too fine (over the budget) or far too coarse (under half of it): searched, the budget filled
+    if scale >= 1.0:
+        assert warm.voxel == fitted.voxel * scale  # fits: the start's grid, as coarse as it is
+    else:  # far too fine: over the budget, searched
         assert warm.voxels >= FILL * budget
     again = voxel_thinning(subset, budget, voxel=warm.voxel)
     assert np.array_equal(again.select(), warm.select())

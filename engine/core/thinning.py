@@ -16,9 +16,6 @@ import numpy as np
 
 MAX_STEPS = 40  # voxel sizes tried at most; the search usually settles in 3-5
 FILL = 0.9  # a voxel size whose occupied voxels are within [FILL, 1] x the budget is taken at once
-# a start voxel (a similar cloud's) is kept while its occupied voxels are within [START_FILL, 1] x the budget:
-# a stricter filter's cloud keeps the resolution of the one before instead of paying a search (a sort per size)
-START_FILL = 0.5
 
 
 def voxel_keys(xyz: np.ndarray, origin: np.ndarray, voxel: float) -> np.ndarray:
@@ -126,13 +123,14 @@ def voxel_thinning(xyz: np.ndarray, max_points: int, voxel: float | None = None,
     """The grid of :func:`voxel_size_for` over ``xyz`` ((N, 3), model units), or of a given ``voxel`` edge,
     sorted for :meth:`VoxelThinning.select`; ``select()`` then returns at most ``max_points`` indices.
 
-    ``start``: a voxel edge likely to fit (a similar cloud's, such as the previous setting's): its grid is built
-    first and kept when its occupied voxels are within [:data:`START_FILL`, 1] x ``max_points``, which spares the
-    search (one sort instead of one per size tried) and keeps the resolution; else the search starts from it."""
+    ``start``: the voxel edge of a cloud this one is part of (the tuning viewer's unfiltered cloud, whose grid its
+    previews show): its grid is built first and kept when it fits the budget, however few voxels a strict filter
+    leaves, so the exact cloud keeps the previews' resolution and costs one sort instead of one per size tried;
+    else the search starts from it."""
     n = len(xyz)
     if voxel is None and n > max_points and start is not None and start > 0.0:
         first = _grid(xyz, start)
-        if START_FILL * max_points <= first.voxels <= max_points:
+        if first.voxels <= max_points:
             return first
         voxel = voxel_size_for(xyz, max_points, start=start * (first.voxels / (0.95 * max_points)) ** 0.5)
     if voxel is None:

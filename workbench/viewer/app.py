@@ -216,15 +216,19 @@ class ViewerApp(ControlPanel):
         control's minimum counts as the minimum: a digit on its way to a larger number must not thin to one)."""
         return max(MIN_POINT_BUDGET, int(self.point_budget.value))
 
-    def _thinning(self, cloud: FusedCloud, budget: int) -> VoxelThinning:
-        """The voxel grid of ``cloud`` for ``budget`` points, cached for the newest THIN_CACHE clouds."""
+    def _thinning(self, cloud: FusedCloud, budget: int, params: ViewParams | None = None) -> VoxelThinning:
+        """The voxel grid of ``cloud`` for ``budget`` points, cached for the newest THIN_CACHE clouds; ``params``:
+        the setting of ``cloud``, whose unfiltered cloud's grid (the previews', if made) it keeps when it fits."""
+        base = None
+        if params is not None:
+            base, own = self.session.nearest_base_cloud(params)  # (never computes)
+            base = base if own else None
         with self._thin_lock:
             for entry in self._thinnings:
                 if entry[0] is cloud and entry[1] == budget:
                     return entry[2]
-            # the newest cloud's voxel for this budget: a new setting's cloud is much like it, and the search
-            # over sizes (a sort of the cloud per size) is then one sort
-            start = next((t.voxel for _, b, t in reversed(self._thinnings) if b == budget and t.voxel > 0), None)
+            start = next((t.voxel for c, b, t in self._thinnings if c is base and b == budget and t.voxel > 0),
+                         None)
         thinning = voxel_thinning(np.asarray(cloud.xyz), budget, start=start)  # (outside the lock)
         with self._thin_lock:
             self._thinnings = [*self._thinnings, (cloud, budget, thinning)][-THIN_CACHE:]
@@ -313,7 +317,8 @@ class ViewerApp(ControlPanel):
         drawn = cloud
         budget = self.budget()
         if not preview and len(cloud) > budget:
-            thinning = self._thinning(cloud, budget)
+            # the previews' grid (the unfiltered cloud's), when it fits: the same resolution, one sort
+            thinning = self._thinning(cloud, budget, params)
             keep, voxel = thinning.select(), thinning.voxel
             drawn = cloud.subset(keep)
             colors = None if colors is None else colors[keep]
