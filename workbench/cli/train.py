@@ -126,14 +126,45 @@ def recipe_run(entry: SceneEntry, cache: Path) -> Path:
                       require_gt=False)
 
 
+def train_scenes(train_entries: list[SceneEntry], validation_entries: list[SceneEntry], options: TrainOptions,
+                 real_share: float, cache: Path, out: Path, checkpoint: Path, refiner: Refiner | None = None,
+                 max_epochs: int | None = None, validation_max_views: int = 0, label: str = "training") -> dict:
+    """Train on recipe scenes as ``deepc train --recipe`` does: each scene's cached engine run (:func:`recipe_run`),
+    ``real_share`` of the crops from real views (uniformly over the views within real and within synthetic ones),
+    one validation set per validation scene, the best weights to ``out``; resumable from ``checkpoint``. Returns
+    the trainer's history with ``validation_sets`` (the views scored per set)."""
+    from engine.training.trainer import ValidationSet, train  # lazy: torch
+
+    t = time.perf_counter()
+    train_samples, real = [], []  # real: one flag per training view
+    for entry in train_entries:
+        views = _load([recipe_run(entry, cache)], refiner)
+        train_samples += views
+        real += [not entry.synthetic] * len(views)
+    real = np.asarray(real)
+    real_views, synthetic_views = int(real.sum()), int((~real).sum())
+    share = real_share if real_views and synthetic_views else float(real_views > 0)
+    weights = np.where(real, share / max(1, real_views), (1 - share) / max(1, synthetic_views))
+    validation = [ValidationSet(entry.name, _subset(_load([recipe_run(entry, cache)], refiner), validation_max_views))
+                  for entry in validation_entries]
+    labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
+    maps = "refined" if refiner else "vanilla"
+    _log(f"{label} ({maps} maps): {len(train_entries)} training scenes ({real_views} real views, "
+         f"{synthetic_views} synthetic; {100 * share:.0f} % of crops from real views), {labelled:,} labelled "
+         f"pixels; validation: {', '.join(v.name for v in validation) or 'none'} ({time.perf_counter() - t:.0f} s)")
+    result = train(train_samples, validation, options, checkpoint, out, progress=_progress_logger(options, checkpoint),
+                   data_names=sorted({s.scene for s in train_samples}), max_epochs=max_epochs,
+                   probabilities=weights, inputs=refiner.description() if refiner else None)
+    result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
+    return result
+
+
 def cmd_train_recipe(args: argparse.Namespace) -> int:
     """``deepc train --recipe FILE``: the recipe's training and validation scenes, options and sampling."""
     if (args.scenes or args.synthetic or args.validation or args.validation_synthetic or args.refined
             or args.refine_weights or args.set or args.init):
         raise DeepCError("deepc train --recipe: the recipe names the scenes and maps; give no SCENE, --synthetic, "
                          "--validation, --refined, --refine-weights, --set or --init")
-    from engine.training.trainer import ValidationSet, train  # lazy: torch
-
     recipe = load_recipe(args.recipe, args.data)
     refiner = None
     if recipe.refined is not None:
@@ -142,28 +173,9 @@ def cmd_train_recipe(args: argparse.Namespace) -> int:
     cache = Path(args.cache)
     out = Path(args.out) if args.out else Path("runs/train") / recipe.name / f"{recipe.name}.pt"
     checkpoint = Path(args.checkpoint) if args.checkpoint else out.with_name(out.stem + ".checkpoint.pt")
-    t = time.perf_counter()
-    train_samples, real = [], []  # real: one flag per training view
-    for entry in recipe.scenes("train"):
-        views = _load([recipe_run(entry, cache)], refiner)
-        train_samples += views
-        real += [not entry.synthetic] * len(views)
-    real = np.asarray(real)
-    real_views, synthetic_views = int(real.sum()), int((~real).sum())
-    share = recipe.real_share if real_views and synthetic_views else float(real_views > 0)
-    weights = np.where(real, share / max(1, real_views), (1 - share) / max(1, synthetic_views))
-    validation = [ValidationSet(entry.name, _subset(_load([recipe_run(entry, cache)], refiner),
-                                                    args.validation_max_views))
-                  for entry in recipe.scenes("validation")]
-    labelled = sum(int((s.labels >= 0).sum()) for s in train_samples)
-    maps = "refined" if refiner else "vanilla"
-    _log(f"recipe {recipe.name} ({maps} maps): {len(recipe.scenes('train'))} training scenes ({real_views} real views, "
-         f"{synthetic_views} synthetic; {100 * share:.0f} % of crops from real views), {labelled:,} labelled "
-         f"pixels; validation: {', '.join(v.name for v in validation) or 'none'} ({time.perf_counter() - t:.0f} s)")
-    result = train(train_samples, validation, options, checkpoint, out, progress=_progress_logger(options, checkpoint),
-                   data_names=sorted({s.scene for s in train_samples}), max_epochs=args.max_epochs,
-                   probabilities=weights, inputs=refiner.description() if refiner else None)
-    result["validation_sets"] = {v.name: [s.view for s in v.samples] for v in validation}
+    result = train_scenes(recipe.scenes("train"), recipe.scenes("validation"), options, recipe.real_share, cache,
+                          out, checkpoint, refiner=refiner, max_epochs=args.max_epochs,
+                          validation_max_views=args.validation_max_views, label=f"recipe {recipe.name}")
     result["recipe"] = {"name": recipe.name, "text": recipe.text}
     write_json(out.with_name(out.stem + ".history.json"), result)
     card = Path(args.model_card) if args.model_card else out.with_name("MODEL_CARD.md")
