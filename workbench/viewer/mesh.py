@@ -114,7 +114,7 @@ class MeshPanel:
 
         def load() -> None:
             self.app.wait_idle(timeout=120)
-            import open3d  # noqa: F401  (lazy elsewhere: most sessions never show the mesh)
+            import open3d  # noqa: F401  # lazy: open3d (most sessions never show the mesh)
 
         threading.Thread(target=load, name="deepc-mesh-import", daemon=True).start()
 
