@@ -71,9 +71,9 @@ class MeshPanel:
         self.label = ""
         self._run_mesh: Path | None = None  # the run's mesh.ply, not read yet
         self._send_lock = threading.Lock()
-        # no image-based lighting: viser's default environment map made the first frame of a mesh take ~8 s
-        # in chromium's software WebGL (its lit-material shader and prefiltered map), against ~0.3 s with the
-        # default lights alone (bench_viewer_budget.py); points and frustums are unlit either way
+        # no image-based lighting: viser's default environment map made a mesh's first frame seconds slower in
+        # chromium's software WebGL (its lit-material shader and prefiltered map; one-off probes, docs/decisions.md);
+        # the default lights still shade it, and points and frustums are unlit either way
         app.server.scene.configure_environment_map(hdri=None)
         with gui.add_folder("Mesh", expand_by_default=False):
             self.show = gui.add_dropdown("Show", options=SHOW, initial_value="cloud", disabled=True,
