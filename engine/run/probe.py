@@ -274,9 +274,9 @@ def _traced_from_states(run: _Run, i: int, probe: PixelProbe) -> bool:
         return False
     trace_from_states(run.views, i, rep.states, rep.iterations, run.load_snapshot, run.options.patchmatch, probe,
                       (rep.images, rep.cameras), rep.regions)
-    stored = read_map(run.run_dir, "depth", run.views[i].name)
+    stored = _stored_maps(run, i)[0][i]  # (zeros without a depth map: no trace ends on them)
     for t in probe.traces():
-        if not t["iterations"] or stored is None or t["iterations"][-1]["after"]["depth"] != float(
+        if not t["iterations"] or t["iterations"][-1]["after"]["depth"] != float(
                 stored[t["y"], t["x"]]):
             _replays.pop(_memory_key(run, i), None)
             return False
