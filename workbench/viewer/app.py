@@ -36,7 +36,7 @@ import viser
 from viser.transforms import SO3
 
 from engine.core.errors import DeepCError
-from engine.core.thinning import VoxelThinning, voxel_thinning
+from engine.core.thinning import VoxelThinning, thin_to_budget, voxel_thinning
 from engine.fusion import FusedCloud
 from engine.scene import Scene
 from workbench.maps.images import subsample
@@ -149,6 +149,7 @@ class ViewerApp(ControlPanel):
         self._last_preview: tuple | None = None  # (params, point count) of the newest preview shown
         self._thin_lock = threading.Lock()
         self._thinnings: list[tuple[FusedCloud, int, VoxelThinning]] = []  # newest last, THIN_CACHE at most
+        self._selections: list[tuple[FusedCloud, int, np.ndarray, float]] = []  # exact clouds' sent points, likewise
         self._sent: tuple | None = None  # (cloud, points sent, voxel) of the cloud drawn now
         # Previews run on their own thread: in viser's callback thread a preview that waits for the previous
         # cloud to leave would hold up the next events themselves.
@@ -216,9 +217,22 @@ class ViewerApp(ControlPanel):
         control's minimum counts as the minimum: a digit on its way to a larger number must not thin to one)."""
         return max(MIN_POINT_BUDGET, int(self.point_budget.value))
 
-    def _thinning(self, cloud: FusedCloud, budget: int, params: ViewParams | None = None) -> VoxelThinning:
-        """The voxel grid of ``cloud`` for ``budget`` points, cached for the newest THIN_CACHE clouds; ``params``:
-        the setting of ``cloud``, whose unfiltered cloud's grid (the previews', if made) it keeps when it fits."""
+    def _thinning(self, cloud: FusedCloud, budget: int) -> VoxelThinning:
+        """The voxel grid of ``cloud`` (a base cloud, which previews mask) for ``budget`` points, cached for the
+        newest THIN_CACHE clouds."""
+        with self._thin_lock:
+            for entry in self._thinnings:
+                if entry[0] is cloud and entry[1] == budget:
+                    return entry[2]
+        thinning = voxel_thinning(np.asarray(cloud.xyz), budget)  # (outside the lock)
+        with self._thin_lock:
+            self._thinnings = [*self._thinnings, (cloud, budget, thinning)][-THIN_CACHE:]
+        return thinning
+
+    def _exact_selection(self, cloud: FusedCloud, budget: int, params: ViewParams | None) -> tuple[np.ndarray, float]:
+        """The points of an exact ``cloud`` sent under ``budget`` and the voxel edge: its base cloud's grid (the
+        previews') when that fits, found in one linear pass, so the exact picture keeps the previews' resolution;
+        the base cloud itself through its cached grid."""
         base = None
         if params is not None:
             base, own = self.session.nearest_base_cloud(params)  # (never computes)
@@ -226,13 +240,19 @@ class ViewerApp(ControlPanel):
         with self._thin_lock:
             for entry in self._thinnings:
                 if entry[0] is cloud and entry[1] == budget:
-                    return entry[2]
+                    return entry[2].select(), entry[2].voxel
+            for entry in self._selections:
+                if entry[0] is cloud and entry[1] == budget:
+                    return entry[2], entry[3]
             start = next((t.voxel for c, b, t in self._thinnings if c is base and b == budget and t.voxel > 0),
                          None)
-        thinning = voxel_thinning(np.asarray(cloud.xyz), budget, start=start)  # (outside the lock)
+        if cloud is base:
+            thinning = self._thinning(cloud, budget)
+            return thinning.select(), thinning.voxel
+        keep, voxel = thin_to_budget(np.asarray(cloud.xyz), budget, start=start)  # (outside the lock)
         with self._thin_lock:
-            self._thinnings = [*self._thinnings, (cloud, budget, thinning)][-THIN_CACHE:]
-        return thinning
+            self._selections = [*self._selections, (cloud, budget, keep, voxel)][-THIN_CACHE:]
+        return keep, voxel
 
     def _base_colors(self, base: FusedCloud) -> np.ndarray:
         """Colours of the whole base cloud, cached: previews only index them (the error colours need a
@@ -317,9 +337,7 @@ class ViewerApp(ControlPanel):
         drawn = cloud
         budget = self.budget()
         if not preview and len(cloud) > budget:
-            # the previews' grid (the unfiltered cloud's), when it fits: the same resolution, one sort
-            thinning = self._thinning(cloud, budget, params)
-            keep, voxel = thinning.select(), thinning.voxel
+            keep, voxel = self._exact_selection(cloud, budget, params)
             drawn = cloud.subset(keep)
             colors = None if colors is None else colors[keep]
         total = len(cloud) if count is None else count
