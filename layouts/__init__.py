@@ -28,12 +28,12 @@ import rerun.blueprint as rrb
 
 # the maps of a view the layouts show, with their panel labels
 # depth carries its unit: rerun's hover prints the depth without one
-MAP_LABELS = {"depth": "depth (m)", "normal": "normal", "cost": "cost", "selected_count": "selected views",
+MAP_LABELS = {"depth": "depth (m)", "normal": "normal", "cost": "cost", "selected_count": "views used",
               "error": "error vs GT", "counter": "counter", "confidence": "confidence", "label": "GT labels",
               "refined_depth": "refined depth (m)"}
-STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "within 1 % of GT",
-                "confidence_auc": "confidence ROC-AUC", "confidence_kept_pct": "confidence >= tau %",
-                "pixel_scale": "full-res px per map px"}
+# (short: a panel title; the legend and "about this recording" say what each one is)
+STATS_LABELS = {"mean_cost": "mean cost", "changed_pct": "changed %", "within_1pct": "in 1 % of GT",
+                "confidence_auc": "conf. AUC", "confidence_kept_pct": "conf ≥ τ %", "pixel_scale": "px scale"}
 PIPELINES = ("vanilla", "fast", "full")
 SCRUB_TIMELINE = "view_iteration"  # one view's iterations (workbench/rerun/stream.py); older recordings: "iteration"
 
@@ -99,14 +99,20 @@ def iterations(contents: Contents, view: str) -> rrb.Blueprint:
     kinds = ("depth", "normal", "cost", "selected_count", "error", "counter")
     if contents.entities is not None and contents.has(f"/maps/{view}/confidence"):
         kinds += ("confidence", "label")
-    rows = [rrb.Grid(*[map_panel(contents, view, kind) for kind in kinds])]
+    # three panels a row: at 1280 px a panel's title bar has room for "003 · " and a label of MAP_LABELS or
+    # STATS_LABELS beside its buttons (four or six a row cut them to "003 · de")
+    rows = [rrb.Grid(*[map_panel(contents, view, kind) for kind in kinds], grid_columns=3)]
     if stats:
-        rows.append(rrb.Horizontal(*stats))
+        rows.append(rrb.Grid(*stats, grid_columns=3))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(*rows, row_shares=[3, 1][:len(rows)]),
-            rrb.Vertical(rrb.Spatial3DView(name="scene", origin="/world"), _text_panels(),
-                         rrb.TextLogView(name="log", origin="/log"), row_shares=[3, 2, 1]),
+            rrb.Vertical(*rows, row_shares=[2, 1][:len(rows)]),
+            rrb.Vertical(rrb.Spatial3DView(name="scene", origin="/world"),
+                         rrb.Tabs(rrb.TextDocumentView(name="legend", origin="/legend", contents="$origin"),
+                                  rrb.TextDocumentView(name="about this recording", origin="/about",
+                                                       contents="$origin"),
+                                  rrb.TextLogView(name="log", origin="/log")),
+                         row_shares=[1, 1]),
             column_shares=[3, 2],
         ),
         *_panels(contents),

@@ -24,12 +24,12 @@ VIEW = entity_name(0, "a.png")
 
 def _page(width: int = 1000, height: int = 700, top: int = 35, bottom: int = 550) -> np.ndarray:
     """A white page with rerun's separators: below the top bar, above the time panel and around each panel of the
-    iterations layout (as egui_tiles draws them: the grid's 3 × 2 cells in the left 3/5, above the stats row)."""
+    iterations layout (as egui_tiles draws them: the maps grid's 3 × 2 cells in the left 3/5, over the top 2/3)."""
     page = np.full((height, width, 3), 255, np.uint8)
     page[[top, bottom]] = SEPARATOR
     for x in (199, 399, 599):
         page[top + 1:bottom, x] = SEPARATOR
-    for y in (228, 421):
+    for y in (207, 378):
         page[y, :599] = SEPARATOR
     return page
 
@@ -37,12 +37,12 @@ def _page(width: int = 1000, height: int = 700, top: int = 35, bottom: int = 550
 def test_a_panel_is_found_where_the_layout_puts_it_and_its_pixels_read():
     blueprint = LAYOUTS["iterations"](Contents([VIEW]), VIEW)
     place = layout_fractions(blueprint)["000 · depth (m)"]
-    assert (place.x0, place.y0, place.x1, place.y1) == pytest.approx((0, 0, 0.2, 0.375))
+    assert (place.x0, place.y0, place.x1, place.y1) == pytest.approx((0, 0, 0.2, 1 / 3))
     page = _page()
     depth = find_panel(page, blueprint, "000 · depth (m)")
     cost = find_panel(page, blueprint, "000 · cost")
-    assert (depth.x0, depth.y0, depth.x1, depth.y1) == (0, 36, 199, 228)
-    assert (cost.x0, cost.y0, cost.x1, cost.y1) == (400, 36, 599, 228)
+    assert (depth.x0, depth.y0, depth.x1, depth.y1) == (0, 36, 199, 207)
+    assert (cost.x0, cost.y0, cost.x1, cost.y1) == (400, 36, 599, 207)
     body = depth.body()
     assert "0% of the panel in turbo" in map_problem(body.pixels(page), "turbo")  # an empty panel
     ramp = (colormaps["turbo"](np.linspace(0, 1, body.x1 - body.x0))[:, :3] * 255).astype(np.uint8)

@@ -125,7 +125,7 @@ LEGENDS: dict[str, str] = {
               "No data: black.",
     "cost": "**cost** — aggregated matching cost of the stored hypothesis, 1 − NCC, unitless, 0 (perfect, dark) to 2 "
             "(no match, bright), colour scale *magma*, in 0.01 classes; hover names the value. No data: black.",
-    "selected_count": "**selected views** — number of source views PatchMatch selected for the pixel, 0 to the view's "
+    "selected_count": "**views used** — number of source views PatchMatch selected for the pixel, 0 to the view's "
                       "number of source views, colour scale *viridis*; hover names the count.",
     "error": "**error vs GT** — relative depth error |z − z_GT| / z_GT in percent, colour scale *inferno* from 0 % "
              "(black-purple) to 50 % or more (yellow), in 0.25 % classes; hover names the class. Logged with the maps "
@@ -149,7 +149,7 @@ LEGENDS: dict[str, str] = {
 #: get to the full-resolution pixels the viser inspector takes.
 HOVER_POSITION = ("**Hover position** — *Position* is a pixel of the map as logged: at pyramid level L it is 2^L "
                   "full-resolution pixels across, and a recording that bounds the map size shrinks it further. "
-                  "Multiply by the view's *full-res px per map px* scalar (stats/<view>/pixel_scale) for the "
+                  "Multiply by the view's *px scale* plot (full-res px per map px, stats/<view>/pixel_scale) for the "
                   "full-resolution pixel the viewer's inspector takes.")
 
 
