@@ -130,7 +130,9 @@ def pipelines(contents: Contents, view: str) -> rrb.Blueprint:
         clouds = [rrb.TextDocumentView(name="fused clouds: not recorded", origin="/missing/fused")]
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(*clouds, _text_panels()),
+            # clouds over meshes, three a row at most (seven panels a row cut their titles at 1280 px)
+            rrb.Horizontal(rrb.Grid(*clouds, grid_columns=min(3, len(clouds))), _text_panels(),
+                           column_shares=[3, 1]),
             rrb.Horizontal(*[map_panel(contents, view, kind) for kind in ("depth", "confidence", "error")]),
             row_shares=[2, 1],
         ),
