@@ -8,7 +8,7 @@ import pytest
 from conftest import SAMPLES, wait_for
 
 from support.probe_traces import make_trace
-from workbench.trace.figures import PANEL_PX, candidate_table_html, summary_markdown, trace_figure, trace_plot
+from workbench.trace.figures import FONT_PT, PANEL_PX, candidate_table_html, summary_markdown, trace_figure, trace_plot
 from workbench.trace.windows import window_corners, window_thumbnails
 
 pytestmark = pytest.mark.timeout(300)
@@ -268,3 +268,20 @@ def test_a_run_without_pass_history_says_so(noisy_run):
         assert "history" in inspector_app.inspector.status.content and inspector_app.inspector.trace is None
     finally:
         inspector_app.stop()
+
+
+def test_pass_labels_of_a_trace_plot_never_overlap():
+    """At the panel's width a 21-entry trace of 3 levels × 3 passes has no room for 'L2 p0' at every pass start:
+    the levels are labelled instead; a long trace labels every pass."""
+    from workbench.trace.figures import fitting_labels
+
+    starts = [(0, "L2 p0"), (2, "L2 p1"), (4, "L2 p2"), (6, "L1 p0"), (9, "L1 p1"), (12, "L1 p2"), (15, "L0 p0"),
+              (18, "L0 p1"), (20, "L0 p2")]
+    font_px = FONT_PT * 100 / 72
+    tight = fitting_labels(starts, 0.75 * PANEL_PX / 21, font_px)
+    assert [name for _, name in tight] == ["L2", "L1", "L0"]
+    roomy = fitting_labels(starts, 40.0, font_px)
+    assert roomy == starts
+    for labels, px in ((tight, 0.75 * PANEL_PX / 21), (roomy, 40.0)):
+        spans = [(start * px, start * px + 0.6 * font_px * len(name)) for start, name in labels]
+        assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:], strict=False))

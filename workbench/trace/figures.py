@@ -72,6 +72,31 @@ def _pass_starts(arrays: dict[str, np.ndarray]) -> list[tuple[int, str]]:
     return out
 
 
+def fitting_labels(starts: list[tuple[int, str]], px_per_entry: float, font_px: float) -> list[tuple[int, str]]:
+    """The pass labels (``(entry, "L<level> p<pass>")`` of :func:`_pass_starts`) that fit side by side at
+    ``px_per_entry`` CSS pixels per entry and ``font_px`` text: all of them when each has room before the next,
+    else the levels' (``L2`` at the first pass shown of each level), those that fit; a label needs about 0.6 em a
+    character and a gap."""
+    def fit(labels: list[tuple[int, str]]) -> list[tuple[int, str]]:
+        kept, free_from = [], -np.inf
+        for start, name in labels:
+            if start * px_per_entry >= free_from:
+                kept.append((start, name))
+                free_from = start * px_per_entry + 0.6 * font_px * len(name) + 4
+        return kept
+
+    every = fit(starts)
+    if len(every) == len(starts):
+        return every
+    levels, seen = [], set()
+    for start, name in starts:
+        level = name.split()[0]
+        if level not in seen:  # a level's first pass shown (a region re-run may start after its p0)
+            seen.add(level)
+            levels.append((start, level))
+    return fit(levels)
+
+
 def trace_figure(trace: dict, entry: int | None = None, title: str = "", size: tuple[int, int] = (PANEL_PX, 500),
                  compare: dict | None = None, pixel_ratio: int = PIXEL_RATIO) -> np.ndarray:
     """(H, W, 3) uint8 picture of :func:`trace_plot` at ``pixel_ratio`` image pixels per CSS pixel of ``size``."""
@@ -119,9 +144,13 @@ def trace_plot(trace: dict, entry: int | None = None, title: str = "", size: tup
             ax.plot(np.arange(len(other)), other, "--", color="#999999", lw=1, label="before re-run")
         ax.plot(x, arrays[key], "-o", ms=2.5, lw=1.2, color="#1f5fa8", label="after each iteration")
         passes = trace_arrays(compare) if compare is not None and len(x) and x[0] > 0 else arrays
-        for start, name in _pass_starts(passes):
+        starts = _pass_starts(passes)
+        for start, _ in starts:
             ax.axvline(start - 0.5, color="#dddddd", lw=0.8)
-            if key == "cost":
+        if key == "cost":
+            # entries per CSS pixel of the axes (about 3/4 of the figure's width)
+            px_per_entry = 0.75 * width / max(1, len(passes["level"]))
+            for start, name in fitting_labels(starts, px_per_entry, small * 100 / 72):
                 ax.text(start, 1.0, name, fontsize=small, color="#777777", transform=ax.get_xaxis_transform(),
                         va="bottom")
         if entry is not None and 0 <= entry < len(x):
