@@ -214,3 +214,26 @@ def test_doc_sources_convention(tmp_path):
                      "line 9: 12.0 not found under the block's sources",
                      "line 14: r.json has no key 'scenes/Teddy'",
                      "line 14: cites a result marked stale without saying so"]
+
+
+def test_a_fresh_result_json_does_not_make_the_next_benchmark_dirty(tmp_path):
+    """A chain of benchmarks writes tracked result JSONs one after the other: those are outputs, not the code
+    measured, so only a change elsewhere marks a revision dirty."""
+    import subprocess
+
+    from workbench.regress.environment import git_revision
+
+    def git(*args: str) -> None:
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True, timeout=30)
+
+    (tmp_path / "benchmarks" / "results").mkdir(parents=True)
+    (tmp_path / "benchmarks" / "results" / "a.json").write_text("{}")
+    (tmp_path / "code.py").write_text("x = 1\n")
+    git("init", "-q")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "start")
+    assert not git_revision(tmp_path).endswith("+dirty")
+    (tmp_path / "benchmarks" / "results" / "a.json").write_text('{"new": 1}')
+    assert not git_revision(tmp_path).endswith("+dirty")
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert git_revision(tmp_path).endswith("+dirty")
