@@ -1,0 +1,288 @@
+"""Temperature scaling of the confidence network on the leave-one-family-out folds, and the default τ by the
+fold-averaged fused F1.
+
+    .venv/bin/python benchmarks/paper/confidence_calibration.py [--folds /work/runs/lofo] [--seeds 0]
+        [--cache runs/train_cache] [--taus 0.05,0.1,0.2,0.3,0.5] [--family hololens ...]
+        [--out benchmarks/results/confidence_calibration.json]
+
+For every fold that benchmarks/paper/confidence_lofo.py trained (``--folds/seed<s>/<family>/weights.pt`` and its
+``history.json``; folds not trained yet are left out and ``complete`` says so), a temperature T is fitted on the
+fold's validation scenes, the ones that picked its checkpoint: the calibrated confidence is c' = σ(logit(c) / T),
+T minimising the binary cross-entropy of c' against the GT inlier labels (Guo et al. 2017, "On Calibration of
+Modern Neural Networks", temperature scaling; a search over log T). On the held-out family it reports the expected
+calibration error (15 equal bins) of c and c', and the fused F1 and accuracy at 2 cm of the maps filtered at each
+calibrated τ (c' ≥ τ, i.e. c ≥ σ(T · logit(τ))) beside vanilla and the uncalibrated filter at the paper's 0.05 and
+the shipped default (``ConfidenceOptions().tau``), fused with the viewer's and scripts' scoring
+(support/confidence_scores.py). The fold-averaged F1 (families weighted equally: each family's mean over its
+scenes, then over seeds) ranks the candidates for the default τ; the ranking is made on held-out families only.
+Per fold the results are kept beside its weights (``calibration.json``) and reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from engine.confidence.apply import predict_samples
+from engine.confidence.data import load_run
+from engine.confidence.options import ConfidenceOptions
+from engine.confidence.weights import load_weights
+from engine.filtering import filter_by_confidence
+from engine.fusion import DEFAULT_PRESET
+from engine.io.atomic import atomic_write_text
+from engine.training.recipe import load_recipe, parse_seeds
+from support import bench
+from support.confidence_scores import fused_row
+from workbench.cli.train import recipe_run
+from workbench.viewer.session import ViewerSession
+
+LOFO = bench.load_script(bench.BENCHMARKS / "paper" / "confidence_lofo.py")
+
+# Top-level keys of this script's result JSON and their types (support/schema.py); the harness adds its own.
+SCHEMA = {"recipe": str, "seeds": list, "taus": list, "uncalibrated": list, "preset": str, "folds": dict,
+          "families": dict, "ranking": list, "complete": bool}
+
+BINS = 15  # equal-width bins of the expected calibration error
+EPS = 1e-6  # confidences are clipped to [EPS, 1 - EPS] before the logit
+
+
+def logit(c: np.ndarray) -> np.ndarray:
+    c = np.clip(np.asarray(c, np.float64), EPS, 1.0 - EPS)
+    return np.log(c) - np.log1p(-c)
+
+
+def nll(z: np.ndarray, labels: np.ndarray, temperature: float) -> float:
+    """Mean binary cross-entropy of σ(z / T) against ``labels`` (1 inlier, 0 outlier)."""
+    s = z / temperature
+    # log σ(s) = -log(1 + e^-s), log(1 - σ(s)) = -log(1 + e^s), both in a stable form
+    return float(np.mean(np.where(labels == 1, np.logaddexp(0.0, -s), np.logaddexp(0.0, s))))
+
+
+def fit_temperature(confidence: np.ndarray, labels: np.ndarray) -> float:
+    """The T > 0 minimising :func:`nll` of ``confidence`` ((N,) in [0, 1]) against ``labels`` ((N,) 0/1): a golden
+    section search over log T in [-3, 3] (T from 0.05 to 20; the NLL is convex in 1/T)."""
+    z = logit(confidence)
+    lo, hi = -3.0, 3.0
+    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    fa, fb = nll(z, labels, np.exp(a)), nll(z, labels, np.exp(b))
+    for _ in range(60):
+        if fa <= fb:
+            hi, b, fb = b, a, fa
+            a = hi - ratio * (hi - lo)
+            fa = nll(z, labels, np.exp(a))
+        else:
+            lo, a, fa = a, b, fb
+            b = lo + ratio * (hi - lo)
+            fb = nll(z, labels, np.exp(b))
+    return float(np.exp((lo + hi) / 2.0))
+
+
+def calibrated(confidence: np.ndarray, temperature: float) -> np.ndarray:
+    """σ(logit(c) / T), float32, the shape of ``confidence``."""
+    return (1.0 / (1.0 + np.exp(-logit(confidence) / temperature))).astype(np.float32)
+
+
+def raw_threshold(tau: float, temperature: float) -> float:
+    """The uncalibrated confidence c with σ(logit(c) / T) = τ: c' ≥ τ exactly where c ≥ it."""
+    return float(1.0 / (1.0 + np.exp(-temperature * logit(np.float64(tau)))))
+
+
+def expected_calibration_error(confidence: np.ndarray, labels: np.ndarray, bins: int = BINS) -> float:
+    """Σ over equal-width confidence bins of (share of pixels) × |inlier rate − mean confidence|, in percent."""
+    edges = np.minimum((np.asarray(confidence, np.float64) * bins).astype(np.int64), bins - 1)
+    total, error = len(labels), 0.0
+    for b in range(bins):
+        inside = edges == b
+        n = int(inside.sum())
+        if n:
+            error += n / total * abs(float(labels[inside].mean()) - float(confidence[inside].mean()))
+    return 100.0 * error
+
+
+def pooled(samples: list, confidence: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(confidence, label) of every labelled pixel of ``samples``, pooled."""
+    return (np.concatenate([c[s.labels >= 0] for s, c in zip(samples, confidence, strict=True)]),
+            np.concatenate([s.labels[s.labels >= 0] for s in samples]).astype(np.int64))
+
+
+def _md5(path: Path) -> str:
+    return hashlib.md5(path.read_bytes()).hexdigest()
+
+
+def calibrate_fold(fold, cache: Path, folder: Path, taus: Sequence[float], uncalibrated: Sequence[float],
+                   preset: str, label: str) -> dict | None:
+    """Fit T on the fold's validation scenes and score its held-out family; None when the fold is not trained."""
+    weights, history_path = folder / "weights.pt", folder / "history.json"
+    if not weights.is_file() or not history_path.is_file():
+        return None
+    history = json.loads(history_path.read_text())
+    if history["identity"]["scenes"] != fold.names():
+        raise SystemExit(f"{label}: {history_path} was trained on other scenes than this fold's")
+    identity = {"weights_md5": _md5(weights), "taus": list(taus), "uncalibrated": list(uncalibrated),
+                "preset": preset}
+    saved_path = folder / "calibration.json"
+    if saved_path.is_file():
+        saved = json.loads(saved_path.read_text())
+        if saved.get("identity") == identity:
+            print(f"{label} reusing {saved_path}", flush=True)
+            return saved["result"]
+    model = load_weights(weights)
+    options = ConfidenceOptions(zero_backfacing=False)  # the pipeline's default rule (confidence_lofo's headline)
+    parts = []
+    for entry in fold.validation:
+        samples = load_run(recipe_run(entry, cache))
+        parts.append(pooled(samples, predict_samples(model, samples, options)))
+    c_val, y_val = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    temperature = fit_temperature(c_val, y_val)
+    result = {"temperature": temperature, "best_epoch": history["best"]["epoch"],
+              "validation": {"scenes": [e.run_name for e in fold.validation], "pixels": int(len(y_val)),
+                             "nll": nll(logit(c_val), y_val, 1.0), "nll_calibrated": nll(logit(c_val), y_val,
+                                                                                         temperature),
+                             "ece": expected_calibration_error(c_val, y_val),
+                             "ece_calibrated": expected_calibration_error(calibrated(c_val, temperature), y_val)},
+              "raw_thresholds": {str(t): raw_threshold(t, temperature) for t in taus}, "scenes": {}}
+    print(f"{label} T = {temperature:.3f} on {', '.join(result['validation']['scenes'])}: ECE "
+          f"{result['validation']['ece']:.2f} -> {result['validation']['ece_calibrated']:.2f} %", flush=True)
+    for entry in fold.test:
+        t = time.perf_counter()
+        run = recipe_run(entry, cache)
+        samples = load_run(run)
+        raw = predict_samples(model, samples, options)
+        c, y = pooled(samples, raw)
+        row = {"ece": expected_calibration_error(c, y), "ece_calibrated":
+               expected_calibration_error(calibrated(c, temperature), y), "inlier_pct": 100.0 * float(y.mean())}
+        session = ViewerSession.open(run)
+        if session.scene.has_gt_points:
+            data = session.data
+            row["vanilla"] = fused_row(session, [d.depth for d in data], [d.normal for d in data], preset)
+            thresholds = {f"calibrated@{t}": raw_threshold(t, temperature) for t in taus}
+            thresholds |= {f"uncalibrated@{t}": float(t) for t in uncalibrated}
+            for name, threshold in thresholds.items():
+                kept = [filter_by_confidence(d.depth, d.normal, conf, threshold)
+                        for d, conf in zip(data, raw, strict=True)]
+                row[name] = fused_row(session, [k[0] for k in kept], [k[1] for k in kept], preset)
+        result["scenes"][entry.run_name] = row
+        f1 = (f", F1@2cm vanilla {row['vanilla']['f1@0.02']:.2f}, "
+              + ", ".join(f"{k} {v['f1@0.02']:.2f}" for k, v in row.items() if k.startswith(("calibrated@",
+                                                                                             "uncalibrated@")))
+              if "vanilla" in row else "")
+        print(f"{label} {entry.run_name}: ECE {row['ece']:.2f} -> {row['ece_calibrated']:.2f} %{f1} "
+              f"({time.perf_counter() - t:.0f} s)", flush=True)
+    atomic_write_text(saved_path, json.dumps({"identity": identity, "result": result}, default=float))
+    return result
+
+
+def _mean(values) -> float | None:
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.mean(values)) if values else None
+
+
+def candidates(taus: Sequence[float], uncalibrated: Sequence[float]) -> list[str]:
+    return [f"calibrated@{t}" for t in taus] + [f"uncalibrated@{t}" for t in uncalibrated]
+
+
+def family_table(folds: dict, names: list[str]) -> dict:
+    """Per family: mean over its scenes, then over the seeds done, of T, the ECE before and after, and the fused
+    F1 / accuracy at 2 cm of vanilla and of each candidate filter (None where the family has no fusion rows)."""
+    table = {}
+    for family, seeds in folds.items():
+        per_seed = []
+        for done in seeds.values():
+            rows = list(done["scenes"].values())
+            m = {"temperature": done["temperature"], "ece": _mean(r["ece"] for r in rows),
+                 "ece_calibrated": _mean(r["ece_calibrated"] for r in rows)}
+            for name in ["vanilla", *names]:
+                m[f"f1 {name}"] = _mean(r[name]["f1@0.02"] for r in rows if name in r)
+                m[f"acc {name}"] = _mean(r[name]["accuracy@0.02"] for r in rows if name in r)
+            per_seed.append(m)
+        if per_seed:
+            table[family] = {"seeds_done": len(per_seed),
+                             "mean": {k: _mean(s[k] for s in per_seed) for k in per_seed[0]}}
+    return table
+
+
+def ranking(families: dict, names: list[str]) -> list[dict]:
+    """The candidates by fold-averaged fused F1 at 2 cm (families with fusion rows weighted equally), best first,
+    with the change against vanilla and the worst family's change."""
+    rows = []
+    for name in names:
+        deltas = {f: e["mean"][f"f1 {name}"] - e["mean"]["f1 vanilla"] for f, e in families.items()
+                  if e["mean"].get(f"f1 {name}") is not None and e["mean"].get("f1 vanilla") is not None}
+        if not deltas:
+            continue
+        worst = min(deltas, key=deltas.get)
+        rows.append({"filter": name, "F1": _mean(families[f]["mean"][f"f1 {name}"] for f in deltas),
+                     "F1 vanilla": _mean(families[f]["mean"]["f1 vanilla"] for f in deltas),
+                     "change": _mean(deltas.values()), "worst family": worst, "worst change": deltas[worst],
+                     "accuracy": _mean(families[f]["mean"][f"acc {name}"] for f in deltas), "families": len(deltas)})
+    return sorted(rows, key=lambda r: -r["F1"])
+
+
+def summary(result: dict) -> list[dict]:
+    """Per held-out family: the fitted temperature, ECE before and after, fused F1 at 2 cm of vanilla, of the
+    uncalibrated filters and of each calibrated τ."""
+    names = candidates(result["taus"], result["uncalibrated"])
+    rows = []
+    for family, entry in result["families"].items():
+        m = entry["mean"]
+        rows.append({"family": family, "seeds": entry["seeds_done"], "T": m["temperature"], "ECE": m["ece"],
+                     "ECE calibrated": m["ece_calibrated"], "F1 vanilla": m["f1 vanilla"],
+                     **{f"F1 {n.replace('calibrated@', 'cal ').replace('uncal ', 'raw ')}": m[f"f1 {n}"]
+                        for n in names}})
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=parse_seeds, default=[0], help="training seeds of the folds, e.g. 0-2")
+    parser.add_argument("--family", action="append", default=None, help="only these held-out families")
+    parser.add_argument("--recipe", type=Path, default=LOFO.RECIPE)
+    parser.add_argument("--folds", type=Path, default=Path("/work/runs/lofo"),
+                        help="the folds confidence_lofo.py trained (outside the repository)")
+    parser.add_argument("--data", type=Path, default=None, help="data root (default: the recipe's)")
+    parser.add_argument("--cache", type=Path, default=Path("runs/train_cache"), help="as deepc train --cache")
+    parser.add_argument("--synthetic", type=parse_seeds, default=parse_seeds("1000-1003"),
+                        help="held-out synthetic seeds of the synthetic family (as confidence_lofo.py)")
+    parser.add_argument("--taus", default="0.05,0.1,0.2,0.3,0.5", help="calibrated thresholds to try")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads")
+    parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
+    args = parser.parse_args()
+
+    import torch  # lazy: torch (only to set its threads)
+
+    torch.set_num_threads(args.threads)
+    recipe = load_recipe(args.recipe, args.data)
+    taus = [float(t) for t in args.taus.split(",") if t]
+    uncalibrated = sorted({0.05, ConfidenceOptions().tau})  # the paper's and the shipped default
+    folds = LOFO.recipe_folds(recipe, args.synthetic)
+    if args.family:
+        folds = {f: fold for f, fold in folds.items() if f in args.family}
+    names = candidates(taus, uncalibrated)
+    done: dict = {f: {} for f in folds}
+    for seed in args.seeds:
+        for family, fold in folds.items():
+            result = calibrate_fold(fold, args.cache, args.folds / f"seed{seed}" / family, taus, uncalibrated,
+                                    DEFAULT_PRESET, f"[{family} seed {seed}]")
+            if result is not None:
+                done[family][str(seed)] = result
+    families = family_table({f: s for f, s in done.items() if s}, names)
+    record = {"recipe": bench.scrub(str(args.recipe)), "seeds": args.seeds, "taus": taus,
+              "uncalibrated": uncalibrated, "preset": DEFAULT_PRESET, "folds": done, "families": families,
+              "ranking": ranking(families, names),
+              "complete": all(len(s) == len(args.seeds) for s in done.values())}
+    bench.print_table(summary(record), title="per held-out family (mean over its scenes, then over seeds)")
+    bench.print_table(record["ranking"], title="default τ candidates by fold-averaged F1 at 2 cm")
+    bench.write_result(record, args.out)
+    print(f"\nwrote {args.out}")
+
+
+if __name__ == "__main__":
+    np.seterr(invalid="ignore")
+    main()
