@@ -26,22 +26,22 @@ def test_the_fitted_temperature_undoes_a_known_scaling_of_the_logits(factor):
     confidence = 1.0 / (1.0 + np.exp(-factor * z))  # over-confident for factor > 1, under- for < 1
     temperature = CAL.fit_temperature(confidence, labels)
     assert temperature == pytest.approx(factor, rel=0.05)
-    fixed = CAL.calibrated(confidence, temperature)
+    fixed = CAL.calibrated(confidence, 1.0 / temperature)
     if factor != 1.0:
         assert CAL.expected_calibration_error(fixed, labels) < 0.5 * CAL.expected_calibration_error(confidence,
                                                                                                      labels)
     assert CAL.expected_calibration_error(fixed, labels) < 1.0  # percent
 
 
-@pytest.mark.parametrize("temperature", [0.4, 1.0, 3.0])
-def test_a_calibrated_tau_keeps_exactly_the_pixels_above_its_raw_threshold(temperature):
+@pytest.mark.parametrize(("temperature", "bias"), [(0.4, 0.0), (1.0, -1.5), (3.0, 0.7)])
+def test_a_calibrated_tau_keeps_exactly_the_pixels_above_its_raw_threshold(temperature, bias):
     confidence = np.linspace(0.0005, 0.9995, 20_001).astype(np.float32)
     for tau in (0.05, 0.1, 0.3):
-        threshold = CAL.raw_threshold(tau, temperature)
+        threshold = CAL.raw_threshold(tau, 1.0 / temperature, bias)
         above = confidence >= threshold
-        kept = CAL.calibrated(confidence, temperature) >= tau
+        kept = CAL.calibrated(confidence, 1.0 / temperature, bias) >= tau
         assert np.count_nonzero(above != kept) <= 2  # float32 rounding at the boundary only
-    assert CAL.raw_threshold(0.5, temperature) == pytest.approx(0.5)
+    assert CAL.raw_threshold(0.5, 1.0 / temperature) == pytest.approx(0.5)
 
 
 def test_ranking_puts_the_best_fold_averaged_f1_first_and_names_the_worst_family():
@@ -53,3 +53,16 @@ def test_ranking_puts_the_best_fold_averaged_f1_first_and_names_the_worst_family
     assert [r["filter"] for r in rows] == ["calibrated@0.1", "uncalibrated@0.05"]
     assert rows[0]["change"] == pytest.approx(0.5) and rows[0]["worst family"] == "a"
     assert rows[1]["worst change"] == pytest.approx(-2.0)
+
+
+def test_platt_scaling_finds_a_shift_that_a_temperature_cannot():
+    """A confidence biased downwards (σ(z - 1.5) where σ(z) is calibrated): Platt's bias recovers the shift and
+    calibrates it; a temperature alone leaves most of the error."""
+    z, labels = _labelled(seed=2)
+    confidence = 1.0 / (1.0 + np.exp(-(z - 1.5)))
+    a, b = CAL.fit_platt(confidence, labels)
+    assert a == pytest.approx(1.0, abs=0.05) and b == pytest.approx(1.5, abs=0.08)
+    platt = CAL.expected_calibration_error(CAL.calibrated(confidence, a, b), labels)
+    temperature = CAL.expected_calibration_error(
+        CAL.calibrated(confidence, 1.0 / CAL.fit_temperature(confidence, labels)), labels)
+    assert platt < 1.0 < temperature

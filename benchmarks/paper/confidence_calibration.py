@@ -1,19 +1,20 @@
-"""Temperature scaling of the confidence network on the leave-one-family-out folds, and the default τ by the
-fold-averaged fused F1.
+"""Calibration of the confidence network on the leave-one-family-out folds, and the default τ by the fold-averaged
+fused F1.
 
     .venv/bin/python benchmarks/paper/confidence_calibration.py [--folds /work/runs/lofo] [--seeds 0]
         [--cache runs/train_cache] [--taus 0.05,0.1,0.2,0.3,0.5] [--family hololens ...]
         [--out benchmarks/results/confidence_calibration.json]
 
 For every fold that benchmarks/paper/confidence_lofo.py trained (``--folds/seed<s>/<family>/weights.pt`` and its
-``history.json``; folds not trained yet are left out and ``complete`` says so), a temperature T is fitted on the
-fold's validation scenes, the ones that picked its checkpoint: the calibrated confidence is c' = σ(logit(c) / T),
-T minimising the binary cross-entropy of c' against the GT inlier labels (Guo et al. 2017, "On Calibration of
-Modern Neural Networks", temperature scaling; a search over log T). On the held-out family it reports the expected
-calibration error (15 equal bins) of c and c', and the fused F1 and accuracy at 2 cm of the maps filtered at each
-calibrated τ (c' ≥ τ, i.e. c ≥ σ(T · logit(τ))) beside vanilla and the uncalibrated filter at the paper's 0.05 and
-the shipped default (``ConfidenceOptions().tau``), fused with the viewer's and scripts' scoring
-(support/confidence_scores.py). The fold-averaged F1 (families weighted equally: each family's mean over its
+``history.json``; folds not trained yet are left out and ``complete`` says so), the network's output is calibrated on
+the fold's validation scenes, the ones that picked its checkpoint, minimising the binary cross-entropy against the GT
+inlier labels: by a temperature, c' = σ(logit(c) / T) (Guo et al. 2017, "On Calibration of Modern Neural
+Networks"), reported, and by Platt scaling, c' = σ(a · logit(c) + b) (Platt 1999), whose bias can move where the
+thresholds fall when a temperature alone cannot, used for the calibrated τ. On the held-out family it reports the
+expected calibration error (15 equal bins) of c and of both c', and the fused F1 and accuracy at 2 cm of the maps
+filtered at each calibrated τ (c' ≥ τ, i.e. c at least the raw threshold τ maps to) beside vanilla and the
+uncalibrated filter at the paper's 0.05 and the shipped default (``ConfidenceOptions().tau``), scored as
+support/confidence_scores.py scores them. The fold-averaged F1 (families weighted equally: each family's mean over its
 scenes, then over seeds) ranks the candidates for the default τ; the ranking is made on held-out families only.
 Per fold the results are kept beside its weights (``calibration.json``) and reused.
 """
@@ -84,14 +85,34 @@ def fit_temperature(confidence: np.ndarray, labels: np.ndarray) -> float:
     return float(np.exp((lo + hi) / 2.0))
 
 
-def calibrated(confidence: np.ndarray, temperature: float) -> np.ndarray:
-    """σ(logit(c) / T), float32, the shape of ``confidence``."""
-    return (1.0 / (1.0 + np.exp(-logit(confidence) / temperature))).astype(np.float32)
+def fit_platt(confidence: np.ndarray, labels: np.ndarray, steps: int = 50) -> tuple[float, float]:
+    """(a, b) of Platt scaling, c' = σ(a · logit(c) + b), minimising the binary cross-entropy against ``labels``:
+    Newton's method on the two parameters (a logistic regression on the logit; Platt 1999). Temperature scaling
+    is the case b = 0, a = 1 / T."""
+    z = logit(confidence)
+    y = np.asarray(labels, np.float64)
+    a, b = 1.0, 0.0
+    for _ in range(steps):
+        p = 1.0 / (1.0 + np.exp(-(a * z + b)))
+        r, w = p - y, np.maximum(p * (1.0 - p), 1e-12)
+        grad = np.array([np.mean(r * z), np.mean(r)])
+        hess = np.array([[np.mean(w * z * z), np.mean(w * z)], [np.mean(w * z), np.mean(w)]])
+        step = np.linalg.solve(hess + 1e-9 * np.eye(2), grad)
+        a, b = a - step[0], b - step[1]
+        if np.abs(step).max() < 1e-8:
+            break
+    return float(a), float(b)
 
 
-def raw_threshold(tau: float, temperature: float) -> float:
-    """The uncalibrated confidence c with σ(logit(c) / T) = τ: c' ≥ τ exactly where c ≥ it."""
-    return float(1.0 / (1.0 + np.exp(-temperature * logit(np.float64(tau)))))
+def calibrated(confidence: np.ndarray, scale: float, bias: float = 0.0) -> np.ndarray:
+    """σ(scale · logit(c) + bias), float32, the shape of ``confidence`` (temperature T: ``scale`` 1 / T)."""
+    return (1.0 / (1.0 + np.exp(-(scale * logit(confidence) + bias)))).astype(np.float32)
+
+
+def raw_threshold(tau: float, scale: float, bias: float = 0.0) -> float:
+    """The uncalibrated confidence c with σ(scale · logit(c) + bias) = τ: the calibrated c' ≥ τ exactly where c ≥
+    it (``scale`` > 0)."""
+    return float(1.0 / (1.0 + np.exp(-(logit(np.float64(tau)) - bias) / scale)))
 
 
 def expected_calibration_error(confidence: np.ndarray, labels: np.ndarray, bins: int = BINS) -> float:
@@ -141,15 +162,21 @@ def calibrate_fold(fold, cache: Path, folder: Path, taus: Sequence[float], uncal
         parts.append(pooled(samples, predict_samples(model, samples, options)))
     c_val, y_val = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     temperature = fit_temperature(c_val, y_val)
-    result = {"temperature": temperature, "best_epoch": history["best"]["epoch"],
+    scale, bias = fit_platt(c_val, y_val)
+    z_val = logit(c_val)
+    result = {"temperature": temperature, "platt": [scale, bias], "best_epoch": history["best"]["epoch"],
               "validation": {"scenes": [e.run_name for e in fold.validation], "pixels": int(len(y_val)),
-                             "nll": nll(logit(c_val), y_val, 1.0), "nll_calibrated": nll(logit(c_val), y_val,
-                                                                                         temperature),
+                             "nll": nll(z_val, y_val, 1.0), "nll_temperature": nll(z_val, y_val, temperature),
+                             "nll_platt": nll(scale * z_val + bias, y_val, 1.0),
                              "ece": expected_calibration_error(c_val, y_val),
-                             "ece_calibrated": expected_calibration_error(calibrated(c_val, temperature), y_val)},
-              "raw_thresholds": {str(t): raw_threshold(t, temperature) for t in taus}, "scenes": {}}
-    print(f"{label} T = {temperature:.3f} on {', '.join(result['validation']['scenes'])}: ECE "
-          f"{result['validation']['ece']:.2f} -> {result['validation']['ece_calibrated']:.2f} %", flush=True)
+                             "ece_temperature": expected_calibration_error(calibrated(c_val, 1.0 / temperature),
+                                                                           y_val),
+                             "ece_calibrated": expected_calibration_error(calibrated(c_val, scale, bias), y_val)},
+              "raw_thresholds": {str(t): raw_threshold(t, scale, bias) for t in taus}, "scenes": {}}
+    v = result["validation"]
+    print(f"{label} on {', '.join(v['scenes'])}: T = {temperature:.3f} (ECE {v['ece']:.2f} -> "
+          f"{v['ece_temperature']:.2f} %), Platt a = {scale:.3f}, b = {bias:.3f} (ECE -> {v['ece_calibrated']:.2f} %)",
+          flush=True)
     for entry in fold.test:
         t = time.perf_counter()
         run = recipe_run(entry, cache)
@@ -157,12 +184,14 @@ def calibrate_fold(fold, cache: Path, folder: Path, taus: Sequence[float], uncal
         raw = predict_samples(model, samples, options)
         c, y = pooled(samples, raw)
         row = {"ece": expected_calibration_error(c, y), "ece_calibrated":
-               expected_calibration_error(calibrated(c, temperature), y), "inlier_pct": 100.0 * float(y.mean())}
+               expected_calibration_error(calibrated(c, scale, bias), y),
+               "ece_temperature": expected_calibration_error(calibrated(c, 1.0 / temperature), y),
+               "inlier_pct": 100.0 * float(y.mean())}
         session = ViewerSession.open(run)
         if session.scene.has_gt_points:
             data = session.data
             row["vanilla"] = fused_row(session, [d.depth for d in data], [d.normal for d in data], preset)
-            thresholds = {f"calibrated@{t}": raw_threshold(t, temperature) for t in taus}
+            thresholds = {f"calibrated@{t}": raw_threshold(t, scale, bias) for t in taus}
             thresholds |= {f"uncalibrated@{t}": float(t) for t in uncalibrated}
             for name, threshold in thresholds.items():
                 kept = [filter_by_confidence(d.depth, d.normal, conf, threshold)
@@ -196,7 +225,8 @@ def family_table(folds: dict, names: list[str]) -> dict:
         per_seed = []
         for done in seeds.values():
             rows = list(done["scenes"].values())
-            m = {"temperature": done["temperature"], "ece": _mean(r["ece"] for r in rows),
+            m = {"temperature": done["temperature"], "platt_a": done["platt"][0], "platt_b": done["platt"][1],
+                 "ece": _mean(r["ece"] for r in rows), "ece_temperature": _mean(r["ece_temperature"] for r in rows),
                  "ece_calibrated": _mean(r["ece_calibrated"] for r in rows)}
             for name in ["vanilla", *names]:
                 m[f"f1 {name}"] = _mean(r[name]["f1@0.02"] for r in rows if name in r)
@@ -226,14 +256,15 @@ def ranking(families: dict, names: list[str]) -> list[dict]:
 
 
 def summary(result: dict) -> list[dict]:
-    """Per held-out family: the fitted temperature, ECE before and after, fused F1 at 2 cm of vanilla, of the
-    uncalibrated filters and of each calibrated τ."""
+    """Per held-out family: the fitted temperature and Platt parameters, ECE before and after each, fused F1 at
+    2 cm of vanilla, of the uncalibrated filters and of each calibrated τ."""
     names = candidates(result["taus"], result["uncalibrated"])
     rows = []
     for family, entry in result["families"].items():
         m = entry["mean"]
-        rows.append({"family": family, "seeds": entry["seeds_done"], "T": m["temperature"], "ECE": m["ece"],
-                     "ECE calibrated": m["ece_calibrated"], "F1 vanilla": m["f1 vanilla"],
+        rows.append({"family": family, "seeds": entry["seeds_done"], "T": m["temperature"], "a": m["platt_a"],
+                     "b": m["platt_b"], "ECE": m["ece"], "ECE T": m["ece_temperature"],
+                     "ECE Platt": m["ece_calibrated"], "F1 vanilla": m["f1 vanilla"],
                      **{f"F1 {n.replace('calibrated@', 'cal ').replace('uncal ', 'raw ')}": m[f"f1 {n}"]
                         for n in names}})
     return rows
