@@ -29,19 +29,22 @@ def voxel_keys(xyz: np.ndarray, origin: np.ndarray, voxel: float) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class VoxelThinning:
-    """A voxel grid over a point set, sorted so that any mask of it thins in linear time (:meth:`select`).
+    """A voxel grid over a point set, numbered so that any mask of it thins in one linear pass (:meth:`select`).
 
     Attributes:
         voxel: voxel edge in model units; 0 when the points fit the budget (nothing is thinned).
         order: (N,) int64 point indices, stably sorted by voxel key (within a voxel: ascending index).
         ids: (N,) int64 voxel number (0, 1, ...) at each position of ``order``, non-decreasing.
         count: points of the whole set (N).
+        voxel_of: (N,) int32 voxel number of each point, in the points' order (``ids`` scattered back by
+            ``order``); None when nothing is thinned.
     """
 
     voxel: float
     order: np.ndarray
     ids: np.ndarray
     count: int
+    voxel_of: np.ndarray | None = None
 
     @property
     def voxels(self) -> int:
@@ -49,18 +52,33 @@ class VoxelThinning:
         return int(self.ids[-1]) + 1 if self.count else 0
 
     def select(self, mask: np.ndarray | None = None) -> np.ndarray:
-        """(M,) int64 indices, one per voxel that holds a point of ``mask`` ((N,) bool; None: every point):
-        the lowest-indexed such point, in voxel order. Without thinning (``voxel`` 0) the masked indices.
+        """(M,) int64 indices, ascending, one per voxel that holds a point of ``mask`` ((N,) bool; None: every
+        point): the lowest-indexed such point. Without thinning (``voxel`` 0) the masked indices.
 
-        Index the points' colours and attributes with the result: they stay with their points."""
+        Index the points' colours and attributes with the result: they stay with their points. One pass over
+        the points in their order (the tuning viewer's previews: 15-18 ms of a random gather through ``order``
+        on a 3.7 M point cloud became a sequential scan)."""
         if self.voxel == 0:
             return np.arange(self.count, dtype=np.int64) if mask is None else np.flatnonzero(mask)
-        kept = slice(None) if mask is None else mask[self.order]
-        voxel_id = self.ids[kept]  # the voxel of every (masked) point, in voxel order
-        first = np.empty(len(voxel_id), bool)
-        first[:1] = True
-        np.not_equal(voxel_id[1:], voxel_id[:-1], out=first[1:])
-        return self.order[kept][first]
+        if mask is None:
+            mask = np.ones(self.count, np.bool_)
+        return _first_masked(np.ascontiguousarray(mask, np.bool_), self.voxel_of, self.voxels)
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_masked(mask: np.ndarray, voxel_of: np.ndarray, voxels: int) -> np.ndarray:
+    """:meth:`VoxelThinning.select`'s pass: the first masked point of each voxel, in the points' order."""
+    seen = np.zeros(voxels, np.bool_)
+    out = np.empty(voxels, np.int64)
+    m = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            v = voxel_of[i]
+            if not seen[v]:
+                seen[v] = True
+                out[m] = i
+                m += 1
+    return out[:m]
 
 
 def _occupied(xyz: np.ndarray, origin: np.ndarray, voxel: float) -> int:
@@ -116,7 +134,9 @@ def _grid(xyz: np.ndarray, voxel: float) -> VoxelThinning:
     sorted_keys = keys[order]
     ids = np.zeros(n, np.int64)
     np.cumsum(sorted_keys[1:] != sorted_keys[:-1], out=ids[1:])
-    return VoxelThinning(float(voxel), order, ids, n)
+    voxel_of = np.empty(n, np.int32)
+    voxel_of[order] = ids
+    return VoxelThinning(float(voxel), order, ids, n, voxel_of)
 
 
 def voxel_thinning(xyz: np.ndarray, max_points: int, voxel: float | None = None,
@@ -211,4 +231,4 @@ def thin_to_budget(xyz: np.ndarray, max_points: int, start: float | None = None)
         if keep is not None:
             return keep, float(start)
     thinning = voxel_thinning(xyz, max_points, start=start)
-    return np.sort(thinning.select()), thinning.voxel
+    return thinning.select(), thinning.voxel
