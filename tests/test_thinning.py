@@ -80,22 +80,23 @@ def test_clouds_within_the_budget_are_whole():
 @pytest.mark.parametrize("scale", [1.0, 0.02, 30.0])
 def test_a_start_voxel_is_kept_when_it_fits_and_searched_from_when_not(scale):
     """A filtered cloud starts from its unfiltered cloud's voxel: kept when its grid fits the budget (the previews'
-    resolution, one sort), however sparse the filter left it; a start over the budget is searched from, filling
-    the budget within [FILL, 1]; the grid is the one of its voxel."""
-    from engine.core.thinning import FILL
+    resolution), however sparse the filter left it; a start over the budget is searched from, filling the budget
+    within [FILL, 1]; the points are the grid's of that voxel, ascending."""
+    from engine.core.thinning import FILL, thin_to_budget
 
     xyz = _surface(20_000)
     budget = 3_000
     fitted = voxel_thinning(xyz, budget)
     subset = xyz[np.random.default_rng(1).random(len(xyz)) < 0.6]  # a strict filter's part of the cloud
-    warm = voxel_thinning(subset, budget, start=fitted.voxel * scale)
-    assert len(warm.select()) <= budget
+    keep, voxel = thin_to_budget(subset, budget, start=fitted.voxel * scale)
+    assert len(keep) <= budget and np.all(np.diff(keep) > 0)
     if scale >= 1.0:
-        assert warm.voxel == fitted.voxel * scale  # fits: the start's grid, as coarse as it is
+        assert voxel == fitted.voxel * scale  # fits: the start's grid, as coarse as it is
     else:  # far too fine: over the budget, searched
-        assert warm.voxels >= FILL * budget
-    again = voxel_thinning(subset, budget, voxel=warm.voxel)
-    assert np.array_equal(again.select(), warm.select())
+        assert len(keep) >= FILL * budget
+    np.testing.assert_array_equal(keep, voxel_thinning(subset, budget, voxel=voxel).select())
+    keep, voxel = thin_to_budget(subset[:100], budget, start=fitted.voxel)
+    assert voxel == 0.0 and len(keep) == 100
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
@@ -106,24 +107,8 @@ def test_first_per_voxel_is_the_sorted_grids_choice_in_one_pass(dtype):
 
     xyz = _surface(30_000, seed=5).astype(dtype)
     grid = voxel_thinning(xyz, 2_500)
-    reference = np.sort(grid.select())
+    reference = grid.select()
     np.testing.assert_array_equal(first_per_voxel(xyz, grid.voxel, 2_500), reference)
     np.testing.assert_array_equal(first_per_voxel(xyz, grid.voxel, len(reference)), reference)
     assert first_per_voxel(xyz, grid.voxel, len(reference) - 1) is None
     assert len(first_per_voxel(xyz[:0], grid.voxel, 10)) == 0
-
-
-def test_thin_to_budget_keeps_a_start_grid_that_fits_and_searches_one_that_does_not():
-    from engine.core.thinning import FILL, thin_to_budget
-
-    xyz = _surface(20_000)
-    budget = 3_000
-    fitted = voxel_thinning(xyz, budget)
-    subset = xyz[np.random.default_rng(1).random(len(xyz)) < 0.6]
-    keep, voxel = thin_to_budget(subset, budget, start=fitted.voxel)
-    assert voxel == fitted.voxel
-    np.testing.assert_array_equal(keep, np.sort(voxel_thinning(subset, budget, voxel=voxel).select()))
-    keep, voxel = thin_to_budget(subset, budget, start=fitted.voxel * 0.02)  # far too fine: searched
-    assert FILL * budget <= len(keep) <= budget and np.all(np.diff(keep) > 0)
-    keep, voxel = thin_to_budget(subset[:100], budget, start=fitted.voxel)
-    assert voxel == 0.0 and len(keep) == 100

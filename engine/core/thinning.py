@@ -33,31 +33,24 @@ class VoxelThinning:
 
     Attributes:
         voxel: voxel edge in model units; 0 when the points fit the budget (nothing is thinned).
-        order: (N,) int64 point indices, stably sorted by voxel key (within a voxel: ascending index).
-        ids: (N,) int64 voxel number (0, 1, ...) at each position of ``order``, non-decreasing.
         count: points of the whole set (N).
-        voxel_of: (N,) int32 voxel number of each point, in the points' order (``ids`` scattered back by
-            ``order``); None when nothing is thinned.
+        voxels: occupied voxels of the whole set (what :meth:`select` returns without a mask).
+        voxel_of: (N,) int32 voxel number (0 .. voxels - 1, by ascending :func:`voxel_keys` key) of each point, in
+            the points' order; None when nothing is thinned.
     """
 
     voxel: float
-    order: np.ndarray
-    ids: np.ndarray
     count: int
+    voxels: int
     voxel_of: np.ndarray | None = None
-
-    @property
-    def voxels(self) -> int:
-        """Occupied voxels of the whole set (what :meth:`select` returns without a mask)."""
-        return int(self.ids[-1]) + 1 if self.count else 0
 
     def select(self, mask: np.ndarray | None = None) -> np.ndarray:
         """(M,) int64 indices, ascending, one per voxel that holds a point of ``mask`` ((N,) bool; None: every
         point): the lowest-indexed such point. Without thinning (``voxel`` 0) the masked indices.
 
-        Index the points' colours and attributes with the result: they stay with their points. One pass over
-        the points in their order (the tuning viewer's previews: 15-18 ms of a random gather through ``order``
-        on a 3.7 M point cloud became a sequential scan)."""
+        Index the points' colours and attributes with the result: they stay with their points. One sequential
+        pass over the points, not a gather through a voxel-sorted order: a preview's whole cost on a cloud of
+        millions of points."""
         if self.voxel == 0:
             return np.arange(self.count, dtype=np.int64) if mask is None else np.flatnonzero(mask)
         if mask is None:
@@ -127,38 +120,17 @@ def voxel_size_for(xyz: np.ndarray, max_points: int, start: float | None = None)
     return float(best)
 
 
-def _grid(xyz: np.ndarray, voxel: float) -> VoxelThinning:
+def voxel_thinning(xyz: np.ndarray, max_points: int, voxel: float | None = None) -> VoxelThinning:
+    """The grid of :func:`voxel_size_for` over ``xyz`` ((N, 3), model units), or of a given ``voxel`` edge, numbered
+    for :meth:`VoxelThinning.select`; ``select()`` then returns at most ``max_points`` indices."""
     n = len(xyz)
-    keys = voxel_keys(xyz, np.asarray(xyz, np.float64).min(axis=0), voxel)
-    order = np.argsort(keys, kind="stable").astype(np.int64)
-    sorted_keys = keys[order]
-    ids = np.zeros(n, np.int64)
-    np.cumsum(sorted_keys[1:] != sorted_keys[:-1], out=ids[1:])
-    voxel_of = np.empty(n, np.int32)
-    voxel_of[order] = ids
-    return VoxelThinning(float(voxel), order, ids, n, voxel_of)
-
-
-def voxel_thinning(xyz: np.ndarray, max_points: int, voxel: float | None = None,
-                   start: float | None = None) -> VoxelThinning:
-    """The grid of :func:`voxel_size_for` over ``xyz`` ((N, 3), model units), or of a given ``voxel`` edge,
-    sorted for :meth:`VoxelThinning.select`; ``select()`` then returns at most ``max_points`` indices.
-
-    ``start``: the voxel edge of a cloud this one is part of (the tuning viewer's unfiltered cloud, whose grid its
-    previews show): its grid is built first and kept when it fits the budget, however few voxels a strict filter
-    leaves, so the exact cloud keeps the previews' resolution and costs one sort instead of one per size tried;
-    else the search starts from it."""
-    n = len(xyz)
-    if voxel is None and n > max_points and start is not None and start > 0.0:
-        first = _grid(xyz, start)
-        if first.voxels <= max_points:
-            return first
-        voxel = voxel_size_for(xyz, max_points, start=start * (first.voxels / (0.95 * max_points)) ** 0.5)
     if voxel is None:
         voxel = voxel_size_for(xyz, max_points)
     if voxel == 0.0:
-        return VoxelThinning(0.0, np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64), n)
-    return _grid(xyz, voxel)
+        return VoxelThinning(0.0, n, n)
+    keys = voxel_keys(xyz, np.asarray(xyz, np.float64).min(axis=0), voxel)
+    unique, voxel_of = np.unique(keys, return_inverse=True)
+    return VoxelThinning(float(voxel), n, len(unique), voxel_of.astype(np.int32))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -206,9 +178,9 @@ def _first_per_voxel(xyz: np.ndarray, voxel: float, limit: int) -> np.ndarray:
 
 def first_per_voxel(xyz: np.ndarray, voxel: float, max_points: int) -> np.ndarray | None:
     """(M,) int64 indices, ascending, of the lowest-indexed point of ``xyz`` ((N, 3), model units) in each voxel of
-    edge ``voxel`` on :func:`voxel_keys`' grid (from the points' minimum corner): the set
-    ``voxel_thinning(xyz, ..., voxel=voxel).select()`` holds, in one linear pass instead of a sort; None when more
-    than ``max_points`` voxels are occupied."""
+    edge ``voxel`` on :func:`voxel_keys`' grid (from the points' minimum corner): what
+    ``voxel_thinning(xyz, ..., voxel=voxel).select()`` returns, in one linear pass instead of a sort; None when
+    more than ``max_points`` voxels are occupied."""
     if voxel <= 0.0 or max_points < 1:
         raise ValueError(f"first_per_voxel needs a voxel edge > 0 and a budget >= 1, not {voxel} and {max_points}")
     if len(xyz) == 0:
@@ -219,10 +191,11 @@ def first_per_voxel(xyz: np.ndarray, voxel: float, max_points: int) -> np.ndarra
 
 def thin_to_budget(xyz: np.ndarray, max_points: int, start: float | None = None) -> tuple[np.ndarray, float]:
     """Indices of at most ``max_points`` points of ``xyz`` ((N, 3)), ascending, one per occupied voxel, and the
-    voxel edge (model units; 0: all N points, they fit).
+    voxel edge (model units; 0: all N points, they fit). One pass (:func:`first_per_voxel`) once the edge is known.
 
-    ``start``: as :func:`voxel_thinning`'s; its grid is kept when it fits, and then found in one linear pass
-    (:func:`first_per_voxel`) rather than sorted: what a one-off thinning of a cloud whose grid is known costs."""
+    ``start``: the voxel edge of a cloud this one is part of (the tuning viewer's unfiltered cloud, whose grid its
+    previews show): kept when its grid fits the budget, however few voxels a strict filter leaves, so the exact
+    cloud keeps the previews' resolution; else the size search starts from it."""
     n = len(xyz)
     if n <= max_points:
         return np.arange(n, dtype=np.int64), 0.0
@@ -230,5 +203,5 @@ def thin_to_budget(xyz: np.ndarray, max_points: int, start: float | None = None)
         keep = first_per_voxel(xyz, start, max_points)
         if keep is not None:
             return keep, float(start)
-    thinning = voxel_thinning(xyz, max_points, start=start)
-    return thinning.select(), thinning.voxel
+    voxel = voxel_size_for(xyz, max_points, start=start)
+    return first_per_voxel(xyz, voxel, max_points), voxel

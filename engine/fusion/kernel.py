@@ -428,9 +428,9 @@ def cloud_of(chunks: list[tuple]) -> FusedCloud:
     """The cloud of the kernel's output chunks in order, each (output arrays, points in them); an attribute's chunks
     are released as soon as that attribute is joined (peak: the cloud and one attribute's chunks).
 
-    One chunk is shrunk to its points in place (``ndarray.resize``: a realloc, no copy), as :func:`fuse` makes it
-    room for every valid pixel: a copy of a per-pixel cloud of 768 px maps took 0.2-0.4 s of fresh pages, a third
-    of the viewer's recomputation; the chunk's arrays must be this call's alone."""
+    One chunk is shrunk to its points in place (``ndarray.resize``: a realloc, no copy): :func:`fuse` makes it room
+    for every valid pixel, and copying a cloud of millions of points into fresh pages costs the tuning viewer a
+    noticeable share of each recomputation. The chunk's arrays must be this call's alone."""
     if len(chunks) == 1 and all(a.flags.owndata and a.flags.c_contiguous for a in chunks[0][0]):
         out, n = chunks.pop()
         for a in out:

@@ -2,9 +2,10 @@
 
 What the viewer sends to the browser (``workbench/viewer/mesh.py``): Poisson's 1.27 M triangles of sample small
 are 31.6 MB and took about 60 s to show in chromium's software WebGL. Vertex clustering merges every vertex of a
-grid cell into their mean and drops the triangles that collapse: one linear pass (about 0.5 s for small's mesh
-against 14 s for quadric error decimation to the same 200 000 triangles), so a mesh shows within seconds of being
-asked for. Its surface is the cell size coarser than the mesh; scores are taken on the whole mesh.
+grid cell into their mean and drops the triangles that collapse: one linear pass where quadric error decimation
+takes seconds per hundred thousand triangles (docs/decisions.md, bench_viewer_budget_quadric.json), so a mesh
+shows within seconds of being asked for. Its surface is the cell size coarser than the mesh; scores are taken on
+the whole mesh.
 """
 
 from __future__ import annotations

@@ -58,7 +58,7 @@ THUMBNAIL = 160  # longest side of the images sent with the frustums
 # "Viewer: at most 200 000 points and 200 000 triangles to the browser").
 POINT_BUDGET = 200_000
 MIN_POINT_BUDGET = 1_000  # the control's minimum
-THIN_CACHE = 4  # voxel grids kept (the base clouds previews mask and the exact cloud shown)
+THIN_CACHE = 4  # voxel grids of base clouds (which previews mask) kept, and as many exact clouds' sent points
 DELIVERY_WAIT_S = 1.0  # longest a preview waits for the previous cloud to leave for every client
 EXACT_QUIET_S = 0.15  # the exact recomputation starts once the controls have been still this long...
 EXACT_MAX_DELAY_S = 3.0  # ...or when its request has waited this long (a user who never lets go)
@@ -230,25 +230,20 @@ class ViewerApp(ControlPanel):
         return thinning
 
     def _exact_selection(self, cloud: FusedCloud, budget: int, params: ViewParams | None) -> tuple[np.ndarray, float]:
-        """The points of an exact ``cloud`` sent under ``budget`` and the voxel edge: its base cloud's grid (the
-        previews') when that fits, found in one linear pass, so the exact picture keeps the previews' resolution;
-        the base cloud itself through its cached grid."""
-        base = None
-        if params is not None:
-            base, own = self.session.nearest_base_cloud(params)  # (never computes)
-            base = base if own else None
+        """The points of an exact ``cloud`` sent under ``budget`` and the voxel edge: on its base cloud's grid (the
+        previews') when that fits, so the exact picture keeps the previews' resolution; the base cloud itself
+        through its cached grid."""
+        base = self.session.nearest_base_cloud(params) if params is not None else (None, False)
+        base = base[0] if base[1] else None  # (never computes)
+        if cloud is base:
+            thinning = self._thinning(cloud, budget)
+            return thinning.select(), thinning.voxel
         with self._thin_lock:
-            for entry in self._thinnings:
-                if entry[0] is cloud and entry[1] == budget:
-                    return entry[2].select(), entry[2].voxel
             for entry in self._selections:
                 if entry[0] is cloud and entry[1] == budget:
                     return entry[2], entry[3]
             start = next((t.voxel for c, b, t in self._thinnings if c is base and b == budget and t.voxel > 0),
                          None)
-        if cloud is base:
-            thinning = self._thinning(cloud, budget)
-            return thinning.select(), thinning.voxel
         keep, voxel = thin_to_budget(np.asarray(cloud.xyz), budget, start=start)  # (outside the lock)
         with self._thin_lock:
             self._selections = [*self._selections, (cloud, budget, keep, voxel)][-THIN_CACHE:]
