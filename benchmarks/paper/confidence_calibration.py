@@ -37,13 +37,13 @@ from engine.confidence.weights import load_weights
 from engine.filtering import filter_by_confidence
 from engine.fusion import DEFAULT_PRESET
 from engine.io.atomic import atomic_write_text
-from engine.training.recipe import load_recipe, parse_seeds
 from support import bench
 from support.confidence_scores import fused_row
 from workbench.cli.train import recipe_run
 from workbench.viewer.session import ViewerSession
 
 LOFO = bench.load_script(bench.BENCHMARKS / "paper" / "confidence_lofo.py")
+finite_mean = LOFO.finite_mean
 
 # Top-level keys of this script's result JSON and their types (support/schema.py); the harness adds its own.
 SCHEMA = {"recipe": str, "seeds": list, "taus": list, "uncalibrated": list, "preset": str, "folds": dict,
@@ -208,11 +208,6 @@ def calibrate_fold(fold, cache: Path, folder: Path, taus: Sequence[float], uncal
     return result
 
 
-def _mean(values) -> float | None:
-    values = [v for v in values if v is not None and np.isfinite(v)]
-    return float(np.mean(values)) if values else None
-
-
 def candidates(taus: Sequence[float], uncalibrated: Sequence[float]) -> list[str]:
     return [f"calibrated@{t}" for t in taus] + [f"uncalibrated@{t}" for t in uncalibrated]
 
@@ -226,15 +221,14 @@ def family_table(folds: dict, names: list[str]) -> dict:
         for done in seeds.values():
             rows = list(done["scenes"].values())
             m = {"temperature": done["temperature"], "platt_a": done["platt"][0], "platt_b": done["platt"][1],
-                 "ece": _mean(r["ece"] for r in rows), "ece_temperature": _mean(r["ece_temperature"] for r in rows),
-                 "ece_calibrated": _mean(r["ece_calibrated"] for r in rows)}
+                 **{key: finite_mean(r[key] for r in rows) for key in ("ece", "ece_temperature", "ece_calibrated")}}
             for name in ["vanilla", *names]:
-                m[f"f1 {name}"] = _mean(r[name]["f1@0.02"] for r in rows if name in r)
-                m[f"acc {name}"] = _mean(r[name]["accuracy@0.02"] for r in rows if name in r)
+                m[f"f1 {name}"] = finite_mean(r[name]["f1@0.02"] for r in rows if name in r)
+                m[f"acc {name}"] = finite_mean(r[name]["accuracy@0.02"] for r in rows if name in r)
             per_seed.append(m)
         if per_seed:
             table[family] = {"seeds_done": len(per_seed),
-                             "mean": {k: _mean(s[k] for s in per_seed) for k in per_seed[0]}}
+                             "mean": {k: finite_mean(s[k] for s in per_seed) for k in per_seed[0]}}
     return table
 
 
@@ -248,10 +242,11 @@ def ranking(families: dict, names: list[str]) -> list[dict]:
         if not deltas:
             continue
         worst = min(deltas, key=deltas.get)
-        rows.append({"filter": name, "F1": _mean(families[f]["mean"][f"f1 {name}"] for f in deltas),
-                     "F1 vanilla": _mean(families[f]["mean"]["f1 vanilla"] for f in deltas),
-                     "change": _mean(deltas.values()), "worst family": worst, "worst change": deltas[worst],
-                     "accuracy": _mean(families[f]["mean"][f"acc {name}"] for f in deltas), "families": len(deltas)})
+        rows.append({"filter": name, "F1": finite_mean(families[f]["mean"][f"f1 {name}"] for f in deltas),
+                     "F1 vanilla": finite_mean(families[f]["mean"]["f1 vanilla"] for f in deltas),
+                     "change": finite_mean(deltas.values()), "worst family": worst, "worst change": deltas[worst],
+                     "accuracy": finite_mean(families[f]["mean"][f"acc {name}"] for f in deltas),
+                     "families": len(deltas)})
     return sorted(rows, key=lambda r: -r["F1"])
 
 
@@ -272,29 +267,13 @@ def summary(result: dict) -> list[dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=parse_seeds, default=[0], help="training seeds of the folds, e.g. 0-2")
-    parser.add_argument("--family", action="append", default=None, help="only these held-out families")
-    parser.add_argument("--recipe", type=Path, default=LOFO.RECIPE)
-    parser.add_argument("--folds", type=Path, default=Path("/work/runs/lofo"),
-                        help="the folds confidence_lofo.py trained (outside the repository)")
-    parser.add_argument("--data", type=Path, default=None, help="data root (default: the recipe's)")
-    parser.add_argument("--cache", type=Path, default=Path("runs/train_cache"), help="as deepc train --cache")
-    parser.add_argument("--synthetic", type=parse_seeds, default=parse_seeds("1000-1003"),
-                        help="held-out synthetic seeds of the synthetic family (as confidence_lofo.py)")
+    LOFO.add_fold_arguments(parser, "the folds confidence_lofo.py trained (outside the repository)")
     parser.add_argument("--taus", default="0.05,0.1,0.2,0.3,0.5", help="calibrated thresholds to try")
-    parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
     args = parser.parse_args()
-
-    import torch  # lazy: torch (only to set its threads)
-
-    torch.set_num_threads(args.threads)
-    recipe = load_recipe(args.recipe, args.data)
+    recipe, folds = LOFO.chosen_folds(parser, args)
     taus = [float(t) for t in args.taus.split(",") if t]
     uncalibrated = sorted({0.05, ConfidenceOptions().tau})  # the paper's and the shipped default
-    folds = LOFO.recipe_folds(recipe, args.synthetic)
-    if args.family:
-        folds = {f: fold for f, fold in folds.items() if f in args.family}
     names = candidates(taus, uncalibrated)
     done: dict = {f: {} for f in folds}
     for seed in args.seeds:

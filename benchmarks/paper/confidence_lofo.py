@@ -199,7 +199,7 @@ def scene_metrics(row: dict, taus: Sequence[float]) -> dict:
     return out
 
 
-def _mean(values: list) -> float | None:
+def finite_mean(values) -> float | None:
     values = [v for v in values if v is not None and np.isfinite(v)]
     return float(np.mean(values)) if values else None
 
@@ -213,11 +213,11 @@ def family_table(folds: dict, taus: Sequence[float]) -> dict:
         per_seed = {}
         for seed, done in fold["seeds"].items():
             rows = [scene_metrics(r, taus) for r in done["scenes"].values()]
-            per_seed[seed] = {k: _mean([r[k] for r in rows]) for k in rows[0]} if rows else {}
+            per_seed[seed] = {k: finite_mean([r[k] for r in rows]) for k in rows[0]} if rows else {}
         if not per_seed:
             continue
         keys = next(iter(per_seed.values())).keys()
-        mean = {k: _mean([s[k] for s in per_seed.values()]) for k in keys}
+        mean = {k: finite_mean([s[k] for s in per_seed.values()]) for k in keys}
         entry = {"scenes": len(fold["test"]), "seeds_done": sorted(per_seed, key=int), "per_seed": per_seed,
                  "mean": mean}
         if len(per_seed) > 1:
@@ -268,34 +268,44 @@ def scene_rows(result: dict) -> list[dict]:
     return rows
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_fold_arguments(parser: argparse.ArgumentParser, folds_help: str) -> None:
+    """The options that name the folds and where their runs and trainings live (this script's and
+    confidence_calibration.py's)."""
     parser.add_argument("--seeds", type=parse_seeds, default=[0], help="training seeds, e.g. 0-2")
     parser.add_argument("--family", action="append", default=None, help="only these held-out families")
     parser.add_argument("--recipe", type=Path, default=RECIPE)
-    parser.add_argument("--folds", type=Path, default=Path("/work/runs/lofo"),
-                        help="weights, history and scores of each fold (outside the repository; reused)")
+    parser.add_argument("--folds", type=Path, default=Path("/work/runs/lofo"), help=folds_help)
     parser.add_argument("--data", type=Path, default=None, help="data root (default: the recipe's)")
     parser.add_argument("--cache", type=Path, default=Path("runs/train_cache"), help="as deepc train --cache")
     parser.add_argument("--synthetic", type=parse_seeds, default=parse_seeds("1000-1003"),
                         help="held-out synthetic seeds of the synthetic family")
-    parser.add_argument("--taus", default="0.05,0.1")
-    parser.add_argument("--preset", choices=sorted(FUSION_PRESETS), default=DEFAULT_PRESET)
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
-    parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
-    args = parser.parse_args()
 
-    import torch
+
+def chosen_folds(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple:
+    """(recipe, folds by family) that :func:`add_fold_arguments`' options name; torch set to ``--threads``."""
+    import torch  # lazy: torch (only to set its threads)
 
     torch.set_num_threads(args.threads)
     recipe = load_recipe(args.recipe, args.data)
-    taus = [float(t) for t in args.taus.split(",") if t]
     folds = recipe_folds(recipe, args.synthetic)
     if args.family:
         unknown = set(args.family) - set(folds)
         if unknown:
             parser.error(f"unknown famil(ies) {', '.join(sorted(unknown))} (known: {', '.join(folds)})")
         folds = {f: fold for f, fold in folds.items() if f in args.family}
+    return recipe, folds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_fold_arguments(parser, "weights, history and scores of each fold (outside the repository; reused)")
+    parser.add_argument("--taus", default="0.05,0.1")
+    parser.add_argument("--preset", choices=sorted(FUSION_PRESETS), default=DEFAULT_PRESET)
+    parser.add_argument("--out", type=Path, default=bench.results_path(__file__))
+    args = parser.parse_args()
+    recipe, folds = chosen_folds(parser, args)
+    taus = [float(t) for t in args.taus.split(",") if t]
     table = {"recipe": bench.scrub(str(args.recipe)),
              "options": {k: v for k, v in recipe.options.to_dict().items() if k not in ("seed", "device")},
              "seeds": args.seeds, "taus": taus, "headline": headline_key(taus[0]).split("@")[0],
